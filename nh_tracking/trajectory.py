@@ -1,0 +1,47 @@
+"""Timed trajectories on D: what ``simulate`` returns and what a reference is."""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+
+@dataclass(frozen=True)
+class Trajectory:
+    """Samples (t, q, v) of a curve on D, with the controls u held on each interval.
+
+    ``t`` (N+1,) strictly increasing, ``q`` (N+1, n), ``v`` (N+1, k), ``u`` (N, k). Angles are
+    kept continuous (unwrapped) along the curve so that interpolation is meaningful.
+    """
+
+    t: np.ndarray
+    q: np.ndarray
+    v: np.ndarray
+    u: np.ndarray
+
+    def __post_init__(self) -> None:
+        t = np.asarray(self.t, dtype=float).reshape(-1)
+        q = np.atleast_2d(np.asarray(self.q, dtype=float))
+        v = np.atleast_2d(np.asarray(self.v, dtype=float))
+        u = np.asarray(self.u, dtype=float).reshape(max(len(t) - 1, 0), v.shape[1])
+        if len(t) < 2 or np.any(np.diff(t) <= 0):
+            raise ValueError("trajectory times must be strictly increasing, at least two")
+        if q.shape[0] != len(t) or v.shape[0] != len(t):
+            raise ValueError(f"q {q.shape} and v {v.shape} must have {len(t)} rows like t")
+        for name, arr in (("t", t), ("q", q), ("v", v), ("u", u)):
+            if not np.all(np.isfinite(arr)):
+                raise ValueError(f"trajectory {name} has non-finite values")
+        for name, arr in (("t", t), ("q", q), ("v", v), ("u", u)):
+            arr.flags.writeable = False
+            object.__setattr__(self, name, arr)
+
+    @property
+    def duration(self) -> float:
+        return float(self.t[-1] - self.t[0])
+
+    def sample(self, times: np.ndarray | float) -> tuple[np.ndarray, np.ndarray]:
+        """(q, v) at ``times`` by linear interpolation, held constant outside [t0, tN]."""
+        times = np.atleast_1d(np.asarray(times, dtype=float))
+        q = np.stack([np.interp(times, self.t, col) for col in self.q.T], axis=1)
+        v = np.stack([np.interp(times, self.t, col) for col in self.v.T], axis=1)
+        return q, v

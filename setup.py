@@ -1,0 +1,26 @@
+"""ament_python package setup: installs the library, the ament index marker and the executables."""
+from setuptools import find_packages, setup
+
+package_name = 'nh_tracking'
+
+setup(
+    name=package_name,
+    version='0.1.0',
+    packages=find_packages(exclude=['test']),
+    data_files=[
+        ('share/ament_index/resource_index/packages', ['resource/' + package_name]),
+        ('share/' + package_name, ['package.xml']),
+    ],
+    install_requires=['setuptools'],
+    zip_safe=True,
+    maintainer='nh_tracking maintainers',
+    maintainer_email='maintainers@nh-tracking.invalid',
+    description='Optimal trajectory tracking for nonholonomic mechanical systems (ROS 2).',
+    license='Apache-2.0',
+    python_requires='>=3.10',
+    entry_points={
+        'console_scripts': [
+            'nh-tracking = nh_tracking.cli:main',
+        ],
+    },
+)

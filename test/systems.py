@@ -1,0 +1,101 @@
+"""Test systems that no issue names, and the independent Lagrange–d'Alembert reference."""
+from __future__ import annotations
+
+import casadi as ca
+import numpy as np
+
+import nh_tracking as nht
+
+
+def inclined_knife_edge(m: float = 1.3, J: float = 0.4, alpha: float = 0.35,
+                        g: float = 9.81) -> nht.NonholonomicSystem:
+    """Knife edge on an inclined plane (Bloch §1.6), q = (x, y, phi), x pointing downhill.
+
+    Built from its Lagrangian data alone: no basis given, so from_constraints chooses one.
+    """
+    return nht.NonholonomicSystem.from_constraints(
+        ["x", "y", "phi"],
+        metric=lambda q: ca.diag(ca.vertcat(m, m, J)),
+        constraints=lambda q: ca.horzcat(ca.sin(q[2]), -ca.cos(q[2]), 0),
+        potential=lambda q: -m * g * ca.sin(alpha) * q[0],
+        angles=["phi"], name="inclined_knife_edge",
+    )
+
+
+def coupled_system() -> nht.NonholonomicSystem:
+    """A made-up system with a configuration-dependent, non-diagonal metric, two constraints
+    that depend on q, and a potential: nothing in it is special, so nothing can cancel by luck."""
+
+    def metric(q: ca.SX) -> ca.SX:
+        a = ca.blockcat([
+            [1 + 0.3 * ca.sin(q[1]), 0.2 * q[2], 0, 0.1],
+            [0, 1.2, 0.3 * ca.cos(q[0]), 0],
+            [0.1 * q[3], 0, 0.9, 0.2 * ca.sin(q[2])],
+            [0, 0.1, 0, 1.1 + 0.2 * ca.cos(q[3])],
+        ])
+        return a.T @ a + 0.5 * ca.SX.eye(4)
+
+    def constraints(q: ca.SX) -> ca.SX:
+        return ca.vertcat(
+            ca.horzcat(1, 0, q[1], ca.sin(q[3])),
+            ca.horzcat(0, ca.cos(q[2]), 1, 0.5 * q[0]),
+        )
+
+    return nht.NonholonomicSystem.from_constraints(
+        ["a", "b", "c", "d"], metric, constraints,
+        potential=lambda q: 0.5 * q[0] ** 2 + ca.cos(q[1]) + 0.3 * q[2] * q[3],
+        name="coupled",
+    )
+
+
+def lagrange_dalembert_acceleration(system: nht.NonholonomicSystem, q: np.ndarray,
+                                    qdot: np.ndarray, force: np.ndarray) -> np.ndarray:
+    """qddot of the Lagrange–d'Alembert equations with multipliers, in full coordinates.
+
+    d/dt(G qdot) - 1/2 d/dq(qdot^T G qdot) + dV/dq = force + mu^T lambda,  mu qdot = 0.
+    Uses only the system's data G, mu, V (no basis, no connection): an independent derivation.
+    """
+    n = system.n
+    qs, qds = ca.SX.sym("q", n), ca.SX.sym("qd", n)
+    g = system.metric_fn(qs)
+    mu = system.constraints_fn(qs)
+    v_pot = system.potential_fn(qs)
+    momentum = g @ qds
+    rhs = (-ca.jacobian(momentum, qs) @ qds + 0.5 * ca.gradient(qds.T @ g @ qds, qs)
+           - ca.gradient(v_pot, qs))
+    drift = ca.jacobian(mu @ qds, qs) @ qds
+    fn = ca.Function("lda", [qs, qds], [g, mu, rhs, drift])
+    g_n, mu_n, rhs_n, drift_n = (np.array(x) for x in fn(q, qdot))
+    m = mu_n.shape[0]
+    kkt = np.block([[g_n, -mu_n.T], [mu_n, np.zeros((m, m))]])
+    sol = np.linalg.solve(kkt, np.concatenate([rhs_n.ravel() + force, -drift_n.ravel()]))
+    return sol[:n]
+
+
+def basis_acceleration(system: nht.NonholonomicSystem, q: np.ndarray, v: np.ndarray,
+                       vdot: np.ndarray) -> np.ndarray:
+    """d/dt (rho(q) v) = (d rho/dq . qdot) v + rho vdot, with qdot = rho v."""
+    qs = ca.SX.sym("q", system.n)
+    vs = ca.DM(v)
+    rho_v = system.rho_fn(qs) @ vs
+    jac = np.array(ca.Function("j", [qs], [ca.jacobian(rho_v, qs)])(q))
+    rho = system.rho(q)
+    return jac @ (rho @ v) + rho @ vdot
+
+
+def random_state(system: nht.NonholonomicSystem, rng: np.random.Generator
+                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    q = rng.normal(size=system.n)
+    q[system.angle_mask] = rng.uniform(-np.pi, np.pi, system.angle_mask.sum())
+    return q, rng.normal(size=system.k), rng.normal(size=system.k)
+
+
+ALL_SYSTEMS = {
+    "chaplygin_sleigh": nht.models.chaplygin_sleigh,
+    "chaplygin_sleigh_heavy": lambda: nht.models.chaplygin_sleigh(m=3.5, J=0.7, a=-0.6),
+    "nonholonomic_particle": nht.models.nonholonomic_particle,
+    "unicycle": lambda: nht.models.unicycle(m=2.0, J=0.3),
+    "rolling_disk": nht.models.rolling_disk,
+    "inclined_knife_edge": inclined_knife_edge,
+    "coupled": coupled_system,
+}

@@ -1,0 +1,76 @@
+"""Built-in models reproduce the paper's printed (and errata-checked) equations."""
+import numpy as np
+import pytest
+
+import nh_tracking as nht
+
+
+@pytest.mark.parametrize("m, J, a", [(1.0, 4.0, 0.2), (2.5, 0.3, 0.9), (0.7, 1.1, -0.4)])
+def test_sleigh_matches_eps_chaplygin(m, J, a):
+    """EPSChaplygin + admissibility (with ERRATA #12): v1' = -eta v1 v2 + u1,
+    v2' = eta v1^2 + u2, x1' = cos th v2/sqrt m, x2' = sin th v2/sqrt m, th' = v1/sqrt(I)."""
+    sleigh = nht.models.chaplygin_sleigh(m=m, J=J, a=a)
+    inertia = J + m * a**2
+    eta = a * np.sqrt(m) / inertia
+    rng = np.random.default_rng(4)
+    for _ in range(20):
+        q, v, u = rng.normal(size=3), rng.normal(size=2), rng.normal(size=2)
+        qdot, vdot = sleigh.dynamics(q, v, u)
+        th = q[2]
+        assert np.allclose(qdot, [np.cos(th) * v[1] / np.sqrt(m), np.sin(th) * v[1] / np.sqrt(m),
+                                  v[0] / np.sqrt(inertia)], atol=1e-13)
+        assert np.allclose(vdot, [-eta * v[0] * v[1] + u[0], eta * v[0] ** 2 + u[1]], atol=1e-13)
+        # no slip across the blade (ERRATA #1): x2' cos th = x1' sin th
+        assert abs(qdot[1] * np.cos(th) - qdot[0] * np.sin(th)) < 1e-14
+
+
+def test_particle_matches_eqq3():
+    """eqq3 with controls: v1' = u1, v2' = u2 - y/(1+y^2) v1 v2; x' = -y v2 (ERRATA #3)."""
+    particle = nht.models.nonholonomic_particle()
+    rng = np.random.default_rng(5)
+    for _ in range(20):
+        q, v, u = rng.normal(size=3) * 2, rng.normal(size=2), rng.normal(size=2)
+        qdot, vdot = particle.dynamics(q, v, u)
+        y = q[1]
+        assert np.allclose(qdot, [-y * v[1], v[0], v[1]], atol=1e-13)
+        assert np.allclose(vdot, [u[0], u[1] - y / (1 + y**2) * v[0] * v[1]], atol=1e-13)
+        assert np.allclose(particle.metric_D(q), np.diag([1, 1 + y**2]), atol=1e-13)
+
+
+def test_rolling_disk_rolls_without_slipping():
+    disk = nht.models.rolling_disk(m=2.0, R=0.3, I_spin=0.2, I_turn=0.1)
+    q, v = np.array([0.0, 1.0, 0.8, 2.0]), np.array([0.5, 3.0])
+    qdot, vdot = disk.dynamics(q, v)
+    assert np.allclose(qdot, [0.3 * np.cos(0.8) * 3.0, 0.3 * np.sin(0.8) * 3.0, 0.5, 3.0])
+    assert np.allclose(vdot, 0.0)  # free disk: constant turn and spin rates
+    assert np.allclose(disk.metric_D(q), np.diag([0.1, 2.0 * 0.09 + 0.2]))
+
+
+def test_unicycle_velocities_are_the_body_twist():
+    uni = nht.models.unicycle(m=3.0, J=0.5)
+    qdot, vdot = uni.dynamics([1.0, 2.0, np.pi / 2], [0.4, -0.2], [1.0, 2.0])
+    assert np.allclose(qdot, [0.0, 0.4, -0.2], atol=1e-15)
+    assert np.allclose(vdot, [1.0, 2.0])
+    assert np.allclose(uni.generalized_force([0, 0, 0], [1.0, 2.0]), [3.0, 0.0, 1.0])
+
+
+def test_models_by_name_with_parameters():
+    sleigh = nht.models.create("chaplygin_sleigh", m=2.0, J=1.0)
+    assert sleigh.parameters == {"m": 2.0, "J": 1.0, "a": 0.2}
+    assert nht.models.model_parameters("rolling_disk") == {
+        "m": 1.0, "R": 0.5, "I_spin": 0.1, "I_turn": 0.05}
+    with pytest.raises(ValueError, match="unknown model"):
+        nht.models.create("hovercraft")
+    with pytest.raises(ValueError, match="takes"):
+        nht.models.create("unicycle", mass=2.0)
+    for bad in (0.0, -1.0, float("nan"), float("inf")):
+        with pytest.raises(ValueError, match="must be a finite number > 0"):
+            nht.models.create("unicycle", m=bad)
+
+
+def test_numpy_interface_rejects_wrong_sizes():
+    sleigh = nht.models.chaplygin_sleigh()
+    with pytest.raises(ValueError, match="q must have 3 entries"):
+        sleigh.dynamics([0, 0], [0, 0])
+    with pytest.raises(ValueError, match="u must have 2 entries"):
+        sleigh.dynamics([0, 0, 0], [0, 0], [1, 2, 3])
