@@ -1,0 +1,55 @@
+"""The command line and the ament_python packaging, exercised as a user would."""
+import json
+import os
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from nh_tracking.cli import main
+
+ROOT = Path(__file__).resolve().parents[1]
+BIN = Path(sys.executable).parent
+
+
+def test_simulate_command_writes_plot_and_summary(tmp_path):
+    assert main(["simulate", "--duration", "10", "--out", str(tmp_path)]) == 0
+    summary = json.loads((tmp_path / "simulation.json").read_text())
+    assert summary["model"] == "chaplygin_sleigh"
+    assert summary["energy_drift_max"] < 1e-6 * summary["energy_initial"]
+    assert summary["constraint_residual_max"] < 1e-9
+    assert (tmp_path / "simulation.png").stat().st_size > 10_000
+
+
+def test_simulate_command_reports_bad_input_without_traceback(tmp_path, capsys):
+    assert main(["simulate", "--model", "unicycle", "--q0", "1 2", "--out", str(tmp_path)]) == 2
+    assert "q must have 3 entries" in capsys.readouterr().err
+    assert main(["simulate", "--model", "unicycle", "--param", "m=-1",
+                 "--out", str(tmp_path)]) == 2
+
+
+@pytest.mark.skipif(not (BIN / "colcon").exists(), reason="colcon is installed by requirements")
+def test_colcon_build_installs_the_package_and_its_executables(tmp_path):
+    src = tmp_path / "src" / "nh_tracking"
+    files = subprocess.run(["git", "ls-files", "--cached", "--others", "--exclude-standard"],
+                           cwd=ROOT, capture_output=True, text=True, check=True).stdout.split()
+    for name in files:
+        if (ROOT / name).is_file():
+            (src / name).parent.mkdir(parents=True, exist_ok=True)
+            shutil.copy2(ROOT / name, src / name)
+    env = dict(os.environ, PATH=f"{BIN}:{os.environ['PATH']}")
+    build = subprocess.run([str(BIN / "colcon"), "build", "--base-paths", "src"], cwd=tmp_path,
+                           capture_output=True, text=True, env=env, timeout=300)
+    assert build.returncode == 0, build.stdout + build.stderr
+    install = tmp_path / "install" / "nh_tracking"
+    assert (install / "share/ament_index/resource_index/packages/nh_tracking").exists()
+    assert (install / "share/nh_tracking/package.xml").exists()
+    site = next(install.glob("lib/python3*/site-packages"))
+    for exe in ("nh-tracking",):
+        path = install / "lib" / "nh_tracking" / exe
+        assert path.exists(), f"{exe} not installed to lib/nh_tracking"
+        run = subprocess.run([str(path), "--help"], capture_output=True, text=True,
+                             env=dict(env, PYTHONPATH=str(site)), timeout=60)
+        assert run.returncode == 0 and "usage" in run.stdout
