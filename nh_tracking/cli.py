@@ -55,6 +55,20 @@ def cmd_simulate(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_reproduce(args: argparse.Namespace) -> int:
+    """Re-run the paper's experiments (particle cases 1-2, the sleigh literal and wrapped)."""
+    from nh_tracking.experiments import reproduce
+
+    out = Path(args.out)
+    metrics = reproduce(out, log=lambda line: print(line, flush=True))
+    s, w = metrics["sleigh"], metrics["sleigh_wrapped"]
+    print(f"sleigh cost {s['cost']:.4f} (paper prototype 42.369), wrapped {w['cost']:.4f}; "
+          f"particle PMP {metrics['particle_case1']['pmp_cost']:.4f} / "
+          f"{metrics['particle_case2']['pmp_cost']:.4f}")
+    print(f"wrote {out / 'metrics.json'} and figures in {out}")
+    return 0
+
+
 def _default_q0(system) -> list[float]:
     return PAPER_SLEIGH_REFERENCE["q0"] if system.name == "chaplygin_sleigh" else [0.0] * system.n
 
@@ -80,6 +94,10 @@ def build_parser() -> argparse.ArgumentParser:
     sim.add_argument("--steps", type=int, default=400)
     sim.add_argument("--out", default="results/simulate")
     sim.set_defaults(func=cmd_simulate)
+    rep = sub.add_parser("reproduce", help="re-run the paper's experiments",
+                         description=cmd_reproduce.__doc__)
+    rep.add_argument("--out", default="results/reproduce")
+    rep.set_defaults(func=cmd_reproduce)
     return parser
 
 

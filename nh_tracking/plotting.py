@@ -36,3 +36,64 @@ def plot_simulation(system: NonholonomicSystem, traj: Trajectory, path: Path) ->
     fig.savefig(path, dpi=110)
     plt.close(fig)
     return path
+
+
+def plot_tracking(problem, solution, running: np.ndarray, path: Path, title: str,
+                  compare=None) -> Path:
+    """A plan against its reference: the path in 2-D and with the third coordinate as height,
+    the controls, and the running action h L per interval with the accumulated cost."""
+    system = problem.system
+    t_fine = np.linspace(problem.grid[0], problem.grid[-1], 400)
+    q_ref, _ = problem.reference_at(t_fine)
+    names = system.coordinates
+    fig = plt.figure(figsize=(15, 9))
+    ax = fig.add_subplot(2, 2, 1)
+    ax.plot(q_ref[:, 0], q_ref[:, 1], "k--", label="reference")
+    ax.plot(solution.q[:, 0], solution.q[:, 1], "o-", ms=3, label=solution.method)
+    if compare is not None:
+        ax.plot(compare.q[:, 0], compare.q[:, 1], "-", alpha=0.7, label=compare.method)
+    ax.plot(*problem.q0[:2], "gs", label="start")
+    ax.set(xlabel=names[0], ylabel=names[1], title=f"{title}: path", aspect="equal")
+    ax.legend()
+    ax3 = fig.add_subplot(2, 2, 2, projection="3d")
+    ax3.plot(*q_ref[:, :3].T, "k--", label="reference")
+    ax3.plot(*solution.q[:, :3].T, "o-", ms=2, label=solution.method)
+    ax3.set(xlabel=names[0], ylabel=names[1], zlabel=names[2], title="with " + names[2])
+    ax = fig.add_subplot(2, 2, 3)
+    for a, name in enumerate(system.control_names):
+        ax.step(solution.t[:-1], solution.u[:, a], where="post", label=name)
+    ax.set(xlabel="t [s]", ylabel="u", title="controls (held per interval)")
+    ax.legend()
+    ax = fig.add_subplot(2, 2, 4)
+    mids = solution.t[:-1] + 0.5 * problem.h
+    ax.bar(mids, running, width=problem.h * 0.9, alpha=0.5, label="h L per interval")
+    ax.set(xlabel="t [s]", ylabel="h L", title=f"running action; cost {solution.cost:.4f}")
+    twin = ax.twinx()
+    twin.plot(solution.t[1:], np.cumsum(running), "r-", label="accumulated")
+    twin.set_ylabel("accumulated running cost")
+    ax.legend(loc="upper left")
+    twin.legend(loc="upper right")
+    for a in fig.axes:
+        if a.name != "3d":
+            a.grid(alpha=0.3)
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+    return path
+
+
+def plot_energy(system: NonholonomicSystem, solution, fine: Trajectory, path: Path) -> Path:
+    """Energy of the controlled system along the plan's knots and along a fine integration
+    of the same controls (the paper's Fig. 8 comparison)."""
+    e_plan = [system.energy(q, v) for q, v in zip(solution.q, solution.v)]
+    e_fine = [system.energy(q, v) for q, v in zip(fine.q, fine.v)]
+    fig, ax = plt.subplots(figsize=(8, 4.5))
+    ax.plot(fine.t, e_fine, "b-", label="fine RK45 integration of the plan's controls")
+    ax.plot(solution.t, e_plan, "ro", ms=4, label=f"{solution.method} plan ({len(solution.t)} knots)")
+    ax.set(xlabel="t [s]", ylabel="energy", title="controlled energy")
+    ax.grid(alpha=0.3)
+    ax.legend()
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+    return path

@@ -81,10 +81,16 @@ def test_bad_simulation_input_is_rejected():
         nht.simulate(sleigh, [0, 0, 0], [0, 0], [0.0, 1.0], lambda s, q, v: [np.inf, 0])
 
 
-def test_trajectory_sampling_interpolates_and_holds():
-    traj = nht.Trajectory(t=[0.0, 1.0, 2.0], q=[[0.0], [1.0], [4.0]], v=[[1.0], [2.0], [3.0]],
-                          u=[[0.0], [0.0]])
-    q, v = traj.sample([0.5, 1.5, 5.0, -1.0])
-    assert np.allclose(q.ravel(), [0.5, 2.5, 4.0, 0.0]) and np.allclose(v.ravel(), [1.5, 2.5, 3, 1])
+def test_trajectory_sampling_interpolates_smoothly_and_holds():
+    """The C2 cubic spline reproduces a cubic exactly; outside the samples values are held."""
+    t = np.linspace(0.0, 2.0, 9)
+    traj = nht.Trajectory(t=t, q=(t**3 - t)[:, None], v=(3 * t**2 - 1)[:, None],
+                          u=np.zeros((8, 1)))
+    times = np.array([0.1, 0.77, 1.5, 1.99])
+    q, v = traj.sample(times)
+    assert np.allclose(q.ravel(), times**3 - times) and np.allclose(v.ravel(), 3 * times**2 - 1)
+    assert np.allclose(traj.at(0.77)[0], 0.77**3 - 0.77)
+    q_out, _ = traj.sample([-1.0, 5.0])
+    assert np.allclose(q_out.ravel(), [0.0, 6.0])
     with pytest.raises(ValueError, match="non-finite"):
         nht.Trajectory(t=[0.0, 1.0], q=[[0.0], [np.nan]], v=[[0.0], [0.0]], u=[[0.0]])

@@ -1,0 +1,175 @@
+"""The optimal tracking problem (paper §3) and what a solver returns.
+
+Cost: 1/2 int (|q - q_r|^2 + |v - v_r|^2 + eps |u|^2) dt, plus omega/2 |q(T) - q_r(T)|^2 when
+``terminal="cost"``; with ``terminal="equality"`` the end state equals the reference's.
+"""
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Literal
+
+import casadi as ca
+import numpy as np
+
+from nh_tracking.system import NonholonomicSystem
+from nh_tracking.trajectory import Trajectory
+
+ReferenceFunction = Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]]
+Terminal = Literal["equality", "cost"]
+
+
+@dataclass
+class TrackingProblem:
+    """Track ``reference`` from (q0, v0) over ``horizon`` seconds on ``steps`` intervals.
+
+    ``reference`` is a :class:`Trajectory` (interpolated in time) or a function of a times
+    array returning (q (len, n), v (len, k)); ``t0`` is where on the reference's clock the
+    problem starts (default: the reference's start). With ``wrap_angles`` (the default, what
+    a robot needs) angle coordinates of the reference are moved by whole turns onto q0's
+    branch, so heading errors are taken modulo 2 pi; ``wrap_angles=False`` subtracts angles as
+    numbers, the paper's literal formulation.
+    """
+
+    system: NonholonomicSystem
+    reference: Trajectory | ReferenceFunction
+    q0: np.ndarray
+    v0: np.ndarray
+    horizon: float
+    steps: int
+    epsilon: float = 1.0
+    terminal: Terminal = "equality"
+    omega: float = 1.0
+    wrap_angles: bool = True
+    t0: float | None = None
+    angle_shift: np.ndarray = field(init=False, repr=False)
+
+    def __post_init__(self) -> None:
+        sys = self.system
+        self.q0 = sys.as_configuration(self.q0).copy()
+        self.v0 = sys.as_velocity(self.v0).copy()
+        if not (np.all(np.isfinite(self.q0)) and np.all(np.isfinite(self.v0))):
+            raise ValueError("initial state (q0, v0) must be finite")
+        if not (np.isfinite(self.horizon) and self.horizon > 0):
+            raise ValueError(f"horizon must be a finite number > 0, got {self.horizon}")
+        if int(self.steps) != self.steps or self.steps < 2:
+            raise ValueError(f"steps must be an integer >= 2, got {self.steps}")
+        self.steps = int(self.steps)
+        for name in ("epsilon", "omega"):
+            value = getattr(self, name)
+            if not (np.isfinite(value) and value > 0):
+                raise ValueError(f"{name} must be a finite number > 0, got {value}")
+        if self.terminal not in ("equality", "cost"):
+            raise ValueError(f"terminal must be 'equality' or 'cost', got {self.terminal!r}")
+        if self.t0 is None:
+            self.t0 = float(self.reference.t[0]) if isinstance(self.reference, Trajectory) else 0.0
+        self.angle_shift = np.zeros(sys.n)
+        if self.wrap_angles and sys.angle_mask.any():
+            q_ref0 = self._raw_reference(np.array([self.t0]))[0][0]
+            turns = np.round((self.q0 - q_ref0) / (2 * np.pi))
+            self.angle_shift = np.where(sys.angle_mask, 2 * np.pi * turns, 0.0)
+
+    @property
+    def h(self) -> float:
+        """Time step of the discretisation."""
+        return self.horizon / self.steps
+
+    @property
+    def grid(self) -> np.ndarray:
+        """The N+1 knot times on the reference's clock."""
+        return self.t0 + self.h * np.arange(self.steps + 1)
+
+    def reference_at(self, times: np.ndarray | float) -> tuple[np.ndarray, np.ndarray]:
+        """Reference (q_r, v_r) at ``times``, angles on q0's branch when wrapping."""
+        q, v = self._raw_reference(np.atleast_1d(np.asarray(times, dtype=float)))
+        return q + self.angle_shift, v
+
+    def reference_point(self, time: float) -> tuple[np.ndarray, np.ndarray]:
+        """(q_r, v_r) at one time, as 1-D arrays (fast path for ODE right-hand sides)."""
+        if isinstance(self.reference, Trajectory):
+            q, v = self.reference.at(time)
+            return q + self.angle_shift, v
+        q, v = self.reference_at(time)
+        return q[0], v[0]
+
+    def _raw_reference(self, times: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        if isinstance(self.reference, Trajectory):
+            q, v = self.reference.sample(times)
+        else:
+            q, v = self.reference(times)
+        q = np.asarray(q, dtype=float).reshape(len(times), self.system.n)
+        v = np.asarray(v, dtype=float).reshape(len(times), self.system.k)
+        if not (np.all(np.isfinite(q)) and np.all(np.isfinite(v))):
+            raise ValueError("reference has non-finite values on the horizon")
+        return q, v
+
+
+def tracking_lagrangian(system: NonholonomicSystem) -> ca.Function:
+    """L(q, v, u, q_r, v_r, eps) = 1/2 (|q - q_r|^2 + |v - v_r|^2 + eps |u|^2).
+
+    One symbolic definition shared by every solver, so they optimise the same cost.
+    """
+    q, qr = ca.SX.sym("q", system.n), ca.SX.sym("q_r", system.n)
+    v, vr = ca.SX.sym("v", system.k), ca.SX.sym("v_r", system.k)
+    u, eps = ca.SX.sym("u", system.k), ca.SX.sym("eps")
+    value = 0.5 * (ca.sumsqr(q - qr) + ca.sumsqr(v - vr) + eps * ca.sumsqr(u))
+    return ca.Function("L", [q, v, u, qr, vr, eps], [value],
+                       ["q", "v", "u", "q_r", "v_r", "eps"], ["L"])
+
+
+def terminal_cost(problem: TrackingProblem, q_final: np.ndarray) -> float:
+    """omega Phi(gamma(T)) with Phi = 1/2 |q(T) - q_r(T)|^2 (zero for terminal equality)."""
+    if problem.terminal != "cost":
+        return 0.0
+    q_ref = problem.reference_at(problem.grid[-1])[0][0]
+    return 0.5 * problem.omega * float(np.sum((q_final - q_ref) ** 2))
+
+
+@dataclass
+class Solution:
+    """A plan: knots t (N+1,), q (N+1, n), v (N+1, k); controls u (N, k) held per interval.
+
+    ``cost`` is the problem's cost as the method evaluates it (the discrete cost for the
+    variational method); ``route`` says how the method got there; ``costates`` holds
+    (lambda (N+1, n), mu (N+1, k)) where the method provides them; ``minima`` lists the
+    distinct local minima (cost, times found) of a multi-start search; ``details`` holds
+    method-specific figures (e.g. the discrete admissibility residual).
+    """
+
+    t: np.ndarray
+    q: np.ndarray
+    v: np.ndarray
+    u: np.ndarray
+    cost: float
+    success: bool
+    iterations: int
+    solve_time: float
+    terminal_error: float
+    method: str
+    message: str = ""
+    route: str = ""
+    costates: tuple[np.ndarray, np.ndarray] | None = None
+    minima: list[tuple[float, int]] = field(default_factory=list)
+    details: dict[str, float] = field(default_factory=dict)
+
+    def trajectory(self) -> Trajectory:
+        """The plan as a Trajectory (e.g. to use as a reference or to plot)."""
+        return Trajectory(t=self.t, q=self.q, v=self.v, u=self.u)
+
+
+def running_cost_profile(problem: TrackingProblem, solution: Solution) -> np.ndarray:
+    """h L at each interval's midpoint: the discrete running action of a plan, interval by
+    interval (its sum is the variational method's running cost)."""
+    lagrangian = tracking_lagrangian(problem.system)
+    q_ref, v_ref = problem.reference_at(problem.grid[:-1] + 0.5 * problem.h)
+    q_mid = 0.5 * (solution.q[1:] + solution.q[:-1])
+    v_mid = 0.5 * (solution.v[1:] + solution.v[:-1])
+    values = lagrangian.map(problem.steps)(q_mid.T, v_mid.T, solution.u.T, q_ref.T, v_ref.T,
+                                           problem.epsilon)
+    return problem.h * np.array(values).ravel()
+
+
+def terminal_error(problem: TrackingProblem, q_final: np.ndarray, v_final: np.ndarray) -> float:
+    """|gamma(T) - gamma_r(T)|, angles on q0's branch when wrapping."""
+    q_ref, v_ref = problem.reference_at(problem.grid[-1])
+    return float(np.linalg.norm(np.concatenate([q_final - q_ref[0], v_final - v_ref[0]])))

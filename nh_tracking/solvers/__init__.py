@@ -1,0 +1,123 @@
+"""``solve(problem, method=...)``: the tracking solvers, chosen by name, and global search.
+
+Methods: ``"variational"`` (discrete Lagrange–d'Alembert midpoint transcription, §5),
+``"pmp"`` (Pontryagin + shooting, §4), ``"multiple_shooting"`` (direct RK4 baseline).
+"""
+from __future__ import annotations
+
+import multiprocessing
+import os
+from concurrent.futures import ProcessPoolExecutor
+
+import numpy as np
+
+from nh_tracking.problem import Solution, TrackingProblem
+from nh_tracking.solvers.multiple_shooting import solve_multiple_shooting
+from nh_tracking.solvers.pmp import solve_pmp
+from nh_tracking.solvers.variational import solve_variational, transcription
+from nh_tracking.trajectory import Trajectory
+
+METHODS = ("variational", "pmp", "multiple_shooting")
+DISTINCT_RTOL = 1e-4  # two local minima are the same when their costs agree to this
+
+
+def solve(problem: TrackingProblem, method: str = "variational", *, starts: int = 1,
+          initial_guess: Solution | Trajectory | None = None, seed: int = 0,
+          processes: int | None = None) -> Solution:
+    """Solve ``problem``; with ``starts`` > 1, run that many initial guesses (the default one
+    and random perturbations of it) in parallel processes and return the best, with the
+    distinct local minima found in ``Solution.minima``."""
+    if method not in METHODS:
+        raise ValueError(f"unknown method {method!r}; choose one of {METHODS}")
+    if int(starts) != starts or starts < 1:
+        raise ValueError(f"starts must be an integer >= 1, got {starts}")
+    if starts == 1:
+        guess = None if initial_guess is None else _sample_guess(problem, initial_guess)
+        return _solve_one(problem, method, guess)
+    return _multi_start(problem, method, int(starts), seed, processes)
+
+
+def _solve_one(problem: TrackingProblem, method: str,
+               guess: tuple[np.ndarray, np.ndarray, np.ndarray] | None) -> Solution:
+    if method == "variational":
+        flat = None if guess is None else np.hstack(guess[:2])[1:].ravel()
+        return solve_variational(problem, flat)
+    if method == "multiple_shooting":
+        return solve_multiple_shooting(problem, guess)
+    return solve_pmp(problem)
+
+
+def _sample_guess(problem: TrackingProblem, guess: Solution | Trajectory
+                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(q, v, u) of a previous plan or trajectory at this problem's knots."""
+    traj = guess.trajectory() if isinstance(guess, Solution) else guess
+    q, v = traj.sample(problem.grid)
+    mids = problem.grid[:-1] + 0.5 * problem.h
+    idx = np.clip(np.searchsorted(traj.t, mids, side="right") - 1, 0, len(traj.u) - 1)
+    return q, v, traj.u[idx]
+
+
+def random_guess(problem: TrackingProblem, rng: np.random.Generator
+                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The reference plus smooth random excursions that vanish at t0: a start in another basin.
+
+    Amplitudes are large — several units in q, more than a turn and a half for angles, and
+    in v — because local minima of tracking problems differ by whole windings: on the paper's
+    sleigh, smaller excursions all fall back into the best basin and find nothing else.
+    """
+    sys = problem.system
+    q, v = problem.reference_at(problem.grid)
+    s = (problem.grid - problem.grid[0]) / problem.horizon
+
+    def excursion(columns: int, scale: np.ndarray) -> np.ndarray:
+        freq = rng.uniform(0.3, 2.0, size=(3, columns))
+        amp = rng.normal(size=(3, columns)) * scale
+        return np.einsum("jc,tjc->tc", amp, np.sin(np.pi * freq[None] * s[:, None, None]))
+    q_scale = np.where(sys.angle_mask, 10.0, 6.0)
+    return (q + excursion(sys.n, q_scale), v + excursion(sys.k, np.full(sys.k, 6.0)),
+            np.zeros((problem.steps, sys.k)))
+
+
+_POOL_PROBLEM: tuple[TrackingProblem, str] | None = None
+
+
+def _pool_solve(guess: tuple[np.ndarray, np.ndarray, np.ndarray] | None) -> Solution:
+    problem, method = _POOL_PROBLEM
+    return _solve_one(problem, method, guess)
+
+
+def _multi_start(problem: TrackingProblem, method: str, starts: int, seed: int,
+                 processes: int | None) -> Solution:
+    global _POOL_PROBLEM
+    rng = np.random.default_rng(seed)
+    guesses = [None] + [random_guess(problem, rng) for _ in range(starts - 1)]
+    if method == "variational":
+        transcription(problem.system, problem.steps, problem.terminal)  # build once, then fork
+    workers = max(1, min(starts, processes or os.cpu_count() or 1))
+    _POOL_PROBLEM = (problem, method)
+    try:
+        # fork: workers inherit the compiled problem instead of re-building it from a pickle.
+        context = multiprocessing.get_context("fork")
+        with ProcessPoolExecutor(workers, mp_context=context) as pool:
+            solutions = list(pool.map(_pool_solve, guesses))
+    finally:
+        _POOL_PROBLEM = None
+    return _best_with_minima(solutions)
+
+
+def _best_with_minima(solutions: list[Solution]) -> Solution:
+    ok = sorted((s for s in solutions if s.success), key=lambda s: s.cost)
+    if not ok:
+        worst = solutions[0]
+        worst.message = f"no start of {len(solutions)} converged: {worst.message}"
+        return worst
+    minima: list[list[float]] = []
+    for s in ok:
+        if minima and abs(s.cost - minima[-1][0]) <= DISTINCT_RTOL * max(1.0, minima[-1][0]):
+            minima[-1][1] += 1
+        else:
+            minima.append([s.cost, 1])
+    best = ok[0]
+    best.minima = [(float(c), int(n)) for c, n in minima]
+    best.solve_time = sum(s.solve_time for s in solutions)
+    return best

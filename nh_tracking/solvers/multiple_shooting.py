@@ -1,0 +1,123 @@
+"""Direct multiple shooting with RK4 and piecewise-constant controls: the standard baseline.
+
+This is what a user would write without the paper's geometry: states and controls at the knots,
+continuity x_{k+1} = RK4(x_k, u_k), and the running cost integrated alongside by the same RK4.
+"""
+from __future__ import annotations
+
+import time
+import weakref
+from dataclasses import dataclass
+
+import casadi as ca
+import numpy as np
+
+from nh_tracking.problem import (Solution, TrackingProblem, terminal_cost, terminal_error,
+                                 tracking_lagrangian)
+from nh_tracking.solvers.variational import IPOPT_OPTIONS
+from nh_tracking.system import NonholonomicSystem
+
+SUBSTEPS = 2  # RK4 steps per control interval
+
+
+@dataclass
+class ShootingTranscription:
+    system: NonholonomicSystem
+    steps: int
+    solver: ca.Function
+    running_cost: ca.Function  # (w, p) -> integrated running cost
+
+    def parameters(self, problem: TrackingProblem) -> np.ndarray:
+        fine = problem.t0 + np.linspace(0.0, problem.horizon, 2 * SUBSTEPS * problem.steps + 1)
+        q_ref, v_ref = problem.reference_at(fine)
+        return np.concatenate([q_ref.ravel(), v_ref.ravel(),
+                               [problem.h, problem.epsilon, problem.omega]])
+
+
+_CACHE: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
+
+
+def shooting_transcription(system: NonholonomicSystem, steps: int, terminal: str
+                           ) -> ShootingTranscription:
+    per_system = _CACHE.setdefault(system, {})
+    if (steps, terminal) not in per_system:
+        per_system[(steps, terminal)] = _build(system, steps, terminal)
+    return per_system[(steps, terminal)]
+
+
+def _build(system: NonholonomicSystem, steps: int, terminal: str) -> ShootingTranscription:
+    n, k = system.n, system.k
+    nx = n + k
+    points = 2 * SUBSTEPS * steps + 1  # reference at every RK4 stage time
+    q_ref, v_ref = ca.SX.sym("q_r", n, points), ca.SX.sym("v_r", k, points)
+    h, eps, omega = ca.SX.sym("h"), ca.SX.sym("eps"), ca.SX.sym("omega")
+    p = ca.vertcat(ca.vec(q_ref), ca.vec(v_ref), h, eps, omega)
+    lagrangian = tracking_lagrangian(system)
+
+    def rate(x, u, j):
+        xdot = system.ode_fn(x, u)
+        return xdot, lagrangian(x[:n], x[n:], u, q_ref[:, j], v_ref[:, j], eps)
+
+    w = ca.SX.sym("w", nx * (steps + 1) + k * steps)  # stage-wise x_0, u_0, x_1, ..., x_N
+    xs = [w[i * (nx + k):i * (nx + k) + nx] for i in range(steps + 1)]
+    us = [w[i * (nx + k) + nx:(i + 1) * (nx + k)] for i in range(steps)]
+    running, gaps = 0, []
+    dt = h / SUBSTEPS
+    for i in range(steps):
+        x = xs[i]
+        for s in range(SUBSTEPS):
+            j = 2 * (i * SUBSTEPS + s)
+            k1, l1 = rate(x, us[i], j)
+            k2, l2 = rate(x + dt / 2 * k1, us[i], j + 1)
+            k3, l3 = rate(x + dt / 2 * k2, us[i], j + 1)
+            k4, l4 = rate(x + dt * k3, us[i], j + 2)
+            x = x + dt / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
+            running += dt / 6 * (l1 + 2 * l2 + 2 * l3 + l4)
+        gaps.append(x - xs[i + 1])
+    objective = running
+    if terminal == "cost":
+        objective += 0.5 * omega * ca.sumsqr(xs[-1][:n] - q_ref[:, -1])
+    solver = ca.nlpsol(f"multiple_shooting_{system.name}_{steps}", "ipopt",
+                       {"x": w, "p": p, "f": objective, "g": ca.vertcat(*gaps)}, IPOPT_OPTIONS)
+    return ShootingTranscription(system=system, steps=steps, solver=solver,
+                                 running_cost=ca.Function("running", [w, p], [running]))
+
+
+def solve_multiple_shooting(problem: TrackingProblem,
+                            initial_guess: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
+                            ) -> Solution:
+    """Solve the baseline NLP; ``initial_guess`` is (q (N+1, n), v (N+1, k), u (N, k))."""
+    sys, big_n = problem.system, problem.steps
+    n, k = sys.n, sys.k
+    tr = shooting_transcription(sys, big_n, problem.terminal)
+    p = tr.parameters(problem)
+    if initial_guess is None:
+        q_g, v_g = problem.reference_at(problem.grid)
+        u_g = np.zeros((big_n, k))
+    else:
+        q_g, v_g, u_g = initial_guess
+    q_g, v_g = q_g.copy(), v_g.copy()
+    q_g[0], v_g[0] = problem.q0, problem.v0
+    x_g = np.hstack([q_g, v_g])
+    w0 = np.concatenate([np.concatenate([x_g[i], u_g[i]]) for i in range(big_n)] + [x_g[-1]])
+    lbw, ubw = np.full(w0.size, -np.inf), np.full(w0.size, np.inf)
+    lbw[:n + k] = ubw[:n + k] = x_g[0]
+    if problem.terminal == "equality":
+        q_end, v_end = problem.reference_at(problem.grid[-1])
+        lbw[-(n + k):] = ubw[-(n + k):] = w0[-(n + k):] = np.concatenate([q_end[0], v_end[0]])
+    start = time.perf_counter()
+    result = tr.solver(x0=w0, p=p, lbx=lbw, ubx=ubw, lbg=0, ubg=0)
+    elapsed = time.perf_counter() - start
+    stats = tr.solver.stats()
+    w = np.array(result["x"]).ravel()
+    stage = w[:-(n + k)].reshape(big_n, n + 2 * k)
+    x = np.vstack([stage[:, :n + k], w[-(n + k):]])
+    q, v, u = x[:, :n], x[:, n:], stage[:, n + k:]
+    cost = float(tr.running_cost(w, p)) + terminal_cost(problem, q[-1])
+    return Solution(
+        t=problem.grid, q=q, v=v, u=u, cost=cost,
+        success=bool(stats["success"]) and bool(np.all(np.isfinite(w))),
+        iterations=int(stats["iter_count"]), solve_time=elapsed,
+        terminal_error=terminal_error(problem, q[-1], v[-1]), method="multiple_shooting",
+        message=stats["return_status"], route="ipopt",
+    )
