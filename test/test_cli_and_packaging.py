@@ -53,3 +53,22 @@ def test_colcon_build_installs_the_package_and_its_executables(tmp_path):
         run = subprocess.run([str(path), "--help"], capture_output=True, text=True,
                              env=dict(env, PYTHONPATH=str(site)), timeout=60)
         assert run.returncode == 0 and "usage" in run.stdout
+
+
+def test_reproduce_writes_metrics_and_figures(tmp_path):
+    lines = []
+    from nh_tracking.experiments import reproduce
+
+    metrics = reproduce(tmp_path, log=lines.append)
+    assert any(line.startswith("[4/4]") for line in lines)  # progress was shown
+    assert abs(metrics["sleigh"]["cost"] - 42.369) < 0.085
+    assert metrics["sleigh_wrapped"]["cost"] < 20.0
+    assert metrics["sleigh"]["replay_end_error"] < 0.01
+    assert len(metrics["sleigh"]["local_minima"]) > 1
+    for case in ("particle_case1", "particle_case2"):
+        assert metrics[case]["pmp_success"] and metrics[case]["relative_difference"] < 3e-3
+    saved = json.loads((tmp_path / "metrics.json").read_text())
+    assert saved["sleigh"]["admissibility_residual"] <= 1e-10
+    for name in ("sleigh", "sleigh_wrapped", "particle_case1", "particle_case2",
+                 "sleigh_energy"):
+        assert (tmp_path / f"{name}.png").stat().st_size > 10_000
