@@ -23,38 +23,42 @@ DISTINCT_RTOL = 1e-4  # two local minima are the same when their costs agree to 
 
 def solve(problem: TrackingProblem, method: str = "variational", *, starts: int = 1,
           initial_guess: Solution | Trajectory | None = None, seed: int = 0,
-          processes: int | None = None) -> Solution:
+          processes: int | None = None, max_time: float | None = None) -> Solution:
     """Solve ``problem``; with ``starts`` > 1, run that many initial guesses (the default one
     and random perturbations of it) in parallel processes and return the best, with the
-    distinct local minima found in ``Solution.minima``."""
+    distinct local minima found in ``Solution.minima``. ``max_time`` bounds one solve's wall
+    time (the solver then stops and reports failure)."""
     if method not in METHODS:
         raise ValueError(f"unknown method {method!r}; choose one of {METHODS}")
     if int(starts) != starts or starts < 1:
         raise ValueError(f"starts must be an integer >= 1, got {starts}")
     if starts == 1:
-        guess = None if initial_guess is None else _sample_guess(problem, initial_guess)
-        return _solve_one(problem, method, guess)
+        guess = None if initial_guess is None else sample_plan(problem, initial_guess)
+        return _solve_one(problem, method, guess, max_time)
     return _multi_start(problem, method, int(starts), seed, processes)
 
 
 def _solve_one(problem: TrackingProblem, method: str,
-               guess: tuple[np.ndarray, np.ndarray, np.ndarray] | None) -> Solution:
+               guess: tuple[np.ndarray, np.ndarray, np.ndarray] | None,
+               max_time: float | None = None) -> Solution:
     if method == "variational":
         flat = None if guess is None else np.hstack(guess[:2])[1:].ravel()
-        return solve_variational(problem, flat)
+        return solve_variational(problem, flat, max_time)
     if method == "multiple_shooting":
-        return solve_multiple_shooting(problem, guess)
-    return solve_pmp(problem)
+        return solve_multiple_shooting(problem, guess, max_time)
+    return solve_pmp(problem) if max_time is None else solve_pmp(problem, max_time=max_time)
 
 
-def _sample_guess(problem: TrackingProblem, guess: Solution | Trajectory
-                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(q, v, u) of a previous plan or trajectory at this problem's knots."""
-    traj = guess.trajectory() if isinstance(guess, Solution) else guess
+def sample_plan(problem: TrackingProblem, plan: Solution | Trajectory
+                ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(q, v, u) of a previous plan or trajectory at this problem's knots (held past its end),
+    its angles moved by whole turns onto q0's branch: a warm start, or a shifted plan."""
+    traj = plan.trajectory() if isinstance(plan, Solution) else plan
     q, v = traj.sample(problem.grid)
+    turns = np.round((problem.q0 - q[0]) / (2 * np.pi)) * problem.system.angle_mask
     mids = problem.grid[:-1] + 0.5 * problem.h
     idx = np.clip(np.searchsorted(traj.t, mids, side="right") - 1, 0, len(traj.u) - 1)
-    return q, v, traj.u[idx]
+    return q + 2 * np.pi * turns, v, traj.u[idx]
 
 
 def random_guess(problem: TrackingProblem, rng: np.random.Generator

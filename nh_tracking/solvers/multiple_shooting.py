@@ -14,7 +14,7 @@ import numpy as np
 
 from nh_tracking.problem import (Solution, TrackingProblem, terminal_cost, terminal_error,
                                  tracking_lagrangian)
-from nh_tracking.solvers.variational import IPOPT_OPTIONS
+from nh_tracking.solvers.variational import ipopt_options
 from nh_tracking.system import NonholonomicSystem
 
 SUBSTEPS = 2  # RK4 steps per control interval
@@ -37,15 +37,17 @@ class ShootingTranscription:
 _CACHE: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
 
 
-def shooting_transcription(system: NonholonomicSystem, steps: int, terminal: str
-                           ) -> ShootingTranscription:
+def shooting_transcription(system: NonholonomicSystem, steps: int, terminal: str,
+                           max_time: float | None = None) -> ShootingTranscription:
     per_system = _CACHE.setdefault(system, {})
-    if (steps, terminal) not in per_system:
-        per_system[(steps, terminal)] = _build(system, steps, terminal)
-    return per_system[(steps, terminal)]
+    key = (steps, terminal, max_time)
+    if key not in per_system:
+        per_system[key] = _build(system, steps, terminal, max_time)
+    return per_system[key]
 
 
-def _build(system: NonholonomicSystem, steps: int, terminal: str) -> ShootingTranscription:
+def _build(system: NonholonomicSystem, steps: int, terminal: str,
+           max_time: float | None) -> ShootingTranscription:
     n, k = system.n, system.k
     nx = n + k
     points = 2 * SUBSTEPS * steps + 1  # reference at every RK4 stage time
@@ -78,18 +80,19 @@ def _build(system: NonholonomicSystem, steps: int, terminal: str) -> ShootingTra
     if terminal == "cost":
         objective += 0.5 * omega * ca.sumsqr(xs[-1][:n] - q_ref[:, -1])
     solver = ca.nlpsol(f"multiple_shooting_{system.name}_{steps}", "ipopt",
-                       {"x": w, "p": p, "f": objective, "g": ca.vertcat(*gaps)}, IPOPT_OPTIONS)
+                       {"x": w, "p": p, "f": objective, "g": ca.vertcat(*gaps)},
+                       ipopt_options(max_time))
     return ShootingTranscription(system=system, steps=steps, solver=solver,
                                  running_cost=ca.Function("running", [w, p], [running]))
 
 
 def solve_multiple_shooting(problem: TrackingProblem,
-                            initial_guess: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
-                            ) -> Solution:
+                            initial_guess: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,
+                            max_time: float | None = None) -> Solution:
     """Solve the baseline NLP; ``initial_guess`` is (q (N+1, n), v (N+1, k), u (N, k))."""
     sys, big_n = problem.system, problem.steps
     n, k = sys.n, sys.k
-    tr = shooting_transcription(sys, big_n, problem.terminal)
+    tr = shooting_transcription(sys, big_n, problem.terminal, max_time)
     p = tr.parameters(problem)
     if initial_guess is None:
         q_g, v_g = problem.reference_at(problem.grid)

@@ -57,16 +57,24 @@ class Transcription:
 _CACHE: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
 
 
-def transcription(system: NonholonomicSystem, steps: int, terminal: str) -> Transcription:
-    """The NLP for this structure, built on first use and cached on the system."""
+def transcription(system: NonholonomicSystem, steps: int, terminal: str,
+                  max_time: float | None = None) -> Transcription:
+    """The NLP for this structure (and time limit), built on first use, cached on the system."""
     per_system = _CACHE.setdefault(system, {})
-    key = (steps, terminal)
+    key = (steps, terminal, max_time)
     if key not in per_system:
-        per_system[key] = _build(system, steps, terminal)
+        per_system[key] = _build(system, steps, terminal, max_time)
     return per_system[key]
 
 
-def _build(system: NonholonomicSystem, steps: int, terminal: str) -> Transcription:
+def ipopt_options(max_time: float | None) -> dict:
+    """IPOPT settings; ``max_time`` bounds the wall time of one solve (a replanning deadline)."""
+    return IPOPT_OPTIONS if max_time is None else {**IPOPT_OPTIONS,
+                                                   "ipopt.max_wall_time": float(max_time)}
+
+
+def _build(system: NonholonomicSystem, steps: int, terminal: str,
+           max_time: float | None) -> Transcription:
     n, k, big_n = system.n, system.k, steps
     x = ca.SX.sym("x", (n + k) * big_n)  # knots 1..N, stage-wise (q_k, v_k)
     q0, v0 = ca.SX.sym("q0", n), ca.SX.sym("v0", k)
@@ -93,7 +101,7 @@ def _build(system: NonholonomicSystem, steps: int, terminal: str) -> Transcripti
         objective += 0.5 * omega * ca.sumsqr(knots_q[-1] - q_end)
     g = ca.vertcat(*residuals)
     solver = ca.nlpsol(f"variational_{system.name}_{big_n}", "ipopt",
-                       {"x": x, "p": p, "f": objective, "g": g}, IPOPT_OPTIONS)
+                       {"x": x, "p": p, "f": objective, "g": g}, ipopt_options(max_time))
     return Transcription(
         system=system, steps=big_n, terminal=terminal, solver=solver,
         controls=ca.Function("controls", [x, p], [ca.horzcat(*controls)]),
@@ -109,9 +117,9 @@ def default_guess(problem: TrackingProblem) -> np.ndarray:
 
 
 def solve_variational(problem: TrackingProblem, initial_guess: np.ndarray | None = None,
-                      warm_multipliers: np.ndarray | None = None) -> Solution:
+                      max_time: float | None = None) -> Solution:
     """Solve the discrete variational NLP; ``initial_guess`` is the flat knots 1..N."""
-    tr = transcription(problem.system, problem.steps, problem.terminal)
+    tr = transcription(problem.system, problem.steps, problem.terminal, max_time)
     n, k, big_n = problem.system.n, problem.system.k, problem.steps
     p = tr.parameters(problem)
     x0 = default_guess(problem) if initial_guess is None else np.asarray(initial_guess, float)
@@ -121,11 +129,8 @@ def solve_variational(problem: TrackingProblem, initial_guess: np.ndarray | None
         lbx[-(n + k):] = ubx[-(n + k):] = np.concatenate([q_end[0], v_end[0]])
         x0 = x0.copy()
         x0[-(n + k):] = lbx[-(n + k):]
-    args = dict(x0=x0, p=p, lbx=lbx, ubx=ubx, lbg=0, ubg=0)
-    if warm_multipliers is not None:
-        args["lam_g0"] = warm_multipliers
     start = time.perf_counter()
-    result = tr.solver(**args)
+    result = tr.solver(x0=x0, p=p, lbx=lbx, ubx=ubx, lbg=0, ubg=0)
     elapsed = time.perf_counter() - start
     stats = tr.solver.stats()
     xs = np.array(result["x"]).ravel()

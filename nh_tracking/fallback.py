@@ -1,0 +1,71 @@
+"""A classical tracking law for when the optimiser cannot deliver: Kanayama on quasi-velocities.
+
+For systems with a heading (a yaw axis), the desired forward speed and yaw rate come from
+Kanayama's law on the body-frame pose error (Kanayama et al., ICRA 1990); for others, from
+the reference velocity plus the pose error projected onto D (which corrects only the part of
+the error lying in D: a fallback that keeps such a system near the reference, no more). Either desired motion is turned
+into quasi-velocities v_d by the pose map, and a computed-torque loop on the quasi-velocities,
+u = -f(q, v, 0) + k_v (v_d - v), makes v follow it.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from nh_tracking.poses import PoseMap, wrap_angle
+from nh_tracking.problem import Solution, TrackingProblem, terminal_error
+from nh_tracking.simulate import simulate
+
+
+@dataclass(frozen=True)
+class KanayamaGains:
+    k_x: float = 1.0  # 1/s, along-track
+    k_y: float = 4.0  # 1/m^2, cross-track
+    k_theta: float = 3.0  # 1/m, heading
+    k_v: float = 4.0  # 1/s, quasi-velocity loop
+
+
+class TrackingLaw:
+    """u(t, q, v) that tracks a problem's reference without optimisation."""
+
+    def __init__(self, problem: TrackingProblem, gains: KanayamaGains = KanayamaGains()):
+        self.problem, self.gains = problem, gains
+        self.pose_map = PoseMap(problem.system)
+
+    def desired_velocity(self, t: float, q: np.ndarray) -> np.ndarray:
+        q_r, v_r = self.problem.reference_point(t)
+        pm, g = self.pose_map, self.gains
+        world_r = pm.system.rho(q_r) @ v_r
+        rates_r = np.array([world_r[pm.rows[a]] if a in pm.rows else 0.0
+                            for a in ("x", "y", "z", "yaw")])
+        if not pm.has_yaw:
+            error = pm.pose(q_r) - pm.pose(q)
+            return pm.velocity_from_world(q, rates_r + g.k_x * error)
+        x, y, _, yaw = pm.pose(q)
+        xr, yr, _, yaw_r = pm.pose(q_r)
+        c, s = np.cos(yaw), np.sin(yaw)
+        e_x = c * (xr - x) + s * (yr - y)
+        e_y = -s * (xr - x) + c * (yr - y)
+        e_th = wrap_angle(yaw_r - yaw)
+        speed_r = np.cos(yaw_r) * rates_r[0] + np.sin(yaw_r) * rates_r[1]
+        speed = speed_r * np.cos(e_th) + g.k_x * e_x
+        yaw_rate = rates_r[3] + speed_r * (g.k_y * e_y + g.k_theta * np.sin(e_th))
+        return pm.velocity_from_world(q, np.array([c * speed, s * speed, rates_r[2], yaw_rate]))
+
+    def __call__(self, t: float, q: np.ndarray, v: np.ndarray) -> np.ndarray:
+        _, drift = self.problem.system.dynamics(q, v)
+        return -drift + self.gains.k_v * (self.desired_velocity(t, q) - v)
+
+
+def fallback_plan(problem: TrackingProblem, gains: KanayamaGains = KanayamaGains()) -> Solution:
+    """The tracking law rolled out on the model over the horizon, as a plan."""
+    law = TrackingLaw(problem, gains)
+    traj = simulate(problem.system, problem.q0, problem.v0, problem.grid, law,
+                    rtol=1e-6, atol=1e-8)
+    return Solution(
+        t=traj.t, q=traj.q, v=traj.v, u=traj.u, cost=float("nan"), success=True,
+        iterations=0, solve_time=0.0,
+        terminal_error=terminal_error(problem, traj.q[-1], traj.v[-1]), method="fallback",
+        message="Kanayama tracking law", route="fallback",
+    )

@@ -1,0 +1,120 @@
+"""Where a configuration sits in the world of ROS messages: poses, body twists, references.
+
+A ROS pose gives (x, y, z, yaw); a system's coordinates map onto some of these axes (the
+sleigh's x1, x2, theta onto x, y, yaw) and the rest are *hidden* (the rolling disk's rolling
+angle phi), not observable from a pose. Velocities given in full coordinates are projected
+onto D by least squares on the pose rows of rho — the lateral slip of a path, which no wheeled
+robot can follow, is dropped.
+"""
+from __future__ import annotations
+
+from collections.abc import Mapping
+
+import numpy as np
+from scipy.integrate import cumulative_trapezoid
+from scipy.interpolate import CubicSpline
+
+from nh_tracking.system import NonholonomicSystem
+from nh_tracking.trajectory import Trajectory
+
+AXES = ("x", "y", "z", "yaw")
+_AXIS_BY_NAME = {"x": "x", "x1": "x", "y": "y", "x2": "y", "z": "z",
+                 "theta": "yaw", "yaw": "yaw", "psi": "yaw"}
+
+
+def wrap_angle(angle: np.ndarray | float) -> np.ndarray | float:
+    """Angle(s) in (-pi, pi]."""
+    return np.pi - np.mod(np.pi - np.asarray(angle), 2 * np.pi)
+
+
+class PoseMap:
+    """Maps a system's (q, v) to and from world poses (x, y, z, yaw) and body twists.
+
+    ``axes`` maps coordinate names to pose axes; by default coordinates are matched by name
+    (x/x1 -> x, y/x2 -> y, z -> z, theta/yaw/psi -> yaw); unmatched coordinates are hidden.
+    """
+
+    def __init__(self, system: NonholonomicSystem,
+                 axes: Mapping[str, str] | None = None) -> None:
+        mapping = dict(axes) if axes is not None else {
+            c: _AXIS_BY_NAME[c] for c in system.coordinates if c in _AXIS_BY_NAME}
+        if not set(mapping.values()) <= set(AXES) or len(set(mapping.values())) != len(mapping):
+            raise ValueError(f"pose axes must be distinct members of {AXES}, got {mapping}")
+        if "x" not in mapping.values():
+            raise ValueError(f"{system.name}: no coordinate maps onto the pose's x axis")
+        self.system = system
+        self.rows = {axis: system.coordinates.index(c) for c, axis in mapping.items()}
+        self.hidden = [i for i, c in enumerate(system.coordinates) if c not in mapping]
+        self.pose_rows = [self.rows[a] for a in AXES if a in self.rows]
+
+    @property
+    def has_yaw(self) -> bool:
+        return "yaw" in self.rows
+
+    def pose(self, q: np.ndarray) -> np.ndarray:
+        """(x, y, z, yaw) of a configuration; absent axes are 0, yaw in (-pi, pi]."""
+        out = np.array([q[self.rows[a]] if a in self.rows else 0.0 for a in AXES])
+        out[3] = wrap_angle(out[3])
+        return out
+
+    def configuration(self, pose: np.ndarray, hidden: np.ndarray | None = None) -> np.ndarray:
+        """q from a pose; hidden coordinates from ``hidden`` (default 0)."""
+        q = np.zeros(self.system.n)
+        if hidden is not None:
+            q[self.hidden] = np.asarray(hidden, dtype=float)[self.hidden]
+        for i, a in enumerate(AXES):
+            if a in self.rows:
+                q[self.rows[a]] = pose[i]
+        return q
+
+    def _pose_rate(self, q: np.ndarray, world: np.ndarray) -> np.ndarray:
+        """Rates of the mapped coordinates from world (xdot, ydot, zdot, yaw rate)."""
+        return np.array([world[AXES.index(a)] for a in AXES if a in self.rows])
+
+    def velocity(self, q: np.ndarray, body_twist: np.ndarray) -> np.ndarray:
+        """v from a body-frame twist (vx, vy, vz, wz), projected onto D (least squares)."""
+        yaw = q[self.rows["yaw"]] if self.has_yaw else 0.0
+        c, s = np.cos(yaw), np.sin(yaw)
+        vx, vy, vz, wz = body_twist
+        return self.velocity_from_world(q, np.array([c * vx - s * vy, s * vx + c * vy, vz, wz]))
+
+    def velocity_from_world(self, q: np.ndarray, world: np.ndarray) -> np.ndarray:
+        """v from world-frame rates (xdot, ydot, zdot, yaw rate), projected onto D."""
+        rho = self.system.rho(q)[self.pose_rows]
+        return np.linalg.lstsq(rho, self._pose_rate(q, world), rcond=None)[0]
+
+    def body_twist(self, q: np.ndarray, v: np.ndarray) -> np.ndarray:
+        """Body-frame twist (vx, vy, vz, wz) of the motion (q, v)."""
+        qdot = self.system.rho(q) @ v
+        world = np.array([qdot[self.rows[a]] if a in self.rows else 0.0 for a in AXES])
+        yaw = q[self.rows["yaw"]] if self.has_yaw else 0.0
+        c, s = np.cos(yaw), np.sin(yaw)
+        return np.array([c * world[0] + s * world[1], -s * world[0] + c * world[1],
+                         world[2], world[3]])
+
+    def reference(self, times: np.ndarray, poses: np.ndarray,
+                  body_twists: np.ndarray | None = None,
+                  hidden0: np.ndarray | None = None) -> Trajectory:
+        """A reference Trajectory from timed poses (N, 4) and optionally body twists (N, 4).
+
+        Without twists, velocities are the derivatives of a C2 spline through the poses (yaw
+        unwrapped first). Either way they are projected onto D; hidden coordinates are
+        integrated from ``hidden0`` along the projected motion.
+        """
+        times = np.asarray(times, dtype=float)
+        poses = np.array(poses, dtype=float)
+        poses[:, 3] = np.unwrap(poses[:, 3])
+        if body_twists is None:
+            world = CubicSpline(times, poses, axis=0).derivative()(times) if len(times) > 2 \
+                else np.tile((poses[-1] - poses[0]) / (times[-1] - times[0]), (len(times), 1))
+        else:
+            yaw, tw = poses[:, 3], np.asarray(body_twists, dtype=float)
+            c, s = np.cos(yaw), np.sin(yaw)
+            world = np.stack([c * tw[:, 0] - s * tw[:, 1], s * tw[:, 0] + c * tw[:, 1],
+                              tw[:, 2], tw[:, 3]], axis=1)
+        q = np.array([self.configuration(p, hidden0) for p in poses])
+        v = np.array([self.velocity_from_world(qi, w) for qi, w in zip(q, world)])
+        if self.hidden:
+            rates = np.array([self.system.rho(qi)[self.hidden] @ vi for qi, vi in zip(q, v)])
+            q[:, self.hidden] += cumulative_trapezoid(rates, times, axis=0, initial=0.0)
+        return Trajectory(t=times, q=q, v=v, u=np.zeros((len(times) - 1, self.system.k)))
