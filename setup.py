@@ -21,6 +21,8 @@ setup(
     entry_points={
         'console_scripts': [
             'nh-tracking = nh_tracking.cli:main',
+            'planner = nh_tracking.ros:planner_main',
+            'sim = nh_tracking.ros:sim_main',
         ],
     },
 )

@@ -97,3 +97,29 @@ def plot_energy(system: NonholonomicSystem, solution, fine: Trajectory, path: Pa
     fig.savefig(path, dpi=100)
     plt.close(fig)
     return path
+
+
+def plot_closed_loop(reference: Trajectory, t: np.ndarray, xy: np.ndarray, error: np.ndarray,
+                     solve_t: np.ndarray, solve_s: np.ndarray, start: float, path: Path) -> Path:
+    """The closed loop: reference vs driven path, cross-track error, and solve times."""
+    fig, axes = plt.subplots(1, 3, figsize=(16, 4.8))
+    ax = axes[0]
+    shown = reference.t <= t[-1] + 1.0
+    ax.plot(reference.q[shown, 0], reference.q[shown, 1], "k--", label="reference")
+    ax.plot(xy[:, 0], xy[:, 1], "-", lw=2, label="closed loop (robot 10 % heavier)")
+    ax.plot(*xy[0], "gs", label="start")
+    ax.set(xlabel="x [m]", ylabel="y [m]", aspect="equal", title="sleigh tracking through ROS")
+    ax.legend(loc="upper left", fontsize=8)
+    axes[1].semilogy(t, np.maximum(error, 1e-5))
+    axes[1].axhline(0.05, color="r", ls=":", label="0.05 m")
+    axes[1].set(xlabel="t [s]", ylabel="cross-track error [m]", title="tracking error")
+    axes[1].legend()
+    axes[2].plot(solve_t - (start if len(solve_t) and solve_t[0] > start / 2 else 0.0),
+                 solve_s * 1e3, ".", ms=3)
+    axes[2].set(xlabel="t [s]", ylabel="solve time [ms]", title="replanning solve time")
+    for ax in axes:
+        ax.grid(alpha=0.3)
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+    return path

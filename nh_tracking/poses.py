@@ -67,6 +67,18 @@ class PoseMap:
                 q[self.rows[a]] = pose[i]
         return q
 
+    def dead_reckon(self, pose: np.ndarray, v: np.ndarray, previous_q: np.ndarray | None,
+                    previous_v: np.ndarray | None, dt: float) -> np.ndarray:
+        """q from a measured pose, hidden coordinates carried forward from the previous
+        estimate by integrating their rates (trapezoid rule) over dt."""
+        if previous_q is None or not self.hidden:
+            return self.configuration(pose, previous_q)
+        q = self.configuration(pose, previous_q)
+        rate_prev = self.system.rho(previous_q)[self.hidden] @ previous_v
+        rate_now = self.system.rho(q)[self.hidden] @ v
+        q[self.hidden] += 0.5 * dt * (rate_prev + rate_now)
+        return q
+
     def _pose_rate(self, q: np.ndarray, world: np.ndarray) -> np.ndarray:
         """Rates of the mapped coordinates from world (xdot, ydot, zdot, yaw rate)."""
         return np.array([world[AXES.index(a)] for a in AXES if a in self.rows])

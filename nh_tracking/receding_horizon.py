@@ -17,6 +17,8 @@ import numpy as np
 from nh_tracking.fallback import fallback_plan
 from nh_tracking.problem import Solution, TrackingProblem, terminal_error
 from nh_tracking.solvers import METHODS, sample_plan, solve
+from nh_tracking.solvers.multiple_shooting import shooting_transcription
+from nh_tracking.solvers.variational import transcription
 from nh_tracking.system import NonholonomicSystem
 from nh_tracking.trajectory import Trajectory
 
@@ -61,6 +63,7 @@ class PlanOutcome:
     solve_time: float
     deadline_missed: bool
     message: str
+    reference: np.ndarray  # q_r at the plan's knots, for display
 
 
 @dataclass
@@ -71,6 +74,7 @@ class PlannerStatistics:
     fallbacks: int = 0
     deadline_misses: int = 0
     solve_times: list[float] = field(default_factory=list)
+    plan_times: list[float] = field(default_factory=list)  # the t of each solve
 
 
 class RecedingHorizonPlanner:
@@ -83,6 +87,14 @@ class RecedingHorizonPlanner:
         self.reference: Trajectory | None = None
         self.previous: Solution | None = None
         self.stats = PlannerStatistics()
+
+    def prepare(self) -> None:
+        """Build the solver for the current settings now, so the first plan is not late."""
+        s = self.settings
+        if s.method == "variational":
+            transcription(self.system, s.steps, s.terminal, s.max_solve_time)
+        elif s.method == "multiple_shooting":
+            shooting_transcription(self.system, s.steps, s.terminal, s.max_solve_time)
 
     def set_reference(self, reference: Trajectory) -> None:
         """Track ``reference`` (times on the planner's clock) from the next plan on."""
@@ -106,6 +118,7 @@ class RecedingHorizonPlanner:
     def plan(self, t: float, q: np.ndarray, v: np.ndarray) -> PlanOutcome:
         """Plan from state (q, v) at time t. Raises ValueError only for bad input."""
         problem = self.problem(t, q, v)
+        reference = problem.reference_at(problem.grid)[0]
         s = self.settings
         guess = self.previous
         if guess is not None and guess.q.shape[1] != self.system.n:
@@ -121,23 +134,31 @@ class RecedingHorizonPlanner:
         self.stats.deadline_misses += int(missed)
         if sol is not None:
             self.stats.solve_times.append(sol.solve_time)
+            self.stats.plan_times.append(t)
         if ok:
             self.previous = sol
             self.stats.optimal += 1
             return PlanOutcome(sol, "optimal", sol.solve_time, missed,
-                               f"{s.method}: cost {sol.cost:.4g} in {sol.iterations} iterations")
+                               f"{s.method}: cost {sol.cost:.4g} in {sol.iterations} iterations",
+                               reference)
         solve_time = sol.solve_time if sol is not None else 0.0
         if self.previous is not None and self.previous.t[-1] > t:
             shifted = self._shifted(problem, self.previous)
             self.previous = shifted
             self.stats.shifted += 1
             return PlanOutcome(shifted, "shifted", solve_time, missed,
-                               f"kept the previous plan, shifted ({error})")
+                               f"kept the previous plan, shifted ({error})", reference)
         plan = fallback_plan(problem)
         self.previous = plan  # the plan in force: shifted if the next solve fails too
         self.stats.fallbacks += 1
         return PlanOutcome(plan, "fallback", solve_time, missed,
-                           f"tracking law fallback ({error})")
+                           f"tracking law fallback ({error})", reference)
+
+    def preview(self, t: float, q: np.ndarray, v: np.ndarray) -> Solution:
+        """A plan from (q, v) at t that leaves the replanning loop's state alone (a query)."""
+        s = self.settings
+        return solve(self.problem(t, q, v), s.method, initial_guess=self.previous,
+                     max_time=s.max_solve_time)
 
     @staticmethod
     def _shifted(problem: TrackingProblem, previous: Solution) -> Solution:

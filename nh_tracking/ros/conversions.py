@@ -1,0 +1,252 @@
+"""ROS messages to and from plain arrays, with validation; unit conversion only, no numerics.
+
+Every ``*_to_arrays`` function either returns clean numbers or raises :class:`InputRejected`
+with a reason a user can act on — the nodes log that reason once and keep their last good
+plan (the pattern of ros2_controllers' ``validate_trajectory_msg``).
+"""
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+
+import numpy as np
+from builtin_interfaces.msg import Duration, Time
+from diagnostic_msgs.msg import DiagnosticStatus, KeyValue
+from geometry_msgs.msg import (Point, Pose, PoseStamped, Quaternion, Transform, Twist,
+                               TwistStamped, Vector3)
+from nav_msgs.msg import Odometry, Path
+from std_msgs.msg import ColorRGBA, Header
+from trajectory_msgs.msg import (JointTrajectory, JointTrajectoryPoint,
+                                 MultiDOFJointTrajectory, MultiDOFJointTrajectoryPoint)
+from visualization_msgs.msg import Marker, MarkerArray
+
+QUATERNION_TOLERANCE = 1e-3  # |q| may differ from 1 by this much (float32 round trips)
+
+
+class InputRejected(ValueError):
+    """A message that cannot be used, with the reason."""
+
+
+# time -----------------------------------------------------------------------------------------
+def stamp_ns(stamp: Time) -> int:
+    return int(stamp.sec) * 1_000_000_000 + int(stamp.nanosec)
+
+
+def time_msg(ns: int) -> Time:
+    return Time(sec=int(ns // 1_000_000_000), nanosec=int(ns % 1_000_000_000))
+
+
+def duration_seconds(d: Duration) -> float:
+    return d.sec + d.nanosec * 1e-9
+
+
+def duration_msg(seconds: float) -> Duration:
+    ns = int(round(seconds * 1e9))
+    return Duration(sec=ns // 1_000_000_000, nanosec=ns % 1_000_000_000)
+
+
+# orientation ----------------------------------------------------------------------------------
+def yaw_of(q: Quaternion) -> float:
+    """Yaw of a unit quaternion; rejects non-finite and non-unit ones."""
+    values = (q.x, q.y, q.z, q.w)
+    if not all(math.isfinite(c) for c in values):
+        raise InputRejected("orientation has non-finite components")
+    norm = math.sqrt(sum(c * c for c in values))
+    if abs(norm - 1.0) > QUATERNION_TOLERANCE:
+        raise InputRejected(f"orientation quaternion is not unit (norm {norm:.4g})")
+    return math.atan2(2.0 * (q.w * q.z + q.x * q.y), 1.0 - 2.0 * (q.y * q.y + q.z * q.z))
+
+
+def quaternion_of(yaw: float) -> Quaternion:
+    return Quaternion(x=0.0, y=0.0, z=math.sin(yaw / 2), w=math.cos(yaw / 2))
+
+
+def _finite(values: Sequence[float], what: str) -> None:
+    if not all(math.isfinite(v) for v in values):
+        raise InputRejected(f"{what} has NaN or Inf values")
+
+
+def pose_array(pose: Pose, what: str) -> np.ndarray:
+    """(x, y, z, yaw) of a pose, validated."""
+    p = pose.position
+    _finite((p.x, p.y, p.z), f"{what} position")
+    return np.array([p.x, p.y, p.z, yaw_of(pose.orientation)])
+
+
+def twist_array(twist: Twist, what: str = "twist") -> np.ndarray:
+    """(vx, vy, vz, wz) of a twist, validated (roll and pitch rates are ignored)."""
+    values = (twist.linear.x, twist.linear.y, twist.linear.z, twist.angular.z)
+    _finite(values + (twist.angular.x, twist.angular.y), what)
+    return np.array(values)
+
+
+def check_frame(frame_id: str, expected: str, what: str) -> None:
+    if frame_id.lstrip("/") != expected.lstrip("/"):
+        raise InputRejected(f"{what} is in frame '{frame_id}', expected '{expected}'")
+
+
+def _increasing(times: np.ndarray, what: str) -> None:
+    if len(times) < 2:
+        raise InputRejected(f"{what} needs at least 2 points, got {len(times)}")
+    if np.any(np.diff(times) <= 0):
+        i = int(np.argmax(np.diff(times) <= 0))
+        raise InputRejected(f"{what} times are not strictly increasing at point {i + 1}")
+
+
+# inputs ---------------------------------------------------------------------------------------
+def path_to_arrays(msg: Path, frame: str, receipt_ns: int) -> tuple[np.ndarray, np.ndarray]:
+    """(times [ns, absolute], poses (N, 4)) of a timed Path.
+
+    Timing comes from each pose's stamp. A path whose header stamp is zero starts on receipt:
+    its pose stamps are then offsets from the first pose's stamp.
+    """
+    if not msg.poses:
+        raise InputRejected("path is empty")
+    check_frame(msg.header.frame_id, frame, "path")
+    for i, ps in enumerate(msg.poses):
+        if ps.header.frame_id:
+            check_frame(ps.header.frame_id, frame, f"path pose {i}")
+    stamps = np.array([stamp_ns(ps.header.stamp) for ps in msg.poses], dtype=np.int64)
+    if stamp_ns(msg.header.stamp) == 0:
+        stamps = stamps - stamps[0] + receipt_ns
+    _increasing(stamps.astype(float), "path")
+    poses = np.array([pose_array(ps.pose, f"path pose {i}") for i, ps in enumerate(msg.poses)])
+    return stamps, poses
+
+
+def multidof_to_arrays(msg: MultiDOFJointTrajectory, frame: str, receipt_ns: int
+                       ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(times [ns], poses (N, 4), body twists (N, 4)) of a one-joint MultiDOFJointTrajectory."""
+    if not msg.points:
+        raise InputRejected("trajectory has no points")
+    if len(msg.joint_names) != 1:
+        raise InputRejected(f"trajectory must have exactly 1 joint, got {len(msg.joint_names)}")
+    check_frame(msg.header.frame_id, frame, "trajectory")
+    base = stamp_ns(msg.header.stamp) or receipt_ns
+    poses, twists, times = [], [], []
+    for i, pt in enumerate(msg.points):
+        if len(pt.transforms) != 1 or len(pt.velocities) != 1:
+            raise InputRejected(
+                f"trajectory point {i} has {len(pt.transforms)} transforms and "
+                f"{len(pt.velocities)} velocities for 1 joint")
+        tr = pt.transforms[0]
+        _finite((tr.translation.x, tr.translation.y, tr.translation.z), f"point {i} translation")
+        poses.append([tr.translation.x, tr.translation.y, tr.translation.z,
+                      yaw_of(tr.rotation)])
+        twists.append(twist_array(pt.velocities[0], f"point {i} velocity"))
+        times.append(base + int(round(duration_seconds(pt.time_from_start) * 1e9)))
+    stamps = np.array(times, dtype=np.int64)
+    _increasing(stamps.astype(float), "trajectory")
+    return stamps, np.array(poses), np.array(twists)
+
+
+def odom_to_arrays(msg: Odometry, frame: str) -> tuple[int, np.ndarray, np.ndarray]:
+    """(stamp [ns], pose (4,), body twist (4,)) of an Odometry message."""
+    check_frame(msg.header.frame_id, frame, "odometry")
+    return (stamp_ns(msg.header.stamp), pose_array(msg.pose.pose, "odometry pose"),
+            twist_array(msg.twist.twist, "odometry twist"))
+
+
+def controls_to_arrays(msg: JointTrajectory, names: Sequence[str]
+                       ) -> tuple[int, np.ndarray, np.ndarray]:
+    """(start stamp [ns], times from start (N,), efforts (N, k) in ``names`` order)."""
+    if not msg.points:
+        raise InputRejected("control sequence has no points")
+    if sorted(msg.joint_names) != sorted(names):
+        raise InputRejected(f"control sequence joints {list(msg.joint_names)} are not "
+                            f"the controls {list(names)}")
+    order = [list(msg.joint_names).index(n) for n in names]
+    efforts, times = [], []
+    for i, pt in enumerate(msg.points):
+        if len(pt.effort) != len(names):
+            raise InputRejected(f"control point {i} has {len(pt.effort)} efforts for "
+                                f"{len(names)} joints")
+        _finite(pt.effort, f"control point {i} effort")
+        efforts.append([pt.effort[j] for j in order])
+        times.append(duration_seconds(pt.time_from_start))
+    times_arr = np.array(times)
+    if len(times_arr) > 1:
+        _increasing(times_arr, "control sequence")
+    return stamp_ns(msg.header.stamp), times_arr, np.array(efforts)
+
+
+# outputs --------------------------------------------------------------------------------------
+def pose_msg(pose: np.ndarray) -> Pose:
+    return Pose(position=Point(x=float(pose[0]), y=float(pose[1]), z=float(pose[2])),
+                orientation=quaternion_of(float(pose[3])))
+
+
+def path_msg(frame: str, stamps_ns: Sequence[int], poses: np.ndarray) -> Path:
+    header = Header(frame_id=frame, stamp=time_msg(stamps_ns[0]))
+    return Path(header=header, poses=[
+        PoseStamped(header=Header(frame_id=frame, stamp=time_msg(ns)), pose=pose_msg(p))
+        for ns, p in zip(stamps_ns, poses)])
+
+
+def multidof_msg(frame: str, start_ns: int, offsets: np.ndarray, poses: np.ndarray,
+                 body_twists: np.ndarray, joint: str = "base_link") -> MultiDOFJointTrajectory:
+    """A one-joint trajectory: pose and body twist per point, timed from ``start_ns``."""
+    points = []
+    for dt, pose, twist in zip(offsets, poses, body_twists):
+        point = MultiDOFJointTrajectoryPoint(time_from_start=duration_msg(float(dt)))
+        point.transforms = [Transform(
+            translation=Vector3(x=float(pose[0]), y=float(pose[1]), z=float(pose[2])),
+            rotation=quaternion_of(float(pose[3])))]
+        point.velocities = [twist_msg(twist)]
+        points.append(point)
+    return MultiDOFJointTrajectory(header=Header(frame_id=frame, stamp=time_msg(start_ns)),
+                                   joint_names=[joint], points=points)
+
+
+def control_sequence_msg(frame: str, start_ns: int, offsets: np.ndarray, names: Sequence[str],
+                         efforts: np.ndarray) -> JointTrajectory:
+    """One point per control interval: ``effort`` held from ``time_from_start`` on."""
+    return JointTrajectory(
+        header=Header(frame_id=frame, stamp=time_msg(start_ns)), joint_names=list(names),
+        points=[JointTrajectoryPoint(effort=[float(e) for e in u],
+                                     time_from_start=duration_msg(float(dt)))
+                for dt, u in zip(offsets, efforts)])
+
+
+def twist_msg(body_twist: np.ndarray) -> Twist:
+    vx, vy, vz, wz = (float(x) for x in body_twist)
+    return Twist(linear=Vector3(x=vx, y=vy, z=vz), angular=Vector3(z=wz))
+
+
+def twist_stamped_msg(frame: str, stamp: int, body_twist: np.ndarray) -> TwistStamped:
+    return TwistStamped(header=Header(frame_id=frame, stamp=time_msg(stamp)),
+                        twist=twist_msg(body_twist))
+
+
+def odometry_msg(frame: str, child: str, stamp: int, pose: np.ndarray,
+                 body_twist: np.ndarray) -> Odometry:
+    msg = Odometry(header=Header(frame_id=frame, stamp=time_msg(stamp)), child_frame_id=child)
+    msg.pose.pose = pose_msg(pose)
+    msg.twist.twist = twist_msg(body_twist)
+    return msg
+
+
+def line_strip(frame: str, stamp: int, ns: str, points: np.ndarray, rgba: tuple,
+               width: float = 0.03) -> Marker:
+    return Marker(
+        header=Header(frame_id=frame, stamp=time_msg(stamp)), ns=ns, id=0,
+        type=Marker.LINE_STRIP, action=Marker.ADD, scale=Vector3(x=width),
+        color=ColorRGBA(r=rgba[0], g=rgba[1], b=rgba[2], a=rgba[3]),
+        points=[Point(x=float(p[0]), y=float(p[1]), z=float(p[2])) for p in points])
+
+
+def plan_markers(frame: str, stamp: int, plan_poses: np.ndarray,
+                 reference_poses: np.ndarray) -> MarkerArray:
+    """The plan (green) and the reference over the same horizon (grey), for RViz."""
+    return MarkerArray(markers=[
+        line_strip(frame, stamp, "planned_path", plan_poses, (0.1, 0.8, 0.2, 1.0)),
+        line_strip(frame, stamp, "reference", reference_poses, (0.6, 0.6, 0.6, 0.8), 0.02),
+    ])
+
+
+def diagnostic_status(name: str, hardware_id: str, level: bytes, message: str,
+                      values: dict[str, object]) -> DiagnosticStatus:
+    """``level`` is one of DiagnosticStatus.OK, WARN, ERROR, STALE."""
+    return DiagnosticStatus(
+        level=level, name=name, message=message, hardware_id=hardware_id,
+        values=[KeyValue(key=k, value=str(v)) for k, v in values.items()])

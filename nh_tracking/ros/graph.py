@@ -1,0 +1,73 @@
+"""Several nodes in one process: one Context, a single-threaded executor on its own thread.
+
+What ``nh-tracking demo`` and the integration tests use to compose planner and simulator
+without launch files (the pattern of rclpy's own tests).
+"""
+from __future__ import annotations
+
+import threading
+import time
+from collections.abc import Callable
+
+import rclpy
+from rclpy.context import Context
+from rclpy.executors import SingleThreadedExecutor
+from rclpy.node import Node
+from rclpy.parameter import Parameter
+
+
+def parameters(**values: object) -> list[Parameter]:
+    """Parameter overrides from keyword arguments."""
+    return [Parameter(name, value=value) for name, value in values.items()]
+
+
+def wait_until(predicate: Callable[[], bool], timeout: float, period: float = 0.01) -> bool:
+    """Poll ``predicate`` until it holds or ``timeout`` (wall seconds) passes."""
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        if predicate():
+            return True
+        time.sleep(period)
+    return predicate()
+
+
+class InProcessGraph:
+    """Owns a Context and an executor thread; ``close()`` tears everything down."""
+
+    def __init__(self) -> None:
+        self.context = Context()
+        rclpy.init(context=self.context)
+        self.executor = SingleThreadedExecutor(context=self.context)
+        self.nodes: list[Node] = []
+        self._thread = threading.Thread(target=self._spin, name="ros_graph", daemon=True)
+        self._thread.start()
+
+    def _spin(self) -> None:
+        try:
+            self.executor.spin()
+        except Exception:  # noqa: BLE001 - shutdown races end the thread quietly
+            pass
+
+    def add(self, make: Callable[..., Node], **kwargs) -> Node:
+        """Create a node in this graph's context (``make(context=..., **kwargs)``) and spin it."""
+        node = make(context=self.context, **kwargs)
+        self.nodes.append(node)
+        self.executor.add_node(node)
+        return node
+
+    def plain_node(self, name: str, namespace: str = "") -> Node:
+        return self.add(lambda **kw: rclpy.create_node(name, **kw), namespace=namespace)
+
+    def close(self) -> None:
+        """Stop spinning first, so no callback runs while nodes are destroyed."""
+        self.executor.shutdown(timeout_sec=5.0)
+        self._thread.join(timeout=5.0)
+        for node in reversed(self.nodes):
+            node.destroy_node()
+        rclpy.try_shutdown(context=self.context)
+
+    def __enter__(self) -> InProcessGraph:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()

@@ -1,0 +1,60 @@
+"""Callbacks that never let an exception reach the executor, and rejection bookkeeping."""
+from __future__ import annotations
+
+import functools
+import threading
+
+from rclpy.node import Node
+
+from nh_tracking.ros.conversions import InputRejected
+
+
+class SafeNode(Node):
+    """A node that rejects bad input with one log line and counts what went wrong."""
+
+    def __init__(self, name: str, **kwargs) -> None:
+        super().__init__(name, **kwargs)
+        self._problem_lock = threading.Lock()
+        self.rejected_inputs = 0
+        self.errors = 0
+        self.last_problem = ""
+
+    def reject(self, what: str, reason: str) -> None:
+        """One clear log line for a message that cannot be used; the node carries on."""
+        self.get_logger().warn(f"rejected {what}: {reason}")
+        with self._problem_lock:
+            self.rejected_inputs += 1
+            self.last_problem = f"rejected {what}: {reason}"
+        self.on_problem()
+
+    def fail(self, what: str, exc: BaseException) -> None:
+        self.get_logger().error(f"{what} failed: {type(exc).__name__}: {exc}")
+        with self._problem_lock:
+            self.errors += 1
+            self.last_problem = f"{what} failed: {type(exc).__name__}: {exc}"
+        self.on_problem()
+
+    def take_problem(self) -> str:
+        """The last problem since the previous call (for diagnostics)."""
+        with self._problem_lock:
+            problem, self.last_problem = self.last_problem, ""
+        return problem
+
+    def on_problem(self) -> None:
+        """Hook: report a problem at once (the planner publishes a diagnostic)."""
+
+
+def guarded(what: str):
+    """Decorate a SafeNode callback: InputRejected -> reject(), anything else -> fail()."""
+    def wrap(fn):
+        @functools.wraps(fn)
+        def inner(self: SafeNode, *args, **kwargs):
+            try:
+                return fn(self, *args, **kwargs)
+            except InputRejected as exc:
+                self.reject(what, str(exc))
+            except Exception as exc:  # noqa: BLE001 - the executor must never see it
+                self.fail(what, exc)
+            return None
+        return inner
+    return wrap

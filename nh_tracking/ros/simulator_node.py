@@ -1,0 +1,172 @@
+"""The simulator node: integrates the model's real controlled dynamics and publishes odometry.
+
+It applies ``control_sequence`` by its timing (each effort held over its interval, the step
+split at interval boundaries), zero control after ``control_timeout`` without a new sequence
+or past its end, or — in ``velocity`` mode — follows ``cmd_vel``. It can own the clock
+(``publish_clock``) to run faster than real time.
+"""
+from __future__ import annotations
+
+import threading
+
+import numpy as np
+from geometry_msgs.msg import PoseWithCovarianceStamped, Twist, TwistStamped
+from nav_msgs.msg import Odometry
+from rclpy.clock import Clock, ClockType
+from rosgraph_msgs.msg import Clock as ClockMsg
+from trajectory_msgs.msg import JointTrajectory
+
+from nh_tracking import models
+from nh_tracking.poses import PoseMap
+from nh_tracking.ros import conversions as cv
+from nh_tracking.ros.parameters import declare, declare_model
+from nh_tracking.ros.planner_node import LATCHED
+from nh_tracking.ros.safety import SafeNode, guarded
+from nh_tracking.simulate import simulate
+
+MODES = ("effort", "velocity")
+
+
+class SimulatorNode(SafeNode):
+    """``nh_tracking_sim``: see DESIGN §3."""
+
+    def __init__(self, **kwargs) -> None:
+        super().__init__("nh_tracking_sim", **kwargs)
+        model, params = declare_model(self)
+        self.system = models.create(model, **params)
+        self.pose_map = PoseMap(self.system)
+        n, k = self.system.n, self.system.k
+        initial = declare(self, "initial_state", [0.0] * (n + k),
+                          f"initial q then v ({n} + {k} numbers)")
+        initial = np.asarray(initial, dtype=float)
+        if initial.size != n + k or not np.all(np.isfinite(initial)):
+            raise ValueError(f"parameter initial_state needs {n + k} finite numbers "
+                             f"(q then v of {model}), got {list(initial)}")
+        self.rate = declare(self, "rate", 50.0, "integration and odometry rate [Hz]",
+                            (1.0, 2000.0), read_only=True)
+        self.control_timeout = declare(self, "control_timeout", 0.5,
+                                       "zero control after this long without commands [s]",
+                                       (1e-3, 3600.0))
+        self.mode = declare(self, "mode", "effort", "effort: control_sequence; velocity: "
+                            "cmd_vel", read_only=True)
+        if self.mode not in MODES:
+            raise ValueError(f"parameter mode must be one of {MODES}, got {self.mode!r}")
+        self.frame = declare(self, "frame_id", "odom", "odometry frame", read_only=True)
+        self.child_frame = declare(self, "child_frame_id", "base_link", "body frame",
+                                   read_only=True)
+        self.publish_clock = declare(self, "publish_clock", False,
+                                     "own the clock: publish /clock (sim time)", read_only=True)
+        scale = declare(self, "time_scale", 1.0, "simulated seconds per wall second when "
+                        "publishing /clock", (1e-3, 1000.0), read_only=True)
+        start = declare(self, "start_time", 0.0, "initial /clock time [s]", (0.0, 1e9),
+                        read_only=True)
+        stamped = declare(self, "cmd_vel_stamped", False, "cmd_vel is TwistStamped",
+                          read_only=True)
+
+        self._lock = threading.Lock()
+        self._q, self._v = initial[:n].copy(), initial[n:].copy()
+        self._controls: tuple[int, np.ndarray, np.ndarray] | None = None
+        self._command: np.ndarray | None = None
+        self._command_ns = 0
+        self._step_ns = int(round(1e9 / self.rate))
+        self._sim_ns = int(round(start * 1e9)) if self.publish_clock else self._clock_ns()
+
+        self.pub_odom = self.create_publisher(Odometry, "odom", 10)
+        self.pub_clock = (self.create_publisher(ClockMsg, "/clock", 10)
+                          if self.publish_clock else None)
+        self.create_subscription(JointTrajectory, "control_sequence", self.on_controls, LATCHED)
+        self.create_subscription(TwistStamped if stamped else Twist, "cmd_vel",
+                                 self.on_cmd_vel, 10)
+        self.create_subscription(PoseWithCovarianceStamped, "initialpose", self.on_initialpose,
+                                 10)
+        if self.publish_clock:
+            self.create_timer(1.0 / (self.rate * scale), self.step,
+                              clock=Clock(clock_type=ClockType.STEADY_TIME))
+        else:
+            self.create_timer(1.0 / self.rate, self.step)
+        self.get_logger().info(f"simulating {model} {params} from {list(initial)}, "
+                               f"{self.mode} mode at {self.rate:g} Hz")
+
+    def _clock_ns(self) -> int:
+        return self.get_clock().now().nanoseconds
+
+    def _now_ns(self) -> int:
+        return self._sim_ns if self.publish_clock else self._clock_ns()
+
+    @property
+    def state(self) -> tuple[np.ndarray, np.ndarray]:
+        """(q, v) now (a copy)."""
+        with self._lock:
+            return self._q.copy(), self._v.copy()
+
+    @guarded("control_sequence")
+    def on_controls(self, msg: JointTrajectory) -> None:
+        start, offsets, efforts = cv.controls_to_arrays(msg, self.system.control_names)
+        with self._lock:
+            self._controls = (start, offsets, efforts)
+            self._command_ns = self._now_ns()
+
+    @guarded("cmd_vel")
+    def on_cmd_vel(self, msg) -> None:
+        twist = cv.twist_array(msg.twist if isinstance(msg, TwistStamped) else msg, "cmd_vel")
+        with self._lock:
+            self._command = twist
+            self._command_ns = self._now_ns()
+
+    @guarded("initialpose")
+    def on_initialpose(self, msg: PoseWithCovarianceStamped) -> None:
+        cv.check_frame(msg.header.frame_id, self.frame, "initial pose")
+        pose = cv.pose_array(msg.pose.pose, "initial pose")
+        with self._lock:
+            self._q = self.pose_map.configuration(pose, self._q)
+            self._v = np.zeros(self.system.k)
+            self._controls, self._command = None, None
+        self.get_logger().info(f"reset to pose {np.round(pose, 3).tolist()} at rest")
+
+    def _pieces(self, t0: int, t1: int) -> list[tuple[int, int, np.ndarray]]:
+        """[(from, to, u)] covering [t0, t1]: the control sequence held per interval, zero
+        outside it or after the control timeout."""
+        zero = np.zeros(self.system.k)
+        fresh = (t0 - self._command_ns) * 1e-9 <= self.control_timeout
+        if self._controls is None or not fresh:
+            return [(t0, t1, zero)]
+        start, offsets, efforts = self._controls
+        h = offsets[-1] - offsets[-2] if len(offsets) > 1 else self.control_timeout
+        edges = [start + int(round(o * 1e9)) for o in offsets] + [
+            start + int(round((offsets[-1] + h) * 1e9))]
+        cuts = sorted({t0, t1, *[e for e in edges if t0 < e < t1]})
+        pieces = []
+        for a, b in zip(cuts[:-1], cuts[1:]):
+            i = int(np.searchsorted(edges, a, side="right")) - 1
+            pieces.append((a, b, efforts[i] if 0 <= i < len(efforts) else zero))
+        return pieces
+
+    @guarded("simulation step")
+    def step(self) -> None:
+        t0 = self._sim_ns if self.publish_clock else getattr(self, "_last_ns", self._clock_ns())
+        t1 = t0 + self._step_ns if self.publish_clock else self._clock_ns()
+        self._last_ns = t1
+        if t1 <= t0:
+            return
+        with self._lock:
+            q, v = self._q, self._v
+            if self.mode == "velocity":
+                fresh = (t0 - self._command_ns) * 1e-9 <= self.control_timeout
+                v = (self.pose_map.velocity(q, self._command)
+                     if fresh and self._command is not None else np.zeros(self.system.k))
+                pieces = [(t0, t1, None)]
+            else:
+                pieces = self._pieces(t0, t1)
+        for a, b, u in pieces:
+            law = (lambda s, qq, vv: -self.system.dynamics(qq, vv)[1]) if u is None else None
+            traj = simulate(self.system, q, v, [a * 1e-9, b * 1e-9],
+                            law if u is None else u[None, :], rtol=1e-9, atol=1e-11)
+            q, v = traj.q[-1], traj.v[-1]
+        with self._lock:
+            self._q, self._v = q, v
+        if self.publish_clock:
+            self._sim_ns = t1
+            self.pub_clock.publish(ClockMsg(clock=cv.time_msg(t1)))
+        self.pub_odom.publish(cv.odometry_msg(self.frame, self.child_frame, t1,
+                                              self.pose_map.pose(q),
+                                              self.pose_map.body_twist(q, v)))
