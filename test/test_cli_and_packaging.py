@@ -2,8 +2,10 @@
 import json
 import os
 import shutil
+import signal
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import pytest
@@ -47,12 +49,48 @@ def test_colcon_build_installs_the_package_and_its_executables(tmp_path):
     assert (install / "share/ament_index/resource_index/packages/nh_tracking").exists()
     assert (install / "share/nh_tracking/package.xml").exists()
     site = next(install.glob("lib/python3*/site-packages"))
-    for exe in ("nh-tracking",):
+    env = dict(env, PYTHONPATH=str(site))
+    run = subprocess.run([str(install / "lib/nh_tracking/nh-tracking"), "--help"],
+                         capture_output=True, text=True, env=env, timeout=60)
+    assert run.returncode == 0 and "usage" in run.stdout
+    for exe in ("planner", "sim"):
         path = install / "lib" / "nh_tracking" / exe
         assert path.exists(), f"{exe} not installed to lib/nh_tracking"
-        run = subprocess.run([str(path), "--help"], capture_output=True, text=True,
-                             env=dict(env, PYTHONPATH=str(site)), timeout=60)
-        assert run.returncode == 0 and "usage" in run.stdout
+        _starts_and_stops_on_ctrl_c([str(path), "--ros-args", "-r",
+                                     f"__ns:=/pkg{os.getpid()}"], env)
+
+
+def _starts_and_stops_on_ctrl_c(command, env):
+    """The node comes up (logs its start line), and Ctrl-C ends it cleanly with code 0."""
+    proc = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
+                            text=True, env=env)
+    lines = []
+    try:
+        deadline = time.monotonic() + 60
+        while time.monotonic() < deadline:
+            line = proc.stdout.readline()
+            lines.append(line)
+            if "planning for" in line or "simulating" in line or not line:
+                break
+        time.sleep(1.0)
+        proc.send_signal(signal.SIGINT)
+        out, _ = proc.communicate(timeout=30)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    text = "".join(lines) + out
+    assert proc.returncode == 0, text
+    assert "Traceback" not in text, text
+
+
+def test_executable_reports_bad_parameters_without_traceback():
+    env = dict(os.environ, ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
+    run = subprocess.run([str(BIN / "sim"), "--ros-args", "-p", "initial_state:=[1.0, 2.0]",
+                          "-r", f"__ns:=/bad{os.getpid()}"],
+                         capture_output=True, text=True, env=env, timeout=60)
+    assert run.returncode == 2
+    assert "initial_state needs 5 finite numbers" in run.stderr
+    assert "Traceback" not in run.stdout + run.stderr
 
 
 def test_reproduce_writes_metrics_and_figures(tmp_path):

@@ -20,7 +20,6 @@ from nh_tracking import models
 from nh_tracking.poses import PoseMap
 from nh_tracking.ros import conversions as cv
 from nh_tracking.ros.parameters import declare, declare_model
-from nh_tracking.ros.planner_node import LATCHED
 from nh_tracking.ros.safety import SafeNode, guarded
 from nh_tracking.simulate import simulate
 
@@ -74,7 +73,8 @@ class SimulatorNode(SafeNode):
         self.pub_odom = self.create_publisher(Odometry, "odom", 10)
         self.pub_clock = (self.create_publisher(ClockMsg, "/clock", 10)
                           if self.publish_clock else None)
-        self.create_subscription(JointTrajectory, "control_sequence", self.on_controls, LATCHED)
+        # volatile: matches latched (the planner's) and ordinary publishers alike
+        self.create_subscription(JointTrajectory, "control_sequence", self.on_controls, 10)
         self.create_subscription(TwistStamped if stamped else Twist, "cmd_vel",
                                  self.on_cmd_vel, 10)
         self.create_subscription(PoseWithCovarianceStamped, "initialpose", self.on_initialpose,

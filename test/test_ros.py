@@ -1,0 +1,261 @@
+"""The ROS layer, end to end: real nodes, the real solver, one Context per test, no launch."""
+import math
+import uuid
+
+import numpy as np
+import pytest
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
+from geometry_msgs.msg import PoseStamped, Twist
+from nav_msgs.msg import Odometry, Path
+from nav_msgs.srv import GetPlan
+from rcl_interfaces.msg import Log
+from rclpy.parameter import Parameter
+from std_msgs.msg import Header
+from std_srvs.srv import Trigger
+from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint, MultiDOFJointTrajectory
+
+from nh_tracking.experiments import SLEIGH_REFERENCE_START
+from nh_tracking.metrics import cross_track_error
+from nh_tracking.ros import PlannerNode, SimulatorNode
+from nh_tracking.ros import conversions as cv
+from nh_tracking.ros.demo import START, ClosedLoop, reference_message, sleigh_reference
+from nh_tracking.ros.graph import InProcessGraph, parameters, wait_until
+
+pytestmark = pytest.mark.timeout(180)
+
+
+@pytest.fixture
+def graph():
+    g = InProcessGraph()
+    yield g
+    g.close()
+
+
+def unique_namespace() -> str:
+    return f"/t{uuid.uuid4().hex[:8]}"
+
+
+@pytest.mark.parametrize("kind", ["path", "trajectory"])
+def test_closed_loop_tracks_through_ros_with_inertia_mismatch(graph, kind):
+    """Robot 10 % heavier than the planner thinks; cross-track error < 0.05 m after 12 s."""
+    loop = ClosedLoop(graph, namespace=unique_namespace())
+    reference = sleigh_reference(30.0)
+    loop.start(reference, kind, time_scale=5.0)
+    assert wait_until(lambda: loop.sim_time() >= START + 14.0, timeout=90.0)
+    t, xy = loop.track()
+    error = cross_track_error(xy[t - START >= 12.0], reference.q[:, :2])
+    assert error.size > 50 and error.max() < 0.05
+    stats = loop.planner.planner.stats
+    assert stats.plans > 80 and stats.fallbacks == 0
+
+
+class WallClockPair:
+    """Planner + simulator on the wall clock, the robot starting on the reference."""
+
+    def __init__(self, graph, namespace=None, offset=(0.0, 0.0), planner_params=None):
+        self.ns = namespace or unique_namespace()
+        q0, v0 = SLEIGH_REFERENCE_START
+        start = [q0[0] + offset[0], q0[1] + offset[1], q0[2], *v0]
+        self.sim = graph.add(SimulatorNode, namespace=self.ns,
+                             parameter_overrides=parameters(initial_state=start, rate=50.0))
+        self.planner = graph.add(PlannerNode, namespace=self.ns,
+                                 parameter_overrides=parameters(**(planner_params or {})))
+        self.node = graph.plain_node("probe", self.ns)
+        self.reference = sleigh_reference(60.0)
+        self.offset = np.array(offset)
+        self.published = {"path": [], "control_sequence": [], "cmd_vel": []}
+        self.node.create_subscription(Path, "planned_path",
+                                      lambda m: self.published["path"].append(m), 10)
+        self.node.create_subscription(JointTrajectory, "control_sequence",
+                                      lambda m: self.published["control_sequence"].append(m), 10)
+        self.node.create_subscription(Twist, "cmd_vel",
+                                      lambda m: self.published["cmd_vel"].append(m), 10)
+        self.odom = []
+        self.node.create_subscription(Odometry, "odom", lambda m: self.odom.append(m), 10)
+
+    def publisher(self, msg_type, topic):
+        """A publisher matched to every subscriber of ``topic`` (the probe listens to odom and
+        control_sequence itself, so one match alone would not mean the node under test)."""
+        pub = self.node.create_publisher(msg_type, topic, 10)
+        expected = 2 if topic in ("odom", "control_sequence") else 1
+        assert wait_until(lambda: pub.get_subscription_count() >= expected, 10.0)
+        return pub
+
+    def send_reference(self):
+        """The reference with a zero stamp: it starts when received."""
+        msg = reference_message(self.reference, self.planner.pose_map, 0.0, "path")
+        msg.header.stamp = cv.time_msg(0)
+        for ps in msg.poses:
+            ps.pose.position.x += float(self.offset[0])
+            ps.pose.position.y += float(self.offset[1])
+        self.publisher(Path, "reference_path").publish(msg)
+        assert wait_until(lambda: self.planner.planner.reference is not None, 10.0)
+        assert wait_until(lambda: self.planner.planner.stats.optimal >= 3, 20.0)
+
+    def call(self, srv_type, name, request, timeout=20.0):
+        client = self.node.create_client(srv_type, f"{self.ns}/{name}")
+        assert client.wait_for_service(timeout_sec=10.0)
+        future = client.call_async(request)
+        assert wait_until(future.done, timeout)
+        return future.result()
+
+
+def _finite_outputs(pair) -> bool:
+    paths = all(math.isfinite(p.pose.position.x) and math.isfinite(p.pose.position.y)
+                for m in pair.published["path"] for p in m.poses)
+    efforts = all(math.isfinite(e) for m in pair.published["control_sequence"]
+                  for pt in m.points for e in pt.effort)
+    twists = all(math.isfinite(m.linear.x) and math.isfinite(m.angular.z)
+                 for m in pair.published["cmd_vel"])
+    return paths and efforts and twists
+
+
+def test_services_answer_before_and_after_a_reference(graph):
+    pair = WallClockPair(graph)
+    early = pair.call(Trigger, "replan", Trigger.Request())
+    assert not early.success and "no reference" in early.message
+    empty = pair.call(GetPlan, "plan", GetPlan.Request())
+    assert len(empty.plan.poses) == 0
+    pair.send_reference()
+    done = pair.call(Trigger, "replan", Trigger.Request())
+    assert done.success and done.message.startswith("optimal")
+    from_odom = pair.call(GetPlan, "plan", GetPlan.Request())
+    assert len(from_odom.plan.poses) == 31
+    xy = np.array([[p.pose.position.x, p.pose.position.y] for p in from_odom.plan.poses])
+    assert np.all(np.isfinite(xy)) and cross_track_error(xy, pair.reference.q[:, :2]).max() < 0.1
+    request = GetPlan.Request()
+    request.start = PoseStamped()
+    request.start.header.frame_id = "odom"
+    request.start.pose = cv.pose_msg(np.array([1.0, 1.5, 0.0, 0.5]))
+    from_start = pair.call(GetPlan, "plan", request)
+    first = from_start.plan.poses[0].pose.position
+    assert (first.x, first.y) == pytest.approx((1.0, 1.5), abs=1e-9)
+    assert all(np.isfinite([p.pose.position.x for p in from_start.plan.poses]))
+
+
+def _bad_messages(pair):
+    good = reference_message(pair.reference, pair.planner.pose_map, 0.0, "path")
+    good.header.stamp = cv.time_msg(0)
+
+    def path(edit):
+        """A fresh copy of the first 20 poses (no shared sub-messages), then ``edit``."""
+        msg = Path(header=Header(frame_id="odom", stamp=cv.time_msg(0)), poses=[
+            PoseStamped(header=Header(frame_id=p.header.frame_id, stamp=p.header.stamp),
+                        pose=cv.pose_msg(np.array([p.pose.position.x, p.pose.position.y, 0.0,
+                                                   cv.yaw_of(p.pose.orientation)])))
+            for p in good.poses[:20]])
+        edit(msg)
+        return msg
+
+    def nan_pose(m):
+        m.poses[5].pose.position.x = float("nan")
+
+    def repeat_stamp(m):
+        m.poses[7].header.stamp = m.poses[6].header.stamp
+
+    def other_frame(m):
+        m.header.frame_id = "map"
+
+    def long_quaternion(m):
+        m.poses[3].pose.orientation.w = 2.0
+
+    trajectory = reference_message(pair.reference, pair.planner.pose_map, 0.0, "trajectory")
+    mismatched = MultiDOFJointTrajectory(header=trajectory.header,
+                                         joint_names=trajectory.joint_names,
+                                         points=list(trajectory.points[:10]))
+    mismatched.points[4].transforms = list(mismatched.points[4].transforms) * 2
+    infinite = MultiDOFJointTrajectory(header=trajectory.header,
+                                       joint_names=trajectory.joint_names,
+                                       points=list(trajectory.points[10:20]))
+    infinite.points[2].velocities[0].linear.x = float("inf")
+    odom = Odometry()
+    odom.header.frame_id = "odom"
+    odom.pose.pose.position.y = float("nan")
+    odom.pose.pose.orientation.w = 1.0
+    wrong_frame_odom = Odometry()
+    wrong_frame_odom.header.frame_id = "map"
+    wrong_frame_odom.pose.pose.orientation.w = 1.0
+    return [
+        (Path, "reference_path", Path(header=Header(frame_id="odom")), "path is empty"),
+        (Path, "reference_path", path(nan_pose), "NaN"),
+        (Path, "reference_path", path(repeat_stamp), "not strictly increasing"),
+        (Path, "reference_path", path(other_frame), "frame 'map'"),
+        (Path, "reference_path", path(long_quaternion), "not unit"),
+        (MultiDOFJointTrajectory, "reference_trajectory", mismatched, "2 transforms"),
+        (MultiDOFJointTrajectory, "reference_trajectory", infinite, "NaN or Inf"),
+        (Odometry, "odom", odom, "NaN"),
+        (Odometry, "odom", wrong_frame_odom, "frame 'map'"),
+    ]
+
+
+def test_malformed_input_is_rejected_and_the_last_good_plan_stays(graph):
+    pair = WallClockPair(graph)
+    logs, diagnostics = [], []
+    pair.node.create_subscription(Log, "/rosout", logs.append, 100)
+    pair.node.create_subscription(DiagnosticArray, "/diagnostics", diagnostics.append, 100)
+    pair.send_reference()
+    reference = pair.planner.planner.reference
+    for msg_type, topic, msg, reason in _bad_messages(pair):
+        before = pair.planner.rejected_inputs
+        plans = pair.planner.planner.stats.plans
+        pair.publisher(msg_type, topic).publish(msg)
+        assert wait_until(lambda: pair.planner.rejected_inputs == before + 1, 10.0), reason
+        assert wait_until(lambda: any(
+            reason in entry.msg and entry.level == Log.WARN and pair.ns[1:] in entry.name
+            for entry in logs), 10.0), (reason, [(e.level, e.name, e.msg) for e in logs[-5:]])
+        assert wait_until(lambda: any(
+            s.level == DiagnosticStatus.WARN and reason in s.message
+            for d in diagnostics for s in d.status), 10.0), reason
+        assert pair.planner.planner.reference is reference  # last good reference in force
+        assert wait_until(lambda: pair.planner.planner.stats.plans > plans + 2, 10.0)
+    assert pair.planner.rejected_inputs == len(_bad_messages(pair))
+    assert pair.planner.errors == 0 and _finite_outputs(pair)
+    # the simulator rejects a control sequence for joints it does not have, and keeps going
+    bad = JointTrajectory(joint_names=["left", "right"],
+                          points=[JointTrajectoryPoint(effort=[1.0, 2.0])])
+    count = len(pair.odom)
+    pair.publisher(JointTrajectory, "control_sequence").publish(bad)
+    assert wait_until(lambda: pair.sim.rejected_inputs == 1, 10.0)
+    assert wait_until(lambda: len(pair.odom) > count + 10, 10.0)
+
+
+def test_parameter_changes_take_effect_and_bad_ones_are_refused(graph):
+    pair = WallClockPair(graph)
+    pair.send_reference()
+    planner = pair.planner
+    result = planner.set_parameters([Parameter("horizon", value=2.0)])[0]
+    assert result.successful
+    pair.published["control_sequence"].clear()
+
+    def last_offset():
+        msgs = pair.published["control_sequence"]
+        return cv.duration_seconds(msgs[-1].points[-1].time_from_start) if msgs else None
+
+    assert wait_until(lambda: last_offset() == pytest.approx(2.0 - 2.0 / 30), 10.0)
+    assert planner.planner.previous is not None  # warm start kept across the change
+    for name, value in [("horizon", -1.0), ("steps", 1), ("max_solve_time", 0.0),
+                        ("method", "magic"), ("terminal", "free"), ("model", "unicycle"),
+                        ("J", -4.0)]:
+        outcome = planner.set_parameters([Parameter(name, value=value)])[0]
+        assert not outcome.successful, name
+        assert outcome.reason, name
+    assert planner.get_parameter("horizon").value == 2.0
+    assert planner.set_parameters([Parameter("J", value=4.4)])[0].successful
+    assert planner.planner.system.parameters["J"] == 4.4
+    assert wait_until(lambda: planner.planner.stats.optimal >= 3, 10.0)
+
+
+def test_two_pairs_in_namespaces_do_not_cross_talk(graph):
+    a = WallClockPair(graph, offset=(0.0, 0.0))
+    b = WallClockPair(graph, offset=(0.0, 10.0))
+    a.send_reference()
+    b.send_reference()
+    count_a, count_b = len(a.odom), len(b.odom)
+    assert wait_until(lambda: len(a.odom) > count_a + 100 and len(b.odom) > count_b + 100, 20.0)
+    for pair, other in ((a, b), (b, a)):
+        xy = np.array([[m.pose.pose.position.x, m.pose.pose.position.y] for m in pair.odom[-50:]])
+        own = pair.reference.q[:, :2] + pair.offset
+        foreign = other.reference.q[:, :2] + other.offset
+        assert cross_track_error(xy, own).max() < 0.2
+        assert cross_track_error(xy, foreign).min() > 5.0
+        assert pair.planner.planner.reference.q[0, 1] == pytest.approx(0.5 + pair.offset[1])
