@@ -259,3 +259,56 @@ def test_two_pairs_in_namespaces_do_not_cross_talk(graph):
         assert cross_track_error(xy, own).max() < 0.2
         assert cross_track_error(xy, foreign).min() > 5.0
         assert pair.planner.planner.reference.q[0, 1] == pytest.approx(0.5 + pair.offset[1])
+
+
+def _unicycle_sim(graph, **overrides):
+    ns = unique_namespace()
+    sim = graph.add(SimulatorNode, namespace=ns, parameter_overrides=parameters(
+        model="unicycle", initial_state=[0.0, 0.0, 0.0, 0.0, 0.0], rate=100.0, **overrides))
+    probe = graph.plain_node("probe", ns)
+    return sim, probe
+
+
+def test_simulator_holds_controls_until_the_timeout_then_coasts(graph):
+    """u = (1, 0) for 10 s is sent once; it applies from its stamp until control_timeout
+    (0.3 s) after receipt, then the unicycle coasts (no drift terms in its dynamics)."""
+    sim, probe = _unicycle_sim(graph, control_timeout=0.3)
+    pub = probe.create_publisher(JointTrajectory, "control_sequence", 10)
+    assert wait_until(lambda: pub.get_subscription_count() > 0, 10.0)
+    now = sim.get_clock().now().nanoseconds
+    pub.publish(cv.control_sequence_msg("odom", now, np.arange(0.0, 10.0, 0.1),
+                                        sim.system.control_names, np.tile([1.0, 0.0], (100, 1))))
+    assert wait_until(lambda: sim.state[1][0] > 0.05, 5.0)
+    wait_until(lambda: False, 1.0)
+    speed = sim.state[1][0]
+    # applied from the first step after receipt (not retroactively) until receipt + timeout
+    latest = (sim._command_ns - now) * 1e-9 + 0.3
+    assert 0.3 - 1e-9 <= speed <= latest + 1e-9
+    wait_until(lambda: False, 0.5)
+    assert sim.state[1][0] == pytest.approx(speed, abs=1e-9)
+
+
+def test_simulator_velocity_mode_follows_cmd_vel_and_initialpose_resets(graph):
+    from geometry_msgs.msg import PoseWithCovarianceStamped
+
+    sim, probe = _unicycle_sim(graph, mode="velocity", control_timeout=5.0)
+    odoms = []
+    probe.create_subscription(Odometry, "odom", odoms.append, 100)
+    pub = probe.create_publisher(Twist, "cmd_vel", 10)
+    assert wait_until(lambda: pub.get_subscription_count() > 0, 10.0)
+    pub.publish(cv.twist_msg(np.array([0.5, 0.3, 0.0, 0.4])))  # lateral slip is projected out
+    assert wait_until(lambda: sim.state[0][0] > 0.2, 10.0)
+    q, v = sim.state
+    assert v == pytest.approx([0.5, 0.4], abs=1e-6)
+    assert wait_until(lambda: odoms and odoms[-1].twist.twist.linear.x == pytest.approx(0.5), 5.0)
+    assert abs(odoms[-1].twist.twist.linear.y) < 1e-9
+    reset = PoseWithCovarianceStamped()
+    reset.header.frame_id = "odom"
+    reset.pose.pose = cv.pose_msg(np.array([3.0, -2.0, 0.0, 1.0]))
+    pose_pub = probe.create_publisher(PoseWithCovarianceStamped, "initialpose", 10)
+    assert wait_until(lambda: pose_pub.get_subscription_count() > 0, 10.0)
+    pub.publish(cv.twist_msg(np.zeros(4)))
+    assert wait_until(lambda: abs(sim.state[1][0]) < 1e-9, 5.0)
+    pose_pub.publish(reset)
+    assert wait_until(lambda: sim.state[0][0] == pytest.approx(3.0, abs=1e-6), 5.0)
+    assert sim.state[0] == pytest.approx([3.0, -2.0, 1.0], abs=1e-6)

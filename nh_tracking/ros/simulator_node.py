@@ -125,20 +125,21 @@ class SimulatorNode(SafeNode):
 
     def _pieces(self, t0: int, t1: int) -> list[tuple[int, int, np.ndarray]]:
         """[(from, to, u)] covering [t0, t1]: the control sequence held per interval, zero
-        outside it or after the control timeout."""
+        outside it and from the instant the control timeout expires (a cut in the step)."""
         zero = np.zeros(self.system.k)
-        fresh = (t0 - self._command_ns) * 1e-9 <= self.control_timeout
-        if self._controls is None or not fresh:
+        expiry = self._command_ns + int(round(self.control_timeout * 1e9))
+        if self._controls is None or t0 >= expiry:
             return [(t0, t1, zero)]
         start, offsets, efforts = self._controls
         h = offsets[-1] - offsets[-2] if len(offsets) > 1 else self.control_timeout
         edges = [start + int(round(o * 1e9)) for o in offsets] + [
             start + int(round((offsets[-1] + h) * 1e9))]
-        cuts = sorted({t0, t1, *[e for e in edges if t0 < e < t1]})
+        cuts = sorted({t0, t1, *[e for e in edges + [expiry] if t0 < e < t1]})
         pieces = []
         for a, b in zip(cuts[:-1], cuts[1:]):
             i = int(np.searchsorted(edges, a, side="right")) - 1
-            pieces.append((a, b, efforts[i] if 0 <= i < len(efforts) else zero))
+            active = a < expiry and 0 <= i < len(efforts)
+            pieces.append((a, b, efforts[i] if active else zero))
         return pieces
 
     @guarded("simulation step")
