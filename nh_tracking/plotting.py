@@ -13,6 +13,17 @@ from nh_tracking.system import NonholonomicSystem  # noqa: E402
 from nh_tracking.trajectory import Trajectory  # noqa: E402
 
 
+def _finish(fig, path: Path, dpi: int = 100) -> Path:
+    """Grid on every 2-D axis, tight layout, write the PNG, free the figure."""
+    for ax in fig.axes:
+        if ax.name != "3d":
+            ax.grid(alpha=0.3)
+    fig.tight_layout()
+    fig.savefig(path, dpi=dpi)
+    plt.close(fig)
+    return path
+
+
 def plot_simulation(system: NonholonomicSystem, traj: Trajectory, path: Path) -> Path:
     """Path in the plane of the first two coordinates, quasi-velocities, and energy drift."""
     energy = np.array([system.energy(q, v) for q, v in zip(traj.q, traj.v)])
@@ -30,12 +41,7 @@ def plot_simulation(system: NonholonomicSystem, traj: Trajectory, path: Path) ->
     axes[1].legend()
     axes[2].plot(traj.t, energy - energy[0])
     axes[2].set(xlabel="t [s]", ylabel="E(t) - E(0)", title=f"energy drift (E0 = {energy[0]:.4g})")
-    for ax in axes:
-        ax.grid(alpha=0.3)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
+    return _finish(fig, path, dpi=110)
 
 
 def plot_tracking(problem, solution, running: np.ndarray, path: Path, title: str,
@@ -73,13 +79,7 @@ def plot_tracking(problem, solution, running: np.ndarray, path: Path, title: str
     twin.set_ylabel("accumulated running cost")
     ax.legend(loc="upper left")
     twin.legend(loc="upper right")
-    for a in fig.axes:
-        if a.name != "3d":
-            a.grid(alpha=0.3)
-    fig.tight_layout()
-    fig.savefig(path, dpi=100)
-    plt.close(fig)
-    return path
+    return _finish(fig, path)
 
 
 def plot_energy(system: NonholonomicSystem, solution, fine: Trajectory, path: Path) -> Path:
@@ -91,12 +91,8 @@ def plot_energy(system: NonholonomicSystem, solution, fine: Trajectory, path: Pa
     ax.plot(fine.t, e_fine, "b-", label="fine RK45 integration of the plan's controls")
     ax.plot(solution.t, e_plan, "ro", ms=4, label=f"{solution.method} plan ({len(solution.t)} knots)")
     ax.set(xlabel="t [s]", ylabel="energy", title="controlled energy")
-    ax.grid(alpha=0.3)
     ax.legend()
-    fig.tight_layout()
-    fig.savefig(path, dpi=100)
-    plt.close(fig)
-    return path
+    return _finish(fig, path)
 
 
 def plot_closed_loop(reference: Trajectory, t: np.ndarray, xy: np.ndarray, error: np.ndarray,
@@ -117,9 +113,4 @@ def plot_closed_loop(reference: Trajectory, t: np.ndarray, xy: np.ndarray, error
     axes[2].plot(solve_t - (start if len(solve_t) and solve_t[0] > start / 2 else 0.0),
                  solve_s * 1e3, ".", ms=3)
     axes[2].set(xlabel="t [s]", ylabel="solve time [ms]", title="replanning solve time")
-    for ax in axes:
-        ax.grid(alpha=0.3)
-    fig.tight_layout()
-    fig.savefig(path, dpi=100)
-    plt.close(fig)
-    return path
+    return _finish(fig, path)

@@ -6,7 +6,6 @@ continuity x_{k+1} = RK4(x_k, u_k), and the running cost integrated alongside by
 from __future__ import annotations
 
 import time
-import weakref
 from dataclasses import dataclass
 
 import casadi as ca
@@ -15,6 +14,7 @@ import numpy as np
 from nh_tracking.problem import (Solution, TrackingProblem, terminal_cost, terminal_error,
                                  tracking_lagrangian)
 from nh_tracking.solvers.variational import ipopt_options
+from nh_tracking.solvers.cache import PerSystemCache
 from nh_tracking.system import NonholonomicSystem
 
 SUBSTEPS = 2  # RK4 steps per control interval
@@ -34,16 +34,13 @@ class ShootingTranscription:
                                [problem.h, problem.epsilon, problem.omega]])
 
 
-_CACHE: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
+_CACHE: PerSystemCache[ShootingTranscription] = PerSystemCache()
 
 
 def shooting_transcription(system: NonholonomicSystem, steps: int, terminal: str,
                            max_time: float | None = None) -> ShootingTranscription:
-    per_system = _CACHE.setdefault(system, {})
-    key = (steps, terminal, max_time)
-    if key not in per_system:
-        per_system[key] = _build(system, steps, terminal, max_time)
-    return per_system[key]
+    return _CACHE.get(system, (steps, terminal, max_time),
+                      lambda: _build(system, steps, terminal, max_time))
 
 
 def _build(system: NonholonomicSystem, steps: int, terminal: str,

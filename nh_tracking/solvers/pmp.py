@@ -13,7 +13,6 @@ solution. The route that succeeded is reported.
 from __future__ import annotations
 
 import time
-import weakref
 from dataclasses import dataclass
 
 import casadi as ca
@@ -24,6 +23,7 @@ from scipy.optimize import root
 from nh_tracking.numeric import NumericFunction
 from nh_tracking.problem import (Solution, TrackingProblem, terminal_cost, terminal_error,
                                  tracking_lagrangian)
+from nh_tracking.solvers.cache import PerSystemCache
 from nh_tracking.system import NonholonomicSystem
 
 BLOW_UP = 1e6  # |state, costate| beyond this ends an integration as diverged
@@ -51,13 +51,11 @@ class PontryaginFlow:
     dim: int  # len(z) = 2 (n + k)
 
 
-_CACHE: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
+_CACHE: PerSystemCache[PontryaginFlow] = PerSystemCache()
 
 
 def pontryagin_flow(system: NonholonomicSystem) -> PontryaginFlow:
-    if system not in _CACHE:
-        _CACHE[system] = _build(system)
-    return _CACHE[system]
+    return _CACHE.get(system, "flow", lambda: _build(system))
 
 
 def _build(system: NonholonomicSystem) -> PontryaginFlow:

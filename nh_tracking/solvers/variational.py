@@ -12,7 +12,6 @@ numbers and warm-starts.
 from __future__ import annotations
 
 import time
-import weakref
 from dataclasses import dataclass
 
 import casadi as ca
@@ -20,6 +19,7 @@ import numpy as np
 
 from nh_tracking.problem import (Solution, TrackingProblem, terminal_cost, terminal_error,
                                  tracking_lagrangian)
+from nh_tracking.solvers.cache import PerSystemCache
 from nh_tracking.system import NonholonomicSystem
 
 IPOPT_OPTIONS = {
@@ -54,17 +54,14 @@ class Transcription:
         ])
 
 
-_CACHE: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
+_CACHE: PerSystemCache[Transcription] = PerSystemCache()
 
 
 def transcription(system: NonholonomicSystem, steps: int, terminal: str,
                   max_time: float | None = None) -> Transcription:
     """The NLP for this structure (and time limit), built on first use, cached on the system."""
-    per_system = _CACHE.setdefault(system, {})
-    key = (steps, terminal, max_time)
-    if key not in per_system:
-        per_system[key] = _build(system, steps, terminal, max_time)
-    return per_system[key]
+    return _CACHE.get(system, (steps, terminal, max_time),
+                      lambda: _build(system, steps, terminal, max_time))
 
 
 def ipopt_options(max_time: float | None) -> dict:
