@@ -1,7 +1,8 @@
 """Receding-horizon replanning: warm starts, a deadline, and a plan that is always usable.
 
 Each call tracks the part of the reference from "now" on, from the measured state, warm-started
-from the previous plan shifted to the new time. If the solve fails or misses its deadline the
+from the previous plan shifted to the new time. If the solve fails or misses its deadline (its
+result is then discarded; the solver's iterations are bounded so it cannot run away) the
 previous plan, shifted, stays in force; with no previous plan, a classical tracking law
 (:mod:`nh_tracking.fallback`) supplies one. Nothing here knows about ROS.
 """
@@ -129,7 +130,10 @@ class RecedingHorizonPlanner:
         except (ArithmeticError, RuntimeError, ValueError) as exc:  # a numerical failure
             sol, error = None, f"solver raised {type(exc).__name__}: {exc}"
         missed = sol is not None and sol.solve_time > s.max_solve_time
-        ok = sol is not None and sol.success and _finite(sol)
+        if missed:  # a late plan describes a past that has moved on: do not use it
+            error = (f"missed the deadline ({sol.solve_time * 1e3:.1f} ms > "
+                     f"{s.max_solve_time * 1e3:.1f} ms)")
+        ok = sol is not None and sol.success and _finite(sol) and not missed
         self.stats.plans += 1
         self.stats.deadline_misses += int(missed)
         if sol is not None:

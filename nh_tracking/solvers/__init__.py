@@ -42,8 +42,7 @@ def _solve_one(problem: TrackingProblem, method: str,
                guess: tuple[np.ndarray, np.ndarray, np.ndarray] | None,
                max_time: float | None = None) -> Solution:
     if method == "variational":
-        flat = None if guess is None else np.hstack(guess[:2])[1:].ravel()
-        return solve_variational(problem, flat, max_time)
+        return solve_variational(problem, None if guess is None else guess[:2], max_time)
     if method == "multiple_shooting":
         return solve_multiple_shooting(problem, guess, max_time)
     return solve_pmp(problem) if max_time is None else solve_pmp(problem, max_time=max_time)

@@ -22,6 +22,7 @@ from nh_tracking.problem import (Solution, TrackingProblem, terminal_cost, termi
 from nh_tracking.solvers.cache import PerSystemCache
 from nh_tracking.system import NonholonomicSystem
 
+SOLVERS = ("fatrop", "ipopt")
 IPOPT_OPTIONS = {
     "ipopt.print_level": 0,
     "ipopt.sb": "yes",
@@ -30,19 +31,29 @@ IPOPT_OPTIONS = {
     "ipopt.constr_viol_tol": 1e-12,
     "ipopt.max_iter": 500,
 }
+FATROP_OPTIONS = {"print_level": 0, "tol": 1e-10, "max_iter": 500}
 
 
 @dataclass
 class Transcription:
-    """The compiled NLP of one structure, and functions to read a solution back."""
+    """The compiled NLP of one structure, and functions to read a solution back.
+
+    Stage-wise unknowns w = [x_0, u_0, ..., x_{N-1}, u_{N-1}, x_N] with x_k = (q_k, v_k) and
+    u_k = (v_{k+1}, z_k): z_k is the midpoint q_{k+1/2}, so the dynamics are explicit,
+    x_{k+1} = (2 z_k - q_k, v_{k+1}), and the discrete admissibility constraint becomes the
+    stage equality z_k - q_k = h/2 rho(z_k) v_{k+1/2} — the same discrete problem, in the
+    form a structure-exploiting OCP solver (fatrop) takes.
+    """
 
     system: NonholonomicSystem
     steps: int
     terminal: str
     solver: ca.Function
-    controls: ca.Function  # (x, p) -> u (k, N)
-    residual: ca.Function  # (x, p) -> Psi_d (n, N)
-    discrete_cost: ca.Function  # (x, p) -> running part of the discrete cost
+    knots: ca.Function  # w -> (q (n, N+1), v (k, N+1))
+    controls: ca.Function  # (w, p) -> u (k, N)
+    residual: ca.Function  # (w, p) -> Psi_d (n, N), from the knots
+    discrete_cost: ca.Function  # (w, p) -> running part of the discrete cost
+    admissibility_rows: np.ndarray  # indices in g of the constraints z - q - h/2 rho v = 0
 
     def parameters(self, problem: TrackingProblem) -> np.ndarray:
         mid = problem.grid[:-1] + 0.5 * problem.h
@@ -53,15 +64,21 @@ class Transcription:
             [problem.h, problem.epsilon, problem.omega],
         ])
 
+    def pack(self, q: np.ndarray, v: np.ndarray) -> np.ndarray:
+        """Stage-wise unknowns from knots q (N+1, n), v (N+1, k)."""
+        mid = 0.5 * (q[1:] + q[:-1])
+        stages = np.hstack([q[:-1], v[:-1], v[1:], mid])
+        return np.concatenate([stages.ravel(), q[-1], v[-1]])
+
 
 _CACHE: PerSystemCache[Transcription] = PerSystemCache()
 
 
 def transcription(system: NonholonomicSystem, steps: int, terminal: str,
-                  max_time: float | None = None) -> Transcription:
-    """The NLP for this structure (and time limit), built on first use, cached on the system."""
-    return _CACHE.get(system, (steps, terminal, max_time),
-                      lambda: _build(system, steps, terminal, max_time))
+                  max_time: float | None = None, solver: str = "fatrop") -> Transcription:
+    """The NLP for this structure (solver, time limit), built on first use, cached."""
+    return _CACHE.get(system, (steps, terminal, max_time, solver),
+                      lambda: _build(system, steps, terminal, max_time, solver))
 
 
 def ipopt_options(max_time: float | None) -> dict:
@@ -70,10 +87,14 @@ def ipopt_options(max_time: float | None) -> dict:
                                                    "ipopt.max_wall_time": float(max_time)}
 
 
-def _build(system: NonholonomicSystem, steps: int, terminal: str,
-           max_time: float | None) -> Transcription:
+def _build(system: NonholonomicSystem, steps: int, terminal: str, max_time: float | None,
+           solver: str) -> Transcription:
+    if solver not in SOLVERS:
+        raise ValueError(f"unknown NLP solver {solver!r}; choose one of {SOLVERS}")
     n, k, big_n = system.n, system.k, steps
-    x = ca.SX.sym("x", (n + k) * big_n)  # knots 1..N, stage-wise (q_k, v_k)
+    nx = n + k
+    xs = [ca.SX.sym(f"x{i}", nx) for i in range(big_n + 1)]
+    us = [ca.SX.sym(f"u{i}", k + n) for i in range(big_n)]
     q0, v0 = ca.SX.sym("q0", n), ca.SX.sym("v0", k)
     q_mid, v_mid = ca.SX.sym("q_r", n * big_n), ca.SX.sym("v_r", k * big_n)
     q_end, v_end = ca.SX.sym("q_rT", n), ca.SX.sym("v_rT", k)
@@ -81,70 +102,111 @@ def _build(system: NonholonomicSystem, steps: int, terminal: str,
     p = ca.vertcat(q0, v0, q_mid, v_mid, q_end, v_end, h, eps, omega)
 
     lagrangian = tracking_lagrangian(system)
-    knots_q = [q0] + [x[i * (n + k):i * (n + k) + n] for i in range(big_n)]
-    knots_v = [v0] + [x[i * (n + k) + n:(i + 1) * (n + k)] for i in range(big_n)]
-    running, residuals, controls = 0, [], []
+    zero = ca.DM.zeros(k)
+    w, g, running, residuals, controls, adm_rows = [], [], 0, [], [], []
+    rows = 0
     for i in range(big_n):
-        qm = 0.5 * (knots_q[i] + knots_q[i + 1])
-        vm = 0.5 * (knots_v[i] + knots_v[i + 1])
-        vdot = (knots_v[i + 1] - knots_v[i]) / h
-        u = vdot - system.dynamics_fn(qm, vm, ca.DM.zeros(k))[1]
-        running += h * lagrangian(qm, vm, u, q_mid[i * n:(i + 1) * n],
-                                  v_mid[i * k:(i + 1) * k], eps)
-        residuals.append((knots_q[i + 1] - knots_q[i]) / h - system.rho_fn(qm) @ vm)
+        q, v = xs[i][:n], xs[i][n:]
+        v_next, z = us[i][:k], us[i][k:]
+        vm = 0.5 * (v + v_next)
+        u = (v_next - v) / h - system.dynamics_fn(z, vm, zero)[1]
+        running += h * lagrangian(z, vm, u, q_mid[i * n:(i + 1) * n], v_mid[i * k:(i + 1) * k],
+                                  eps)
         controls.append(u)
+        w += [xs[i], us[i]]
+        stage = [xs[i + 1] - ca.vertcat(2 * z - q, v_next)]  # dynamics first (fatrop)
+        if i == 0:
+            stage.append(xs[0] - ca.vertcat(q0, v0))
+        stage.append(z - q - 0.5 * h * system.rho_fn(z) @ vm)
+        for c in stage:
+            rows += c.shape[0]
+        adm_rows.extend(range(rows - n, rows))
+        g += stage
+        q_next = xs[i + 1][:n]
+        qm = 0.5 * (q + q_next)
+        residuals.append((q_next - q) / h - system.rho_fn(qm) @ (0.5 * (v + xs[i + 1][n:])))
+    w.append(xs[-1])
     objective = running
     if terminal == "cost":
-        objective += 0.5 * omega * ca.sumsqr(knots_q[-1] - q_end)
-    g = ca.vertcat(*residuals)
-    solver = ca.nlpsol(f"variational_{system.name}_{big_n}", "ipopt",
-                       {"x": x, "p": p, "f": objective, "g": g}, ipopt_options(max_time))
+        objective += 0.5 * omega * ca.sumsqr(xs[-1][:n] - q_end)
+    else:
+        g.append(xs[-1] - ca.vertcat(q_end, v_end))
+    w, g = ca.vertcat(*w), ca.vertcat(*g)
+    nlp = {"x": w, "p": p, "f": objective, "g": g}
+    name = f"variational_{system.name}_{big_n}"
+    if solver == "fatrop":
+        fatrop = dict(FATROP_OPTIONS)
+        if max_time is not None:  # fatrop has no wall-time limit: bound the iterations
+            fatrop["max_iter"] = 50
+        nlp_solver = ca.nlpsol(name, "fatrop", nlp, {
+            "structure_detection": "auto", "equality": [True] * g.shape[0],
+            "print_time": False, "expand": True, "fatrop": fatrop})
+    else:
+        nlp_solver = ca.nlpsol(name, "ipopt", nlp, ipopt_options(max_time))
+    knots_q = ca.horzcat(*[x[:n] for x in xs])
+    knots_v = ca.horzcat(*[x[n:] for x in xs])
     return Transcription(
-        system=system, steps=big_n, terminal=terminal, solver=solver,
-        controls=ca.Function("controls", [x, p], [ca.horzcat(*controls)]),
-        residual=ca.Function("residual", [x, p], [ca.horzcat(*residuals)]),
-        discrete_cost=ca.Function("running_cost", [x, p], [running]),
+        system=system, steps=big_n, terminal=terminal, solver=nlp_solver,
+        knots=ca.Function("knots", [w], [knots_q, knots_v]),
+        controls=ca.Function("controls", [w, p], [ca.horzcat(*controls)]),
+        residual=ca.Function("residual", [w, p], [ca.horzcat(*residuals)]),
+        discrete_cost=ca.Function("running_cost", [w, p], [running]),
+        admissibility_rows=np.array(adm_rows),
     )
 
 
-def default_guess(problem: TrackingProblem) -> np.ndarray:
-    """The reference itself (on q0's branch) as the first guess of the knots 1..N."""
-    q, v = problem.reference_at(problem.grid[1:])
-    return np.hstack([q, v]).ravel()
+def default_guess(problem: TrackingProblem) -> tuple[np.ndarray, np.ndarray]:
+    """The reference itself (on q0's branch) as the first guess of the knots."""
+    q, v = problem.reference_at(problem.grid)
+    q[0], v[0] = problem.q0, problem.v0
+    return q, v
 
 
-def solve_variational(problem: TrackingProblem, initial_guess: np.ndarray | None = None,
-                      max_time: float | None = None) -> Solution:
-    """Solve the discrete variational NLP; ``initial_guess`` is the flat knots 1..N."""
-    tr = transcription(problem.system, problem.steps, problem.terminal, max_time)
-    n, k, big_n = problem.system.n, problem.system.k, problem.steps
-    p = tr.parameters(problem)
-    x0 = default_guess(problem) if initial_guess is None else np.asarray(initial_guess, float)
-    lbx, ubx = np.full(x0.size, -np.inf), np.full(x0.size, np.inf)
+def solve_variational(problem: TrackingProblem,
+                      initial_guess: tuple[np.ndarray, np.ndarray] | None = None,
+                      max_time: float | None = None, solver: str = "fatrop") -> Solution:
+    """Solve the discrete variational NLP from knots (q (N+1, n), v (N+1, k)) as the guess.
+
+    Without a time limit, a fatrop failure is retried with IPOPT (the route says so)."""
+    result = _solve_with(problem, initial_guess, max_time, solver)
+    if not result.success and solver == "fatrop" and max_time is None:
+        retry = _solve_with(problem, initial_guess, None, "ipopt")
+        retry.route = f"fatrop failed ({result.message}) -> ipopt"
+        retry.solve_time += result.solve_time
+        return retry
+    return result
+
+
+def _solve_with(problem: TrackingProblem, initial_guess, max_time: float | None,
+                solver: str) -> Solution:
+    tr = transcription(problem.system, problem.steps, problem.terminal, max_time, solver)
+    q_g, v_g = default_guess(problem) if initial_guess is None else initial_guess
+    q_g, v_g = np.array(q_g, dtype=float), np.array(v_g, dtype=float)
+    q_g[0], v_g[0] = problem.q0, problem.v0
     if problem.terminal == "equality":
         q_end, v_end = problem.reference_at(problem.grid[-1])
-        lbx[-(n + k):] = ubx[-(n + k):] = np.concatenate([q_end[0], v_end[0]])
-        x0 = x0.copy()
-        x0[-(n + k):] = lbx[-(n + k):]
+        q_g[-1], v_g[-1] = q_end[0], v_end[0]
+    p = tr.parameters(problem)
     start = time.perf_counter()
-    result = tr.solver(x0=x0, p=p, lbx=lbx, ubx=ubx, lbg=0, ubg=0)
+    result = tr.solver(x0=tr.pack(q_g, v_g), p=p, lbg=0, ubg=0)
     elapsed = time.perf_counter() - start
     stats = tr.solver.stats()
-    xs = np.array(result["x"]).ravel()
-    knots = np.vstack([np.concatenate([problem.q0, problem.v0]), xs.reshape(big_n, n + k)])
-    q, v = knots[:, :n], knots[:, n:]
-    u = np.array(tr.controls(xs, p)).T
-    residual = float(np.abs(np.array(tr.residual(xs, p))).max())
+    w = np.array(result["x"]).ravel()
+    q, v = (np.array(a).T for a in tr.knots(w))
+    u = np.array(tr.controls(w, p)).T
+    residual = float(np.abs(np.array(tr.residual(w, p))).max())
     lam_g = np.array(result["lam_g"]).ravel()
-    # Discrete costates: lambda from the admissibility multipliers, mu from u* = -mu/eps.
-    lam = -lam_g.reshape(big_n, n) / problem.h
-    cost = float(tr.discrete_cost(xs, p)) + terminal_cost(problem, q[-1])
-    success = bool(stats["success"]) and np.all(np.isfinite(knots))
+    # The paper's multipliers are lambda^k = (h/2) c_k (c_k: multiplier of the stage form of
+    # the admissibility constraint); the reported costates are lambda = -lambda^k / h.
+    lam = -0.5 * lam_g[tr.admissibility_rows].reshape(problem.steps, problem.system.n)
+    cost = float(tr.discrete_cost(w, p)) + terminal_cost(problem, q[-1])
+    success = bool(stats["success"]) and bool(np.all(np.isfinite(w)))
     return Solution(
         t=problem.grid, q=q, v=v, u=u, cost=cost, success=success,
-        iterations=int(stats["iter_count"]), solve_time=elapsed,
+        iterations=int(stats.get("iter_count", -1)), solve_time=elapsed,
         terminal_error=terminal_error(problem, q[-1], v[-1]), method="variational",
-        message=stats["return_status"], route="ipopt",
+        message=str(stats.get("return_status", "Solve_Succeeded" if success else "failed")),
+        route=solver,
         costates=(lam, -problem.epsilon * u),
         details={"admissibility_residual": residual},
     )
