@@ -12,6 +12,7 @@ setup(
         ('share/' + package_name, ['package.xml']),
     ],
     install_requires=['setuptools'],
+    extras_require={'bench': ['do-mpc==5.1.2']},
     zip_safe=True,
     maintainer='nh_tracking maintainers',
     maintainer_email='maintainers@nh-tracking.invalid',

@@ -78,6 +78,15 @@ def cmd_demo(args: argparse.Namespace) -> int:
     return 0 if summary["final_cross_track_error"] < 0.05 else 1
 
 
+def cmd_bench(args: argparse.Namespace) -> int:
+    """Solve times side by side with do-mpc; warm replanning; scaling; PMP; ROS latency."""
+    from nh_tracking.bench import run_bench
+
+    run_bench(Path(args.out), log=lambda line: print(line, flush=True), ros=not args.no_ros)
+    print(f"wrote {Path(args.out) / 'bench.json'} and {Path(args.out) / 'bench.png'}")
+    return 0
+
+
 def _default_q0(system) -> list[float]:
     return PAPER_SLEIGH_REFERENCE["q0"] if system.name == "chaplygin_sleigh" else [0.0] * system.n
 
@@ -116,6 +125,11 @@ def build_parser() -> argparse.ArgumentParser:
     demo.add_argument("--time-scale", type=float, default=4.0,
                       help="simulated seconds per wall second")
     demo.set_defaults(func=cmd_demo)
+    bench = sub.add_parser("bench", help="benchmark the solvers (do-mpc: pip install '.[bench]')",
+                           description=cmd_bench.__doc__)
+    bench.add_argument("--out", default="results/bench")
+    bench.add_argument("--no-ros", action="store_true", help="skip the ROS latency section")
+    bench.set_defaults(func=cmd_bench)
     return parser
 
 

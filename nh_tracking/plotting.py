@@ -114,3 +114,37 @@ def plot_closed_loop(reference: Trajectory, t: np.ndarray, xy: np.ndarray, error
                  solve_s * 1e3, ".", ms=3)
     axes[2].set(xlabel="t [s]", ylabel="solve time [ms]", title="replanning solve time")
     return _finish(fig, path)
+
+
+def plot_bench(results: dict, path: Path) -> Path:
+    """Cold solve vs do-mpc, warm replanning solve times, scaling in N, ROS latency split."""
+    fig, axes = plt.subplots(1, 4, figsize=(19, 4.5))
+    cold = results.get("cold_solve", {})
+    names = [k for k in ("variational_fatrop", "variational_ipopt", "do_mpc") if cold.get(k)]
+    axes[0].bar(names, [cold[k]["median_s"] * 1e3 for k in names], color=["C2", "C0", "C3"][:len(names)])
+    axes[0].set(ylabel="median solve [ms]", title="cold solve, paper's sleigh (N = 50)")
+    axes[0].tick_params(axis="x", labelrotation=15)
+    warm = results.get("warm_replanning")
+    if warm:
+        axes[1].bar(["p50", "p99", "max"], [warm["p50"], warm["p99"], warm["max_ms"]])
+        axes[1].axhline(1e3 / warm["rate_hz"], color="r", ls=":", label="deadline (100 Hz)")
+        axes[1].set(ylabel="solve time [ms]",
+                    title=f"warm replanning, {warm['solves']} solves, "
+                          f"{warm['deadline_misses']} misses")
+        axes[1].legend()
+    scale = results.get("scaling")
+    if scale:
+        sizes = [int(k) for k in scale if k.isdigit()]
+        times = [scale[str(n)]["median_s"] * 1e3 for n in sizes]
+        axes[2].loglog(sizes, times, "o-", label="measured")
+        axes[2].loglog(sizes, [times[0] * n / sizes[0] for n in sizes], "k:", label="linear")
+        axes[2].set(xlabel="N", ylabel="cold solve [ms]", title="scaling in N")
+        axes[2].legend()
+    ros = results.get("ros_latency")
+    if ros:
+        axes[3].bar(["p50", "p99"], [ros["solve_ms"]["p50"], ros["solve_ms"]["p99"]], label="solve")
+        axes[3].bar(["p50", "p99"], [ros["overhead_ms"]["p50"], ros["overhead_ms"]["p99"]],
+                    bottom=[ros["solve_ms"]["p50"], ros["solve_ms"]["p99"]], label="not solving")
+        axes[3].set(ylabel="odom -> control_sequence [ms]", title="ROS latency (in process)")
+        axes[3].legend()
+    return _finish(fig, path)

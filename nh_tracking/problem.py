@@ -5,6 +5,7 @@ Cost: 1/2 int (|q - q_r|^2 + |v - v_r|^2 + eps |u|^2) dt, plus omega/2 |q(T) - q
 """
 from __future__ import annotations
 
+import functools
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Literal
@@ -84,6 +85,14 @@ class TrackingProblem:
         q, v = self._raw_reference(np.atleast_1d(np.asarray(times, dtype=float)))
         return q + self.angle_shift, v
 
+    @functools.cached_property
+    def reference_samples(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """(q_r, v_r) at the N+1 knots and at the N interval midpoints, sampled once: every
+        solver and every read-out needs them, and replanning builds a problem per cycle."""
+        n = self.steps + 1
+        q, v = self.reference_at(np.concatenate([self.grid, self.grid[:-1] + 0.5 * self.h]))
+        return q[:n], v[:n], q[n:], v[n:]
+
     def reference_point(self, time: float) -> tuple[np.ndarray, np.ndarray]:
         """(q_r, v_r) at one time, as 1-D arrays (fast path for ODE right-hand sides)."""
         if isinstance(self.reference, Trajectory):
@@ -121,7 +130,7 @@ def terminal_cost(problem: TrackingProblem, q_final: np.ndarray) -> float:
     """omega Phi(gamma(T)) with Phi = 1/2 |q(T) - q_r(T)|^2 (zero for terminal equality)."""
     if problem.terminal != "cost":
         return 0.0
-    q_ref = problem.reference_at(problem.grid[-1])[0][0]
+    q_ref = problem.reference_samples[0][-1]
     return 0.5 * problem.omega * float(np.sum((q_final - q_ref) ** 2))
 
 
@@ -171,5 +180,5 @@ def running_cost_profile(problem: TrackingProblem, solution: Solution) -> np.nda
 
 def terminal_error(problem: TrackingProblem, q_final: np.ndarray, v_final: np.ndarray) -> float:
     """|gamma(T) - gamma_r(T)|, angles on q0's branch when wrapping."""
-    q_ref, v_ref = problem.reference_at(problem.grid[-1])
-    return float(np.linalg.norm(np.concatenate([q_final - q_ref[0], v_final - v_ref[0]])))
+    q_ref, v_ref = problem.reference_samples[0][-1], problem.reference_samples[1][-1]
+    return float(np.linalg.norm(np.concatenate([q_final - q_ref, v_final - v_ref])))

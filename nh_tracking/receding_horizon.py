@@ -119,7 +119,7 @@ class RecedingHorizonPlanner:
     def plan(self, t: float, q: np.ndarray, v: np.ndarray) -> PlanOutcome:
         """Plan from state (q, v) at time t. Raises ValueError only for bad input."""
         problem = self.problem(t, q, v)
-        reference = problem.reference_at(problem.grid)[0]
+        reference = problem.reference_samples[0]
         s = self.settings
         guess = self.previous
         if guess is not None and guess.q.shape[1] != self.system.n:

@@ -61,7 +61,7 @@ class ClosedLoop:
         self.namespace = namespace
         self.heavier_inertia = model.parameters["J"] * INERTIA_MISMATCH
         self.planner = graph.add(PlannerNode, namespace=namespace, parameter_overrides=parameters(
-            use_sim_time=True, **(planner_overrides or {})))
+            **{"use_sim_time": True, **(planner_overrides or {})}))
         self.sim: SimulatorNode | None = None
         self.feeder = graph.plain_node("reference_feeder", namespace)
         self._lock = threading.Lock()

@@ -6,7 +6,10 @@ one log line and a diagnostic, and the last good plan stays in force.
 """
 from __future__ import annotations
 
+import sys
 import threading
+import time
+from collections import deque
 from dataclasses import dataclass
 
 import numpy as np
@@ -32,6 +35,7 @@ from nh_tracking.solvers import METHODS
 
 LATCHED = QoSProfile(depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL,
                      reliability=ReliabilityPolicy.RELIABLE)
+SWITCH_INTERVAL = 5e-4  # s
 SETTINGS = ("horizon", "steps", "epsilon", "omega", "terminal", "method", "max_solve_time",
             "wrap_angles")
 
@@ -41,6 +45,7 @@ class _Odometry:
     ns: int
     q: np.ndarray
     v: np.ndarray
+    received: float  # time.perf_counter() at receipt, for latency figures
 
 
 class PlannerNode(SafeNode):
@@ -63,6 +68,8 @@ class PlannerNode(SafeNode):
                                      (1e-3, 60.0))
         self.cmd_rate = declare(self, "cmd_rate", 20.0, "cmd_vel publishing rate [Hz]",
                                 (0.1, 1000.0))
+        self.replan_on_odom = declare(self, "replan_on_odom", False,
+                                      "also replan on every odometry message (latest wins)")
         self.odom_timeout = declare(self, "odom_timeout", 0.5,
                                     "odometry older than this is stale [s]", (1e-3, 3600.0))
         self.frame = declare(self, "frame_id", "odom", "fixed frame of references and odometry",
@@ -80,6 +87,8 @@ class PlannerNode(SafeNode):
         self._outcome: PlanOutcome | None = None
         self._plan_traj = None
         self._stale = False
+        # (odometry receipt -> control_sequence published, of which solving) [s], recent plans
+        self.latencies: deque[tuple[float, float]] = deque(maxlen=2000)
         self._epoch_ns = self.get_clock().now().nanoseconds
 
         self.pub_path = self.create_publisher(Path, "planned_path", LATCHED)
@@ -100,6 +109,9 @@ class PlannerNode(SafeNode):
         self.add_on_set_parameters_callback(self._validate_parameters)
         self.add_post_set_parameters_callback(self._apply_parameters)
 
+        # The solver thread must get the interpreter promptly when odometry arrives: CPython's
+        # default switch interval (5 ms) alone would add up to 5 ms to every replan's latency.
+        sys.setswitchinterval(min(sys.getswitchinterval(), SWITCH_INTERVAL))
         self._wake = threading.Event()
         self._stop = threading.Event()
         self._worker = threading.Thread(target=self._work, name="nh_tracking_solver",
@@ -145,6 +157,7 @@ class PlannerNode(SafeNode):
 
     @guarded("odom")
     def on_odom(self, msg: Odometry) -> None:
+        received = time.perf_counter()
         ns, pose, twist = cv.odom_to_arrays(msg, self.frame)
         with self._lock:
             prev = self._odom
@@ -155,7 +168,9 @@ class PlannerNode(SafeNode):
         v = self.pose_map.velocity(q, twist)
         q = self.pose_map.dead_reckon(pose, v, q_prev, v_prev, dt)
         with self._lock:
-            self._odom = _Odometry(ns, q, v)
+            self._odom = _Odometry(ns, q, v, received)
+        if self.replan_on_odom:
+            self._wake_worker()
 
     # planning ---------------------------------------------------------------------------------
     def _wake_worker(self) -> None:
@@ -185,26 +200,33 @@ class PlannerNode(SafeNode):
             return False, f"odometry is stale ({age:.2f} s old); not planning"
         with self._solve_lock:
             outcome = self.planner.plan(self._seconds(odom.ns), odom.q, odom.v)
+        plan = outcome.plan
+        start_ns = self._ns(plan.t[0])
+        # the control sequence first: it is what the robot waits for
+        self.pub_controls.publish(cv.control_sequence_msg(
+            self.frame, start_ns, plan.t[:-1] - plan.t[0], self.system.control_names, plan.u))
+        self.latencies.append((time.perf_counter() - odom.received, outcome.solve_time))
+        trajectory = plan.trajectory()
         with self._lock:
             if self._stale:
                 self.get_logger().info("odometry is fresh again: planning resumed")
             self._stale = False
             self._outcome = outcome
-            self._plan_traj = outcome.plan.trajectory()
-        self._publish_plan(outcome)
+            self._plan_traj = trajectory
+        self._publish_display(outcome)
         return True, (f"{outcome.status}: {outcome.message} "
                       f"({outcome.solve_time * 1e3:.1f} ms)")
 
-    def _publish_plan(self, outcome: PlanOutcome) -> None:
+    def _publish_display(self, outcome: PlanOutcome) -> None:
+        """planned_path and planned_markers (markers only when someone listens)."""
         plan = outcome.plan
         stamps = [self._ns(t) for t in plan.t]
         poses = np.array([self.pose_map.pose(q) for q in plan.q])
-        self.pub_controls.publish(cv.control_sequence_msg(
-            self.frame, stamps[0], plan.t[:-1] - plan.t[0], self.system.control_names, plan.u))
         self.pub_path.publish(cv.path_msg(self.frame, stamps, poses))
-        reference = np.array([self.pose_map.pose(q) for q in outcome.reference])
-        self.pub_markers.publish(cv.plan_markers(self.frame, stamps[0], poses[:, :3],
-                                                 reference[:, :3]))
+        if self.pub_markers.get_subscription_count() > 0:
+            reference = np.array([self.pose_map.pose(q) for q in outcome.reference])
+            self.pub_markers.publish(cv.plan_markers(self.frame, stamps[0], poses[:, :3],
+                                                     reference[:, :3]))
 
     @guarded("cmd_vel")
     def publish_cmd_vel(self) -> None:
@@ -302,6 +324,8 @@ class PlannerNode(SafeNode):
             self._cmd_timer.timer_period_ns = int(1e9 / self.cmd_rate)
         if "odom_timeout" in names:
             self.odom_timeout = self.get_parameter("odom_timeout").value
+        if "replan_on_odom" in names:
+            self.replan_on_odom = self.get_parameter("replan_on_odom").value
         physical = {n: self.get_parameter(n).value for n in self.system.parameters}
         with self._solve_lock:
             if names & set(self.system.parameters):  # the model changed: start afresh

@@ -51,13 +51,18 @@ def _solve_one(problem: TrackingProblem, method: str,
 def sample_plan(problem: TrackingProblem, plan: Solution | Trajectory
                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(q, v, u) of a previous plan or trajectory at this problem's knots (held past its end),
-    its angles moved by whole turns onto q0's branch: a warm start, or a shifted plan."""
-    traj = plan.trajectory() if isinstance(plan, Solution) else plan
-    q, v = traj.sample(problem.grid)
+    its angles moved by whole turns onto q0's branch: a warm start, or a shifted plan.
+    Linear between knots: a guess needs no spline, and replanning runs this every cycle."""
+    t = plan.t
+    grid = np.clip(problem.grid, t[0], t[-1])
+    i = np.clip(np.searchsorted(t, grid, side="right") - 1, 0, len(t) - 2)
+    w = ((grid - t[i]) / (t[i + 1] - t[i]))[:, None]
+    q = (1 - w) * plan.q[i] + w * plan.q[i + 1]
+    v = (1 - w) * plan.v[i] + w * plan.v[i + 1]
     turns = np.round((problem.q0 - q[0]) / (2 * np.pi)) * problem.system.angle_mask
     mids = problem.grid[:-1] + 0.5 * problem.h
-    idx = np.clip(np.searchsorted(traj.t, mids, side="right") - 1, 0, len(traj.u) - 1)
-    return q + 2 * np.pi * turns, v, traj.u[idx]
+    idx = np.clip(np.searchsorted(t, mids, side="right") - 1, 0, len(plan.u) - 1)
+    return q + 2 * np.pi * turns, v, plan.u[idx]
 
 
 def random_guess(problem: TrackingProblem, rng: np.random.Generator

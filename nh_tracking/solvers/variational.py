@@ -11,12 +11,14 @@ numbers and warm-starts.
 """
 from __future__ import annotations
 
+import dataclasses
 import time
 from dataclasses import dataclass
 
 import casadi as ca
 import numpy as np
 
+from nh_tracking.numeric import NumericFunction
 from nh_tracking.problem import (Solution, TrackingProblem, terminal_cost, terminal_error,
                                  tracking_lagrangian)
 from nh_tracking.solvers.cache import PerSystemCache
@@ -32,6 +34,8 @@ IPOPT_OPTIONS = {
     "ipopt.max_iter": 500,
 }
 FATROP_OPTIONS = {"print_level": 0, "tol": 1e-10, "max_iter": 500}
+CONTINUATION_MIN_STEPS = 100  # cold solves with this many intervals or more start coarse
+COARSE_STEPS = 50
 
 
 @dataclass
@@ -49,18 +53,15 @@ class Transcription:
     steps: int
     terminal: str
     solver: ca.Function
-    knots: ca.Function  # w -> (q (n, N+1), v (k, N+1))
-    controls: ca.Function  # (w, p) -> u (k, N)
-    residual: ca.Function  # (w, p) -> Psi_d (n, N), from the knots
-    discrete_cost: ca.Function  # (w, p) -> running part of the discrete cost
+    # (w, p) -> q (n, N+1), v (k, N+1), u (k, N), max |Psi_d| (from the knots), running cost:
+    # one buffered call, since separate calls cost more than a warm solve's iteration
+    readout: NumericFunction
     admissibility_rows: np.ndarray  # indices in g of the constraints z - q - h/2 rho v = 0
 
     def parameters(self, problem: TrackingProblem) -> np.ndarray:
-        mid = problem.grid[:-1] + 0.5 * problem.h
-        q_mid, v_mid = problem.reference_at(mid)
-        q_end, v_end = problem.reference_at(problem.grid[-1])
+        q_knots, v_knots, q_mid, v_mid = problem.reference_samples
         return np.concatenate([
-            problem.q0, problem.v0, q_mid.ravel(), v_mid.ravel(), q_end.ravel(), v_end.ravel(),
+            problem.q0, problem.v0, q_mid.ravel(), v_mid.ravel(), q_knots[-1], v_knots[-1],
             [problem.h, problem.epsilon, problem.omega],
         ])
 
@@ -145,19 +146,17 @@ def _build(system: NonholonomicSystem, steps: int, terminal: str, max_time: floa
         nlp_solver = ca.nlpsol(name, "ipopt", nlp, ipopt_options(max_time))
     knots_q = ca.horzcat(*[x[:n] for x in xs])
     knots_v = ca.horzcat(*[x[n:] for x in xs])
+    readout = ca.Function("readout", [w, p], [knots_q, knots_v, ca.horzcat(*controls),
+                                              ca.mmax(ca.fabs(ca.horzcat(*residuals))), running])
     return Transcription(
         system=system, steps=big_n, terminal=terminal, solver=nlp_solver,
-        knots=ca.Function("knots", [w], [knots_q, knots_v]),
-        controls=ca.Function("controls", [w, p], [ca.horzcat(*controls)]),
-        residual=ca.Function("residual", [w, p], [ca.horzcat(*residuals)]),
-        discrete_cost=ca.Function("running_cost", [w, p], [running]),
-        admissibility_rows=np.array(adm_rows),
+        readout=NumericFunction(readout), admissibility_rows=np.array(adm_rows),
     )
 
 
 def default_guess(problem: TrackingProblem) -> tuple[np.ndarray, np.ndarray]:
     """The reference itself (on q0's branch) as the first guess of the knots."""
-    q, v = problem.reference_at(problem.grid)
+    q, v = (a.copy() for a in problem.reference_samples[:2])
     q[0], v[0] = problem.q0, problem.v0
     return q, v
 
@@ -167,8 +166,18 @@ def solve_variational(problem: TrackingProblem,
                       max_time: float | None = None, solver: str = "fatrop") -> Solution:
     """Solve the discrete variational NLP from knots (q (N+1, n), v (N+1, k)) as the guess.
 
-    Without a time limit, a fatrop failure is retried with IPOPT (the route says so)."""
+    Without a time limit, a fatrop failure is retried with IPOPT (the route says so). A cold
+    solve on a fine grid starts from the plan of a coarse grid, interpolated (grid
+    continuation): from the reference alone, fine grids spend most iterations backtracking."""
+    coarse_time = 0.0
+    if initial_guess is None and problem.steps >= CONTINUATION_MIN_STEPS:
+        coarse = dataclasses.replace(problem, steps=COARSE_STEPS)
+        coarse_plan = solve_variational(coarse, None, max_time, solver)
+        coarse_time = coarse_plan.solve_time
+        if coarse_plan.success:
+            initial_guess = coarse_plan.trajectory().sample(problem.grid)
     result = _solve_with(problem, initial_guess, max_time, solver)
+    result.solve_time += coarse_time
     if not result.success and solver == "fatrop" and max_time is None:
         retry = _solve_with(problem, initial_guess, None, "ipopt")
         retry.route = f"fatrop failed ({result.message}) -> ipopt"
@@ -184,22 +193,20 @@ def _solve_with(problem: TrackingProblem, initial_guess, max_time: float | None,
     q_g, v_g = np.array(q_g, dtype=float), np.array(v_g, dtype=float)
     q_g[0], v_g[0] = problem.q0, problem.v0
     if problem.terminal == "equality":
-        q_end, v_end = problem.reference_at(problem.grid[-1])
-        q_g[-1], v_g[-1] = q_end[0], v_end[0]
+        q_g[-1], v_g[-1] = problem.reference_samples[0][-1], problem.reference_samples[1][-1]
     p = tr.parameters(problem)
     start = time.perf_counter()
     result = tr.solver(x0=tr.pack(q_g, v_g), p=p, lbg=0, ubg=0)
     elapsed = time.perf_counter() - start
     stats = tr.solver.stats()
     w = np.array(result["x"]).ravel()
-    q, v = (np.array(a).T for a in tr.knots(w))
-    u = np.array(tr.controls(w, p)).T
-    residual = float(np.abs(np.array(tr.residual(w, p))).max())
+    q, v, u, residual, running = tr.readout(w, p)
+    q, v, u, residual = q.T.copy(), v.T.copy(), u.T.copy(), float(residual[0])
     lam_g = np.array(result["lam_g"]).ravel()
     # The paper's multipliers are lambda^k = (h/2) c_k (c_k: multiplier of the stage form of
     # the admissibility constraint); the reported costates are lambda = -lambda^k / h.
     lam = -0.5 * lam_g[tr.admissibility_rows].reshape(problem.steps, problem.system.n)
-    cost = float(tr.discrete_cost(w, p)) + terminal_cost(problem, q[-1])
+    cost = float(running[0]) + terminal_cost(problem, q[-1])
     success = bool(stats["success"]) and bool(np.all(np.isfinite(w)))
     return Solution(
         t=problem.grid, q=q, v=v, u=u, cost=cost, success=success,

@@ -1,0 +1,51 @@
+"""ROS latency for the benchmark: odometry receipt to control_sequence publish, in process."""
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+
+import numpy as np
+from nav_msgs.msg import Odometry
+
+from nh_tracking.metrics import percentiles_ms
+from nh_tracking.ros import conversions as cv
+from nh_tracking.ros.demo import ClosedLoop, sleigh_reference
+from nh_tracking.ros.graph import InProcessGraph, wait_until
+
+
+def ros_latency(log: Callable[[str], None], duration: float = 6.0, rate: float = 100.0) -> dict:
+    """A planner replanning on every odometry message (``replan_on_odom``) of a robot
+    driving the reference, replayed at ``rate`` Hz on the wall clock: latency from receipt to
+    the control sequence's publication, and how much of it is not the solve.
+
+    The odometry is replayed rather than simulated in the same process, so the figure is the
+    planner's own pipeline, not its competition for the interpreter with a simulator."""
+    reference = sleigh_reference(duration + 30.0)
+    with InProcessGraph() as graph:
+        loop = ClosedLoop(graph, namespace="/bench", planner_overrides={
+            "use_sim_time": False, "replan_on_odom": True, "replan_period": 60.0})
+        planner = loop.planner
+        loop.send_reference(reference, "path")
+        replay = graph.plain_node("odometry_replay", "/bench")
+        pub = replay.create_publisher(Odometry, "odom", 10)
+        t0 = time.monotonic()
+
+        def publish() -> None:
+            q, v = reference.at(time.monotonic() - t0)
+            pose_map = planner.pose_map
+            pub.publish(cv.odometry_msg("odom", "base_link", planner.get_clock().now().nanoseconds,
+                                        pose_map.pose(q), pose_map.body_twist(q, v)))
+
+        replay.create_timer(1.0 / rate, publish)
+        wait_until(lambda: len(planner.latencies) > 50, 20.0)
+        planner.latencies.clear()
+        time.sleep(duration)
+        samples = np.array(list(planner.latencies))
+    latency, solve = samples[:, 0], samples[:, 1]
+    result = {"plans": int(len(samples)), "odometry_rate_hz": rate,
+              "latency_ms": percentiles_ms(latency), "solve_ms": percentiles_ms(solve),
+              "overhead_ms": percentiles_ms(latency - solve)}
+    log(f"  {len(samples)} plans: latency p50 {result['latency_ms']['p50']:.2f} ms "
+        f"(solve {result['solve_ms']['p50']:.2f} ms, not solving "
+        f"{result['overhead_ms']['p50']:.2f} ms), p99 {result['latency_ms']['p99']:.2f} ms")
+    return result
