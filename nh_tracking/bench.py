@@ -41,20 +41,25 @@ def cold_solve(log: Callable[[str], None]) -> dict:
     built once beforehand (building is reported separately)."""
     problem = sleigh_problem(wrap_angles=False)
     out = {}
-    for solver in ("fatrop", "ipopt"):
+    for solver, compiled in (("fatrop", True), ("fatrop", False), ("ipopt", False)):
+        name = f"variational_{solver}" + ("_compiled" if compiled else "")
         start = time.perf_counter()
-        transcription(problem.system, problem.steps, problem.terminal, None, solver)
+        transcription(problem.system, problem.steps, problem.terminal, None, solver, compiled)
         build = time.perf_counter() - start
-        median, sol = _median_time(lambda s=solver: solve_variational(problem, solver=s))
-        out[f"variational_{solver}"] = {"median_s": median, "cost": sol.cost,
-                                        "iterations": sol.iterations, "build_s": build}
-        log(f"  variational ({solver}): {median * 1e3:.2f} ms, cost {sol.cost:.4f}")
+        median, sol = _median_time(
+            lambda s=solver, c=compiled: solve_variational(problem, solver=s, compiled=c))
+        out[name] = {"median_s": median, "cost": sol.cost, "iterations": sol.iterations,
+                     "build_s": build}
+        log(f"  {name}: {median * 1e3:.2f} ms, cost {sol.cost:.4f} (built in {build:.1f} s"
+            f"{', compiling on first use, then cached' if compiled else ''})")
     try:
         median, cost, build = _dompc_cold(problem)
         out["do_mpc"] = {"median_s": median, "cost": cost, "build_s": build}
-        out["speedup_vs_do_mpc"] = median / out["variational_fatrop"]["median_s"]
+        out["speedup_vs_do_mpc"] = median / out["variational_fatrop_compiled"]["median_s"]
+        out["speedup_vs_do_mpc_interpreted"] = median / out["variational_fatrop"]["median_s"]
         log(f"  do-mpc: {median * 1e3:.1f} ms, objective {cost:.4f}; ours is "
-            f"{out['speedup_vs_do_mpc']:.1f}x faster")
+            f"{out['speedup_vs_do_mpc']:.1f}x faster compiled, "
+            f"{out['speedup_vs_do_mpc_interpreted']:.1f}x interpreted")
     except ImportError:
         out["do_mpc"] = None
         log("  do-mpc not installed (pip install '.[bench]'): comparison skipped")
@@ -68,6 +73,7 @@ def _dompc_cold(problem: TrackingProblem) -> tuple[float, float, float]:
     with warnings.catch_warnings():  # do-mpc warns about its optional features on import
         warnings.simplefilter("ignore")
         import do_mpc
+    ca.GlobalOptions.setNumpyMode(-1)  # do-mpc relies on casadi's legacy numpy behaviour
 
     system, n, k = problem.system, problem.system.n, problem.system.k
     start = time.perf_counter()
@@ -139,16 +145,19 @@ def warm_replanning(log: Callable[[str], None], rate: float = 100.0, duration: f
         q, v, t = step.q[-1], step.v[-1], t + period
         positions.append(q[:2])
     times = np.array(planner.stats.solve_times)
+    planning = np.array(planner.stats.plan_durations)
     error = cross_track_error(np.array(positions[-100:]), reference.q[:, :2])
     result = {
         "rate_hz": rate, "solves": int(times.size), **percentiles_ms(times),
-        "max_ms": float(times.max() * 1e3), "deadline_misses": int((times > period).sum()),
+        "plan_call_ms": {**percentiles_ms(planning), "max": float(planning.max() * 1e3)},
+        "max_ms": float(times.max() * 1e3), "deadline_misses": int((planning > period).sum()),
         "fallbacks": planner.stats.fallbacks, "shifted": planner.stats.shifted,
         "final_cross_track_error": float(error.max()),
     }
     log(f"  {times.size} solves at {rate:g} Hz: p50 {result['p50']:.2f} ms, p99 "
         f"{result['p99']:.2f} ms, max {result['max_ms']:.2f} ms, "
-        f"{result['deadline_misses']} deadline misses")
+        f"{result['deadline_misses']} deadline misses (whole plan() call: p50 "
+        f"{result['plan_call_ms']['p50']:.2f} ms, max {result['plan_call_ms']['max']:.2f} ms)")
     return result
 
 
@@ -212,8 +221,9 @@ def acceptance(results: dict) -> dict:
     cold = results.get("cold_solve", {})
     if cold.get("do_mpc"):
         ratio = cold["speedup_vs_do_mpc"]
-        verdicts["cold solve >= 10x faster than do-mpc"] = {"value": f"{ratio:.1f}x",
-                                                             "pass": ratio >= 10}
+        verdicts["cold solve >= 10x faster than do-mpc"] = {
+            "value": f"{ratio:.1f}x compiled ({cold['speedup_vs_do_mpc_interpreted']:.1f}x "
+                     f"interpreted)", "pass": ratio >= 10}
     warm = results.get("warm_replanning")
     if warm:
         verdicts["warm p50 <= 3 ms, p99 <= 10 ms, no misses at 100 Hz"] = {
@@ -227,6 +237,7 @@ def acceptance(results: dict) -> dict:
     ros = results.get("ros_latency")
     if ros:
         verdicts["ROS overhead beyond the solve p50 <= 2 ms"] = {
-            "value": f"{ros['overhead_ms']['p50']:.2f} ms",
+            "value": f"{ros['overhead_ms']['p50']:.2f} ms beyond the numerical planner "
+                     f"({ros['not_in_nlp_solver_ms']['p50']:.2f} ms beyond the NLP solver alone)",
             "pass": ros["overhead_ms"]["p50"] <= 2}
     return verdicts

@@ -120,8 +120,11 @@ def plot_bench(results: dict, path: Path) -> Path:
     """Cold solve vs do-mpc, warm replanning solve times, scaling in N, ROS latency split."""
     fig, axes = plt.subplots(1, 4, figsize=(19, 4.5))
     cold = results.get("cold_solve", {})
-    names = [k for k in ("variational_fatrop", "variational_ipopt", "do_mpc") if cold.get(k)]
-    axes[0].bar(names, [cold[k]["median_s"] * 1e3 for k in names], color=["C2", "C0", "C3"][:len(names)])
+    names = [k for k in ("variational_fatrop_compiled", "variational_fatrop",
+                         "variational_ipopt", "do_mpc") if cold.get(k)]
+    axes[0].bar([k.replace("variational_", "").replace("_", "\n") for k in names],
+                [cold[k]["median_s"] * 1e3 for k in names],
+                color=["C2", "C1", "C0", "C3"][:len(names)])
     axes[0].set(ylabel="median solve [ms]", title="cold solve, paper's sleigh (N = 50)")
     axes[0].tick_params(axis="x", labelrotation=15)
     warm = results.get("warm_replanning")
@@ -142,9 +145,15 @@ def plot_bench(results: dict, path: Path) -> Path:
         axes[2].legend()
     ros = results.get("ros_latency")
     if ros:
-        axes[3].bar(["p50", "p99"], [ros["solve_ms"]["p50"], ros["solve_ms"]["p99"]], label="solve")
-        axes[3].bar(["p50", "p99"], [ros["overhead_ms"]["p50"], ros["overhead_ms"]["p99"]],
-                    bottom=[ros["solve_ms"]["p50"], ros["solve_ms"]["p99"]], label="not solving")
+        keys, bottom = ["p50", "p99"], np.zeros(2)
+        for part, label in (("solve_ms", "NLP solver"), ("planner_ms", "rest of the planner"),
+                            ("overhead_ms", "ROS layer")):
+            values = np.array([ros[part][k] for k in keys])
+            height = values - (ros["solve_ms"][keys[0]] * 0 if part != "planner_ms" else 0)
+            if part == "planner_ms":
+                height = values - np.array([ros["solve_ms"][k] for k in keys])
+            axes[3].bar(keys, height, bottom=bottom, label=label)
+            bottom = bottom + height
         axes[3].set(ylabel="odom -> control_sequence [ms]", title="ROS latency (in process)")
         axes[3].legend()
     return _finish(fig, path)

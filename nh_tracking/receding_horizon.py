@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import time
 from dataclasses import dataclass, field
 from typing import Literal
 
@@ -39,6 +40,7 @@ class PlannerSettings:
     method: str = "variational"
     max_solve_time: float = 0.25
     wrap_angles: bool = True
+    compiled: bool = False  # variational NLP as compiled C (built once per machine, cached)
 
     def __post_init__(self) -> None:
         checks = {
@@ -76,6 +78,7 @@ class PlannerStatistics:
     deadline_misses: int = 0
     solve_times: list[float] = field(default_factory=list)
     plan_times: list[float] = field(default_factory=list)  # the t of each solve
+    plan_durations: list[float] = field(default_factory=list)  # wall time of plan(), all in
 
 
 class RecedingHorizonPlanner:
@@ -93,7 +96,8 @@ class RecedingHorizonPlanner:
         """Build the solver for the current settings now, so the first plan is not late."""
         s = self.settings
         if s.method == "variational":
-            transcription(self.system, s.steps, s.terminal, s.max_solve_time)
+            transcription(self.system, s.steps, s.terminal, s.max_solve_time,
+                          compiled=s.compiled)
         elif s.method == "multiple_shooting":
             shooting_transcription(self.system, s.steps, s.terminal, s.max_solve_time)
 
@@ -118,6 +122,13 @@ class RecedingHorizonPlanner:
 
     def plan(self, t: float, q: np.ndarray, v: np.ndarray) -> PlanOutcome:
         """Plan from state (q, v) at time t. Raises ValueError only for bad input."""
+        started = time.perf_counter()
+        try:
+            return self._plan(t, q, v)
+        finally:
+            self.stats.plan_durations.append(time.perf_counter() - started)
+
+    def _plan(self, t: float, q: np.ndarray, v: np.ndarray) -> PlanOutcome:
         problem = self.problem(t, q, v)
         reference = problem.reference_samples[0]
         s = self.settings
@@ -125,7 +136,8 @@ class RecedingHorizonPlanner:
         if guess is not None and guess.q.shape[1] != self.system.n:
             guess = None
         try:
-            sol = solve(problem, s.method, initial_guess=guess, max_time=s.max_solve_time)
+            sol = solve(problem, s.method, initial_guess=guess, max_time=s.max_solve_time,
+                        compiled=s.compiled)
             error = "" if sol.success else f"solver: {sol.message}"
         except (ArithmeticError, RuntimeError, ValueError) as exc:  # a numerical failure
             sol, error = None, f"solver raised {type(exc).__name__}: {exc}"
@@ -162,7 +174,7 @@ class RecedingHorizonPlanner:
         """A plan from (q, v) at t that leaves the replanning loop's state alone (a query)."""
         s = self.settings
         return solve(self.problem(t, q, v), s.method, initial_guess=self.previous,
-                     max_time=s.max_solve_time)
+                     max_time=s.max_solve_time, compiled=s.compiled)
 
     @staticmethod
     def _shifted(problem: TrackingProblem, previous: Solution) -> Solution:

@@ -184,3 +184,16 @@ def test_bad_problems_are_rejected(kwargs, message):
         nht.TrackingProblem(**base)
     with pytest.raises(ValueError, match="unknown method"):
         nht.solve(sleigh_problem(), "shooting")
+
+
+def test_compiled_nlp_gives_the_same_plan_and_is_cached(tmp_path, monkeypatch):
+    """The NLP compiled to C (built once, kept on disk) solves to the same plan."""
+    from nh_tracking.solvers.variational import solve_variational
+
+    monkeypatch.setenv("NH_TRACKING_CACHE", str(tmp_path))
+    problem = particle_problem(2, h=0.4)
+    compiled = solve_variational(problem, compiled=True)
+    assert len(list(tmp_path.glob("nlp-*.so"))) == 1
+    interpreted = solve_variational(problem)
+    assert compiled.success and compiled.cost == pytest.approx(interpreted.cost, rel=1e-12)
+    assert np.allclose(compiled.q, interpreted.q, atol=1e-10)

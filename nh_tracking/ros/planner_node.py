@@ -37,7 +37,7 @@ LATCHED = QoSProfile(depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL,
                      reliability=ReliabilityPolicy.RELIABLE)
 SWITCH_INTERVAL = 5e-4  # s
 SETTINGS = ("horizon", "steps", "epsilon", "omega", "terminal", "method", "max_solve_time",
-            "wrap_angles")
+            "wrap_angles", "compiled")
 
 
 @dataclass
@@ -64,6 +64,8 @@ class PlannerNode(SafeNode):
         declare(self, "max_solve_time", d.max_solve_time,
                 "deadline of one solve [s]; a later solve keeps the previous plan", (1e-3, 60.0))
         declare(self, "wrap_angles", d.wrap_angles, "compare angles modulo 2 pi")
+        declare(self, "compiled", d.compiled, "solve with the NLP compiled to C (the first "
+                "start per machine and structure compiles for seconds; then cached)")
         self.replan_period = declare(self, "replan_period", 0.1, "time between replans [s]",
                                      (1e-3, 60.0))
         self.cmd_rate = declare(self, "cmd_rate", 20.0, "cmd_vel publishing rate [Hz]",
@@ -87,8 +89,9 @@ class PlannerNode(SafeNode):
         self._outcome: PlanOutcome | None = None
         self._plan_traj = None
         self._stale = False
-        # (odometry receipt -> control_sequence published, of which solving) [s], recent plans
-        self.latencies: deque[tuple[float, float]] = deque(maxlen=2000)
+        # (odometry receipt -> control_sequence published, of which in the numerical planner,
+        # of which in the NLP solver) [s], for the recent plans
+        self.latencies: deque[tuple[float, float, float]] = deque(maxlen=2000)
         self._epoch_ns = self.get_clock().now().nanoseconds
 
         self.pub_path = self.create_publisher(Path, "planned_path", LATCHED)
@@ -205,7 +208,8 @@ class PlannerNode(SafeNode):
         # the control sequence first: it is what the robot waits for
         self.pub_controls.publish(cv.control_sequence_msg(
             self.frame, start_ns, plan.t[:-1] - plan.t[0], self.system.control_names, plan.u))
-        self.latencies.append((time.perf_counter() - odom.received, outcome.solve_time))
+        self.latencies.append((time.perf_counter() - odom.received,
+                               self.planner.stats.plan_durations[-1], outcome.solve_time))
         trajectory = plan.trajectory()
         with self._lock:
             if self._stale:

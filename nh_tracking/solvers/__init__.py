@@ -23,26 +23,29 @@ DISTINCT_RTOL = 1e-4  # two local minima are the same when their costs agree to 
 
 def solve(problem: TrackingProblem, method: str = "variational", *, starts: int = 1,
           initial_guess: Solution | Trajectory | None = None, seed: int = 0,
-          processes: int | None = None, max_time: float | None = None) -> Solution:
+          processes: int | None = None, max_time: float | None = None,
+          compiled: bool = False) -> Solution:
     """Solve ``problem``; with ``starts`` > 1, run that many initial guesses (the default one
     and random perturbations of it) in parallel processes and return the best, with the
     distinct local minima found in ``Solution.minima``. ``max_time`` bounds one solve's wall
-    time (the solver then stops and reports failure)."""
+    time (the solver then stops and reports failure). ``compiled`` (variational method) runs
+    the NLP as compiled C, built once and cached on disk (:mod:`.compiled`)."""
     if method not in METHODS:
         raise ValueError(f"unknown method {method!r}; choose one of {METHODS}")
     if int(starts) != starts or starts < 1:
         raise ValueError(f"starts must be an integer >= 1, got {starts}")
     if starts == 1:
         guess = None if initial_guess is None else sample_plan(problem, initial_guess)
-        return _solve_one(problem, method, guess, max_time)
+        return _solve_one(problem, method, guess, max_time, compiled)
     return _multi_start(problem, method, int(starts), seed, processes)
 
 
 def _solve_one(problem: TrackingProblem, method: str,
                guess: tuple[np.ndarray, np.ndarray, np.ndarray] | None,
-               max_time: float | None = None) -> Solution:
+               max_time: float | None = None, compiled: bool = False) -> Solution:
     if method == "variational":
-        return solve_variational(problem, None if guess is None else guess[:2], max_time)
+        return solve_variational(problem, None if guess is None else guess[:2], max_time,
+                                 compiled=compiled)
     if method == "multiple_shooting":
         return solve_multiple_shooting(problem, guess, max_time)
     return solve_pmp(problem) if max_time is None else solve_pmp(problem, max_time=max_time)

@@ -22,6 +22,7 @@ from nh_tracking.numeric import NumericFunction
 from nh_tracking.problem import (Solution, TrackingProblem, terminal_cost, terminal_error,
                                  tracking_lagrangian)
 from nh_tracking.solvers.cache import PerSystemCache
+from nh_tracking.solvers.compiled import compiled_library
 from nh_tracking.system import NonholonomicSystem
 
 SOLVERS = ("fatrop", "ipopt")
@@ -76,10 +77,12 @@ _CACHE: PerSystemCache[Transcription] = PerSystemCache()
 
 
 def transcription(system: NonholonomicSystem, steps: int, terminal: str,
-                  max_time: float | None = None, solver: str = "fatrop") -> Transcription:
-    """The NLP for this structure (solver, time limit), built on first use, cached."""
-    return _CACHE.get(system, (steps, terminal, max_time, solver),
-                      lambda: _build(system, steps, terminal, max_time, solver))
+                  max_time: float | None = None, solver: str = "fatrop",
+                  compiled: bool = False) -> Transcription:
+    """The NLP for this structure (solver, time limit, compiled or interpreted), built on
+    first use and cached."""
+    return _CACHE.get(system, (steps, terminal, max_time, solver, compiled),
+                      lambda: _build(system, steps, terminal, max_time, solver, compiled))
 
 
 def ipopt_options(max_time: float | None) -> dict:
@@ -89,7 +92,7 @@ def ipopt_options(max_time: float | None) -> dict:
 
 
 def _build(system: NonholonomicSystem, steps: int, terminal: str, max_time: float | None,
-           solver: str) -> Transcription:
+           solver: str, compiled: bool = False) -> Transcription:
     if solver not in SOLVERS:
         raise ValueError(f"unknown NLP solver {solver!r}; choose one of {SOLVERS}")
     n, k, big_n = system.n, system.k, steps
@@ -139,11 +142,14 @@ def _build(system: NonholonomicSystem, steps: int, terminal: str, max_time: floa
         fatrop = dict(FATROP_OPTIONS)
         if max_time is not None:  # fatrop has no wall-time limit: bound the iterations
             fatrop["max_iter"] = 50
-        nlp_solver = ca.nlpsol(name, "fatrop", nlp, {
-            "structure_detection": "auto", "equality": [True] * g.shape[0],
-            "print_time": False, "expand": True, "fatrop": fatrop})
+        options = {"structure_detection": "auto", "equality": [True] * g.shape[0],
+                   "print_time": False, "fatrop": fatrop}
     else:
-        nlp_solver = ca.nlpsol(name, "ipopt", nlp, ipopt_options(max_time))
+        options = ipopt_options(max_time)
+    nlp_solver = ca.nlpsol(name, solver, nlp, options)
+    library = compiled_library(nlp_solver) if compiled else None
+    if library is not None:
+        nlp_solver = ca.nlpsol(name, solver, str(library), options)
     knots_q = ca.horzcat(*[x[:n] for x in xs])
     knots_v = ca.horzcat(*[x[n:] for x in xs])
     readout = ca.Function("readout", [w, p], [knots_q, knots_v, ca.horzcat(*controls),
@@ -163,7 +169,8 @@ def default_guess(problem: TrackingProblem) -> tuple[np.ndarray, np.ndarray]:
 
 def solve_variational(problem: TrackingProblem,
                       initial_guess: tuple[np.ndarray, np.ndarray] | None = None,
-                      max_time: float | None = None, solver: str = "fatrop") -> Solution:
+                      max_time: float | None = None, solver: str = "fatrop",
+                      compiled: bool = False) -> Solution:
     """Solve the discrete variational NLP from knots (q (N+1, n), v (N+1, k)) as the guess.
 
     Without a time limit, a fatrop failure is retried with IPOPT (the route says so). A cold
@@ -172,11 +179,11 @@ def solve_variational(problem: TrackingProblem,
     coarse_time = 0.0
     if initial_guess is None and problem.steps >= CONTINUATION_MIN_STEPS:
         coarse = dataclasses.replace(problem, steps=COARSE_STEPS)
-        coarse_plan = solve_variational(coarse, None, max_time, solver)
+        coarse_plan = solve_variational(coarse, None, max_time, solver, compiled)
         coarse_time = coarse_plan.solve_time
         if coarse_plan.success:
             initial_guess = coarse_plan.trajectory().sample(problem.grid)
-    result = _solve_with(problem, initial_guess, max_time, solver)
+    result = _solve_with(problem, initial_guess, max_time, solver, compiled)
     result.solve_time += coarse_time
     if not result.success and solver == "fatrop" and max_time is None:
         retry = _solve_with(problem, initial_guess, None, "ipopt")
@@ -187,8 +194,9 @@ def solve_variational(problem: TrackingProblem,
 
 
 def _solve_with(problem: TrackingProblem, initial_guess, max_time: float | None,
-                solver: str) -> Solution:
-    tr = transcription(problem.system, problem.steps, problem.terminal, max_time, solver)
+                solver: str, compiled: bool = False) -> Solution:
+    tr = transcription(problem.system, problem.steps, problem.terminal, max_time, solver,
+                       compiled)
     q_g, v_g = default_guess(problem) if initial_guess is None else initial_guess
     q_g, v_g = np.array(q_g, dtype=float), np.array(v_g, dtype=float)
     q_g[0], v_g[0] = problem.q0, problem.v0
