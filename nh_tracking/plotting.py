@@ -145,15 +145,13 @@ def plot_bench(results: dict, path: Path) -> Path:
         axes[2].legend()
     ros = results.get("ros_latency")
     if ros:
-        keys, bottom = ["p50", "p99"], np.zeros(2)
-        for part, label in (("solve_ms", "NLP solver"), ("planner_ms", "rest of the planner"),
-                            ("overhead_ms", "ROS layer")):
-            values = np.array([ros[part][k] for k in keys])
-            height = values - (ros["solve_ms"][keys[0]] * 0 if part != "planner_ms" else 0)
-            if part == "planner_ms":
-                height = values - np.array([ros["solve_ms"][k] for k in keys])
-            axes[3].bar(keys, height, bottom=bottom, label=label)
-            bottom = bottom + height
+        keys = ["p50", "p99"]
+        solve = np.array([ros["solve_ms"][k] for k in keys])
+        planner = np.array([ros["planner_ms"][k] for k in keys])
+        ros_layer = np.array([ros["overhead_ms"][k] for k in keys])
+        axes[3].bar(keys, solve, label="NLP solver")
+        axes[3].bar(keys, planner - solve, bottom=solve, label="rest of the planner")
+        axes[3].bar(keys, ros_layer, bottom=planner, label="ROS layer")
         axes[3].set(ylabel="odom -> control_sequence [ms]", title="ROS latency (in process)")
         axes[3].legend()
     return _finish(fig, path)
