@@ -21,6 +21,8 @@ from trajectory_msgs.msg import (JointTrajectory, JointTrajectoryPoint,
 from visualization_msgs.msg import Marker, MarkerArray
 
 QUATERNION_TOLERANCE = 1e-3  # |q| may differ from 1 by this much (float32 round trips)
+MAX_POSITION = 1e6  # m: finite but absurd values would overflow the numerics downstream
+MAX_RATE = 1e3  # m/s, rad/s, and control effort per unit
 
 
 class InputRejected(ValueError):
@@ -61,9 +63,11 @@ def quaternion_of(yaw: float) -> Quaternion:
     return Quaternion(x=0.0, y=0.0, z=math.sin(yaw / 2), w=math.cos(yaw / 2))
 
 
-def _finite(values: Sequence[float], what: str) -> None:
+def _finite(values: Sequence[float], what: str, bound: float = MAX_POSITION) -> None:
     if not all(math.isfinite(v) for v in values):
         raise InputRejected(f"{what} has NaN or Inf values")
+    if any(abs(v) > bound for v in values):
+        raise InputRejected(f"{what} has values beyond {bound:g}")
 
 
 def pose_array(pose: Pose, what: str) -> np.ndarray:
@@ -76,7 +80,7 @@ def pose_array(pose: Pose, what: str) -> np.ndarray:
 def twist_array(twist: Twist, what: str = "twist") -> np.ndarray:
     """(vx, vy, vz, wz) of a twist, validated (roll and pitch rates are ignored)."""
     values = (twist.linear.x, twist.linear.y, twist.linear.z, twist.angular.z)
-    _finite(values + (twist.angular.x, twist.angular.y), what)
+    _finite(values + (twist.angular.x, twist.angular.y), what, MAX_RATE)
     return np.array(values)
 
 
@@ -161,7 +165,7 @@ def controls_to_arrays(msg: JointTrajectory, names: Sequence[str]
         if len(pt.effort) != len(names):
             raise InputRejected(f"control point {i} has {len(pt.effort)} efforts for "
                                 f"{len(names)} joints")
-        _finite(pt.effort, f"control point {i} effort")
+        _finite(pt.effort, f"control point {i} effort", MAX_RATE)
         efforts.append([pt.effort[j] for j in order])
         times.append(duration_seconds(pt.time_from_start))
     times_arr = np.array(times)
