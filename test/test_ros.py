@@ -313,3 +313,56 @@ def test_simulator_velocity_mode_follows_cmd_vel_and_initialpose_resets(graph):
     pose_pub.publish(reset)
     assert wait_until(lambda: sim.state[0][0] == pytest.approx(3.0, abs=1e-6), 5.0)
     assert sim.state[0] == pytest.approx([3.0, -2.0, 1.0], abs=1e-6)
+
+
+def test_stale_odometry_stops_commanding_and_fresh_odometry_resumes(graph):
+    pair = WallClockPair(graph, planner_params={"odom_timeout": 0.3, "cmd_rate": 50.0})
+    statuses = []
+    pair.node.create_subscription(DiagnosticArray, "/diagnostics",
+                                  lambda m: statuses.extend(m.status), 100)
+    pair.send_reference()
+    assert wait_until(lambda: any(abs(m.linear.x) > 0.1 for m in pair.published["cmd_vel"]), 10)
+    graph.executor.remove_node(pair.sim)  # the robot's odometry stops
+    assert wait_until(lambda: pair.planner._stale, 5.0)
+    sequences = len(pair.published["control_sequence"])
+    pair.published["cmd_vel"].clear()
+    assert wait_until(lambda: len(pair.published["cmd_vel"]) > 20, 5.0)
+    assert all(m.linear.x == 0.0 and m.angular.z == 0.0 for m in pair.published["cmd_vel"])
+    assert len(pair.published["control_sequence"]) == sequences  # no new plan while stale
+    assert wait_until(lambda: any(s.level == DiagnosticStatus.STALE for s in statuses), 5.0)
+    graph.executor.add_node(pair.sim)  # odometry is back
+    assert wait_until(lambda: not pair.planner._stale, 5.0)
+    assert wait_until(lambda: len(pair.published["control_sequence"]) > sequences + 3, 5.0)
+    assert wait_until(lambda: abs(pair.published["cmd_vel"][-1].linear.x) > 0.1, 5.0)
+
+
+def test_solver_faults_fall_back_with_a_warning_and_never_publish_nan(graph, monkeypatch):
+    import nh_tracking.receding_horizon as rh
+
+    pair = WallClockPair(graph)
+    statuses = []
+    pair.node.create_subscription(DiagnosticArray, "/diagnostics",
+                                  lambda m: statuses.extend(m.status), 100)
+    pair.send_reference()
+    real_solve = rh.solve
+
+    def exploding(*args, **kwargs):
+        raise RuntimeError("injected solver fault")
+
+    def nan_dynamics(*args, **kwargs):  # as if the dynamics had produced NaN
+        sol = real_solve(*args, **kwargs)
+        sol.q[3:] = float("nan")
+        return sol
+
+    for fault, reason in ((exploding, "injected solver fault"),
+                          (nan_dynamics, "non-finite values")):
+        stats = pair.planner.planner.stats
+        before = stats.shifted + stats.fallbacks
+        monkeypatch.setattr(rh, "solve", fault)
+        assert wait_until(lambda: stats.shifted + stats.fallbacks > before + 3, 10.0), reason
+        assert wait_until(lambda: any(s.level == DiagnosticStatus.WARN and reason in s.message
+                                      for s in statuses), 5.0), reason
+        monkeypatch.setattr(rh, "solve", real_solve)
+    optimal = pair.planner.planner.stats.optimal
+    assert wait_until(lambda: pair.planner.planner.stats.optimal > optimal + 3, 10.0)
+    assert pair.planner.errors == 0 and _finite_outputs(pair)
