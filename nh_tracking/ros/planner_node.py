@@ -36,6 +36,7 @@ from nh_tracking.solvers import METHODS
 LATCHED = QoSProfile(depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL,
                      reliability=ReliabilityPolicy.RELIABLE)
 SWITCH_INTERVAL = 5e-4  # s
+SERVICE_QUEUE = 100  # requests
 SETTINGS = ("horizon", "steps", "epsilon", "omega", "terminal", "method", "max_solve_time",
             "wrap_angles", "compiled")
 
@@ -104,8 +105,12 @@ class PlannerNode(SafeNode):
                                  self.on_reference_trajectory, 10)
         self.create_subscription(Odometry, "odom", self.on_odom, 10)
         services = MutuallyExclusiveCallbackGroup()
-        self.create_service(GetPlan, "plan", self.on_plan, callback_group=services)
-        self.create_service(Trigger, "replan", self.on_replan, callback_group=services)
+        # a burst of requests is queued, not dropped (the default keeps only the last 10)
+        requests = QoSProfile(depth=SERVICE_QUEUE, reliability=ReliabilityPolicy.RELIABLE)
+        self.create_service(GetPlan, "plan", self.on_plan, callback_group=services,
+                            qos_profile=requests)
+        self.create_service(Trigger, "replan", self.on_replan, callback_group=services,
+                            qos_profile=requests)
         self._replan_timer = self.create_timer(self.replan_period, self._wake_worker)
         self._cmd_timer = self.create_timer(1.0 / self.cmd_rate, self.publish_cmd_vel)
         self.create_timer(1.0, self.publish_diagnostics)

@@ -1,0 +1,209 @@
+"""Reliability through ROS: fuzzed topics, an odometry flood, concurrent service calls, and a
+soak with reference swaps and parameter changes — nothing crashes, nothing invalid is out."""
+import os
+import threading
+import time
+
+import numpy as np
+import pytest
+from geometry_msgs.msg import PoseWithCovarianceStamped, Twist
+from nav_msgs.msg import Odometry, Path
+from nav_msgs.srv import GetPlan
+from rclpy.parameter import Parameter
+from rclpy.qos import QoSProfile
+from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint, MultiDOFJointTrajectory
+
+from nh_tracking.metrics import cross_track_error
+from nh_tracking.ros import conversions as cv
+from nh_tracking.ros.demo import START, ClosedLoop, reference_message, sleigh_reference
+from nh_tracking.ros.graph import InProcessGraph, wait_until
+from test_ros import WallClockPair
+
+pytestmark = pytest.mark.timeout(300)
+
+
+@pytest.fixture
+def graph():
+    g = InProcessGraph()
+    yield g
+    g.close()
+
+
+class Fuzzer:
+    """Malformed messages for every input topic, from valid ones with one field broken."""
+
+    BAD = (float("nan"), float("inf"), -float("inf"), 1e300)
+
+    def __init__(self, pair, seed=0):
+        self.rng = np.random.default_rng(seed)
+        self.pair = pair
+        self.path = reference_message(pair.reference, pair.planner.pose_map, 0.0, "path")
+        self.trajectory = reference_message(pair.reference, pair.planner.pose_map, 0.0,
+                                            "trajectory")
+
+    def bad(self):
+        return float(self.rng.choice(self.BAD))
+
+    def reference_path(self):
+        msg = Path(header=self.path.header, poses=list(self.path.poses[:15]))
+        kind = self.rng.integers(4)
+        i = int(self.rng.integers(len(msg.poses)))
+        pose = cv.pose_msg(np.array([0.0, 0.0, 0.0, 0.0]))
+        if kind == 0:
+            pose.position.x = self.bad()
+        elif kind == 1:
+            pose.orientation.w = 3.0
+        msg.poses[i] = type(msg.poses[i])(header=msg.poses[i].header, pose=pose)
+        if kind == 2:
+            msg.poses = []
+        if kind == 3:
+            msg.poses = msg.poses[:5] + msg.poses[:5]  # stamps go backwards
+        return msg
+
+    def reference_trajectory(self):
+        msg = MultiDOFJointTrajectory(header=self.trajectory.header,
+                                      joint_names=list(self.trajectory.joint_names),
+                                      points=list(self.trajectory.points[:10]))
+        if self.rng.integers(2):
+            msg.joint_names = ["a", "b"]
+        else:
+            msg.points = [type(msg.points[0])(transforms=[], velocities=[])] + msg.points[1:]
+        return msg
+
+    def odom(self):
+        msg = Odometry()
+        msg.header.frame_id = "odom" if self.rng.integers(2) else "elsewhere"
+        msg.pose.pose.orientation.w = 1.0
+        msg.twist.twist.linear.x = self.bad()
+        return msg
+
+    def control_sequence(self):
+        names = ["torque", "force"] if self.rng.integers(2) else ["torque"]
+        return JointTrajectory(joint_names=names, points=[
+            JointTrajectoryPoint(effort=[self.bad(), 0.0])])
+
+    def cmd_vel(self):
+        msg = Twist()
+        msg.angular.z = self.bad()
+        return msg
+
+    def initialpose(self):
+        msg = PoseWithCovarianceStamped()
+        msg.header.frame_id = "odom"
+        msg.pose.pose.orientation.z = 2.0  # not a unit quaternion
+        return msg
+
+
+def test_fuzz_flood_and_concurrent_calls_leave_the_loop_tracking(graph):
+    pair = WallClockPair(graph, planner_params={"replan_on_odom": True})
+    pair.send_reference()
+    published = _record_outputs(pair.planner)  # the fuzzer writes to cmd_vel and
+    fuzz = Fuzzer(pair)                         # control_sequence too: check at the source
+    topics = {"reference_path": Path, "reference_trajectory": MultiDOFJointTrajectory,
+              "odom": Odometry, "control_sequence": JointTrajectory, "cmd_vel": Twist,
+              "initialpose": PoseWithCovarianceStamped}
+    pubs = {t: pair.publisher(m, t) for t, m in topics.items()}
+    sent = {t: 0 for t in topics}
+    # fuzz every input topic of both nodes for 3 s
+    end = time.monotonic() + 3.0
+    while time.monotonic() < end:
+        topic = list(topics)[int(fuzz.rng.integers(len(topics)))]
+        pubs[topic].publish(getattr(fuzz, topic)())
+        sent[topic] += 1
+        time.sleep(0.0005)
+    # flood odometry at >= 500 Hz: the robot's true state, re-sent by a chatty driver
+    flood, end, msg = 0, time.monotonic() + 2.0, None
+    while time.monotonic() < end:
+        if flood % 10 == 0:  # refresh the state now and then, re-stamp every time
+            q, v = pair.sim.state
+            msg = cv.odometry_msg("odom", "base_link", 0, pair.planner.pose_map.pose(q),
+                                  pair.planner.pose_map.body_twist(q, v))
+        msg.header.stamp = cv.time_msg(pair.planner.get_clock().now().nanoseconds)
+        pubs["odom"].publish(msg)
+        flood += 1
+    # 20 plan calls at once
+    client = pair.node.create_client(GetPlan, f"{pair.ns}/plan",
+                                     qos_profile=QoSProfile(depth=100))
+    assert client.wait_for_service(timeout_sec=10.0)
+    futures = [client.call_async(GetPlan.Request()) for _ in range(20)]
+    assert wait_until(lambda: all(f.done() for f in futures), 60.0)
+    answers = [f.result() for f in futures]
+    print(f"fuzzed {sum(sent.values())} messages {sent}; odometry flood {flood} in 2 s; "
+          f"20 plan calls answered; rejected: planner {pair.planner.rejected_inputs}, "
+          f"simulator {pair.sim.rejected_inputs}")
+    assert flood >= 1000 and sum(sent.values()) > 1000
+    assert all(len(a.plan.poses) == 31 for a in answers)
+    assert all(np.isfinite(p.pose.position.x) for a in answers for p in a.plan.poses)
+    assert pair.planner.rejected_inputs > 0 and pair.sim.rejected_inputs > 0
+    assert pair.planner.errors == 0 and pair.sim.errors == 0
+    assert sum(len(m) for m in published.values()) > 100
+    assert all(_finite_message(m) for msgs in published.values() for m in msgs)
+    # both nodes alive and the loop still tracking
+    count, plans = len(pair.odom), pair.planner.planner.stats.plans
+    assert wait_until(lambda: len(pair.odom) > count + 100, 10.0)
+    assert pair.planner.planner.stats.plans > plans
+    xy = np.array([[m.pose.pose.position.x, m.pose.pose.position.y] for m in pair.odom[-50:]])
+    assert cross_track_error(xy, pair.reference.q[:, :2]).max() < 0.05
+
+
+def _record_outputs(node) -> dict[str, list]:
+    """Every message the planner publishes, recorded at its publishers."""
+    published = {}
+    for name in ("pub_path", "pub_controls", "pub_cmd"):
+        publisher, seen = getattr(node, name), []
+        original = publisher.publish
+
+        def publish(msg, original=original, seen=seen):
+            seen.append(msg)
+            original(msg)
+
+        publisher.publish = publish
+        published[name] = seen
+    return published
+
+
+def _finite_message(msg) -> bool:
+    """No NaN or Inf in any float field, however deep."""
+    if isinstance(msg, float):
+        return np.isfinite(msg)
+    if isinstance(msg, (list, tuple)) or type(msg).__name__ == "array":
+        return all(_finite_message(x) for x in msg)
+    if hasattr(msg, "get_fields_and_field_types"):
+        return all(_finite_message(getattr(msg, f)) for f in msg.get_fields_and_field_types())
+    return True
+
+
+def _process_figures() -> tuple[float, int]:
+    """(resident memory [MiB], threads) of this process, from /proc."""
+    fields = dict(line.split(":", 1) for line in open("/proc/self/status"))
+    return int(fields["VmRSS"].split()[0]) / 1024, int(fields["Threads"])
+
+
+def test_soak_with_reference_swaps_and_parameter_changes(graph):
+    """>= 60 s simulated with a reference swap (Path <-> MultiDOF) and a parameter change every
+    5 s: memory and thread count stay flat, and the loop keeps tracking."""
+    loop = ClosedLoop(graph, namespace="/soak")
+    reference = sleigh_reference(120.0)
+    loop.start(reference, "path", time_scale=10.0)
+    samples, kinds = [], ["trajectory", "path"]
+    changes = [("horizon", 2.5), ("epsilon", 0.8), ("horizon", 3.0), ("epsilon", 1.0)]
+    for step in range(13):
+        target = START + 5.0 * (step + 1)
+        assert wait_until(lambda: loop.sim_time() >= target, 60.0)
+        loop.send_reference(reference, kinds[step % 2])
+        name, value = changes[step % len(changes)]
+        assert loop.planner.set_parameters([Parameter(name, value=value)])[0].successful
+        samples.append(_process_figures())
+    t, xy = loop.track()
+    memory = np.array([m for m, _ in samples])
+    threads = [n for _, n in samples]
+    growth = memory[-1] - memory[2]
+    print(f"soak: {t[-1] - START:.0f} s simulated, {loop.planner.planner.stats.plans} plans; "
+          f"RSS {memory[2]:.1f} -> {memory[-1]:.1f} MiB (growth {growth:.1f} MiB); "
+          f"threads {threads}")
+    assert t[-1] - START >= 60.0
+    assert growth < 15.0  # MiB over the last 50 s: flat, not accumulating per plan
+    assert max(threads[2:]) == min(threads[2:])
+    error = cross_track_error(xy[t - START > 55.0], reference.q[:, :2])
+    assert error.max() < 0.05
+    assert loop.planner.errors == 0 and loop.planner.planner.stats.fallbacks == 0
