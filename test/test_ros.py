@@ -363,6 +363,14 @@ def test_solver_faults_fall_back_with_a_warning_and_never_publish_nan(graph, mon
         assert wait_until(lambda: any(s.level == DiagnosticStatus.WARN and reason in s.message
                                       for s in statuses), 5.0), reason
         monkeypatch.setattr(rh, "solve", real_solve)
+    # a solver that cannot meet its deadline: late plans are discarded, the old one shifted
+    stats = pair.planner.planner.stats
+    before = stats.shifted + stats.fallbacks
+    assert pair.planner.set_parameters([Parameter("max_solve_time", value=0.001)])[0].successful
+    assert wait_until(lambda: stats.shifted + stats.fallbacks > before + 3, 10.0)
+    assert wait_until(lambda: any(s.level == DiagnosticStatus.WARN and "deadline" in s.message
+                                  for s in statuses), 5.0)
+    assert pair.planner.set_parameters([Parameter("max_solve_time", value=0.25)])[0].successful
     optimal = pair.planner.planner.stats.optimal
     assert wait_until(lambda: pair.planner.planner.stats.optimal > optimal + 3, 10.0)
     assert pair.planner.errors == 0 and _finite_outputs(pair)

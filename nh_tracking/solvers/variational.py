@@ -81,8 +81,11 @@ def transcription(system: NonholonomicSystem, steps: int, terminal: str,
                   compiled: bool = False) -> Transcription:
     """The NLP for this structure (solver, time limit, compiled or interpreted), built on
     first use and cached."""
-    return _CACHE.get(system, (steps, terminal, max_time, solver, compiled),
-                      lambda: _build(system, steps, terminal, max_time, solver, compiled))
+    # fatrop only needs to know whether there is a deadline (it bounds its iterations);
+    # IPOPT takes the wall time itself
+    deadline = max_time if solver == "ipopt" or max_time is None else 1.0
+    return _CACHE.get(system, (steps, terminal, deadline, solver, compiled),
+                      lambda: _build(system, steps, terminal, deadline, solver, compiled))
 
 
 def ipopt_options(max_time: float | None) -> dict:
