@@ -19,16 +19,9 @@ from nh_tracking.metrics import cross_track_error
 from nh_tracking.ros import PlannerNode, SimulatorNode
 from nh_tracking.ros import conversions as cv
 from nh_tracking.ros.demo import START, ClosedLoop, reference_message, sleigh_reference
-from nh_tracking.ros.graph import InProcessGraph, parameters, wait_until
+from nh_tracking.ros.graph import parameters, wait_until
 
 pytestmark = pytest.mark.timeout(180)
-
-
-@pytest.fixture
-def graph():
-    g = InProcessGraph()
-    yield g
-    g.close()
 
 
 def unique_namespace() -> str:

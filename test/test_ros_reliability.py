@@ -16,17 +16,10 @@ from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint, MultiDOFJ
 from nh_tracking.metrics import cross_track_error
 from nh_tracking.ros import conversions as cv
 from nh_tracking.ros.demo import START, ClosedLoop, reference_message, sleigh_reference
-from nh_tracking.ros.graph import InProcessGraph, wait_until
+from nh_tracking.ros.graph import wait_until
 from test_ros import WallClockPair
 
 pytestmark = pytest.mark.timeout(300)
-
-
-@pytest.fixture
-def graph():
-    g = InProcessGraph()
-    yield g
-    g.close()
 
 
 class Fuzzer:
