@@ -69,3 +69,16 @@ def fallback_plan(problem: TrackingProblem, gains: KanayamaGains = KanayamaGains
         terminal_error=terminal_error(problem, traj.q[-1], traj.v[-1]), method="fallback",
         message="Kanayama tracking law", route="fallback",
     )
+
+
+def stop_plan(problem: TrackingProblem, reason: str) -> Solution:
+    """The last resort when even the tracking law cannot be rolled out (e.g. the dynamics give
+    NaN here): hold the current configuration at rest. Always finite for a finite state."""
+    steps, k = problem.steps, problem.system.k
+    q = np.tile(problem.q0, (steps + 1, 1))
+    return Solution(
+        t=problem.grid, q=q, v=np.zeros((steps + 1, k)), u=np.zeros((steps, k)),
+        cost=float("nan"), success=True, iterations=0, solve_time=0.0,
+        terminal_error=terminal_error(problem, q[-1], np.zeros(k)), method="fallback",
+        message=f"stop: {reason}", route="stop",
+    )

@@ -16,7 +16,7 @@ from typing import Literal
 
 import numpy as np
 
-from nh_tracking.fallback import fallback_plan
+from nh_tracking.fallback import fallback_plan, stop_plan
 from nh_tracking.problem import Solution, TrackingProblem, terminal_error
 from nh_tracking.solvers import METHODS, sample_plan, solve
 from nh_tracking.solvers.multiple_shooting import shooting_transcription
@@ -166,11 +166,16 @@ class RecedingHorizonPlanner:
             self.stats.shifted += 1
             return PlanOutcome(shifted, "shifted", solve_time, missed,
                                f"kept the previous plan, shifted ({error})", reference)
-        plan = fallback_plan(problem)
+        try:
+            plan, what = fallback_plan(problem), "tracking law fallback"
+            if not _finite(plan):
+                raise ValueError("the tracking law gave non-finite values")
+        except (ArithmeticError, RuntimeError, ValueError) as exc:
+            plan, what = stop_plan(problem, str(exc)), f"stopping, tracking law failed: {exc}"
         self.previous = plan  # the plan in force: shifted if the next solve fails too
         self.stats.fallbacks += 1
-        return PlanOutcome(plan, "fallback", solve_time, missed,
-                           f"tracking law fallback ({error})", reference)
+        return PlanOutcome(plan, "fallback", solve_time, missed, f"{what} ({error})",
+                           reference)
 
     def preview(self, t: float, q: np.ndarray, v: np.ndarray) -> Solution:
         """A plan from (q, v) at t that leaves the replanning loop's state alone (a query)."""

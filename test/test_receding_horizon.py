@@ -119,3 +119,23 @@ def test_fallback_law_tracks_a_unicycle():
 def test_bad_settings_are_refused(bad):
     with pytest.raises(ValueError, match="invalid planner settings"):
         rh.PlannerSettings(**bad)
+
+
+def test_nan_from_the_dynamics_gives_a_finite_stop_plan():
+    """A knife edge whose potential is NaN for x < 0 (sqrt): from x = -1 the solver and the
+    tracking law both meet NaN; the planner still returns a finite plan (stop) and says so."""
+    import casadi as ca
+
+    knife = nht.NonholonomicSystem.from_constraints(
+        ["x", "y", "theta"], lambda q: ca.SX.eye(3),
+        lambda q: ca.horzcat(ca.sin(q[2]), -ca.cos(q[2]), 0),
+        potential=lambda q: -ca.sqrt(q[0]), angles=["theta"], name="nan_knife")
+    ref = nht.Trajectory(t=[0.0, 10.0], q=[[1.0, 0.0, 0.0], [2.0, 0.0, 0.0]],
+                         v=[[0.1, 0.0], [0.1, 0.0]], u=[[0.0, 0.0]])
+    planner = rh.RecedingHorizonPlanner(knife, rh.PlannerSettings(steps=10, horizon=1.0))
+    planner.set_reference(ref)
+    out = planner.plan(0.0, [-1.0, 0.0, 0.0], [0.2, 0.0])
+    assert out.status == "fallback" and out.message.startswith("stopping")
+    assert np.all(np.isfinite(out.plan.q)) and np.all(out.plan.v == 0) and np.all(out.plan.u == 0)
+    again = planner.plan(0.1, [-1.0, 0.0, 0.0], [0.2, 0.0])  # still failing: shifted stop plan
+    assert again.status == "shifted" and np.all(np.isfinite(again.plan.u))

@@ -149,6 +149,7 @@ def _build(system: NonholonomicSystem, steps: int, terminal: str, max_time: floa
                    "print_time": False, "fatrop": fatrop}
     else:
         options = ipopt_options(max_time)
+    options["show_eval_warnings"] = False  # failures are reported in the Solution instead
     nlp_solver = ca.nlpsol(name, solver, nlp, options)
     library = compiled_library(nlp_solver) if compiled else None
     if library is not None:
@@ -207,7 +208,14 @@ def _solve_with(problem: TrackingProblem, initial_guess, max_time: float | None,
         q_g[-1], v_g[-1] = problem.reference_samples[0][-1], problem.reference_samples[1][-1]
     p = tr.parameters(problem)
     start = time.perf_counter()
-    result = tr.solver(x0=tr.pack(q_g, v_g), p=p, lbg=0, ubg=0)
+    w0 = tr.pack(q_g, v_g)
+    if not all(np.all(np.isfinite(a)) for a in tr.readout(w0, p)):
+        # fatrop never returns from a non-finite starting point (its line search cannot
+        # recover): refuse to start, and say why
+        return _failed(problem, q_g, v_g, time.perf_counter() - start, solver,
+                       "the NLP is not finite at the initial guess (the dynamics or cost give "
+                       "NaN or Inf there)")
+    result = tr.solver(x0=w0, p=p, lbg=0, ubg=0)
     elapsed = time.perf_counter() - start
     stats = tr.solver.stats()
     w = np.array(result["x"]).ravel()
@@ -228,3 +236,11 @@ def _solve_with(problem: TrackingProblem, initial_guess, max_time: float | None,
         costates=(lam, -problem.epsilon * u),
         details={"admissibility_residual": residual},
     )
+
+
+def _failed(problem: TrackingProblem, q: np.ndarray, v: np.ndarray, elapsed: float,
+            solver: str, message: str) -> Solution:
+    return Solution(
+        t=problem.grid, q=q, v=v, u=np.zeros((problem.steps, problem.system.k)),
+        cost=float("inf"), success=False, iterations=0, solve_time=elapsed,
+        terminal_error=float("inf"), method="variational", message=message, route=solver)
