@@ -1,7 +1,5 @@
 """Reliability through ROS: fuzzed topics, an odometry flood, concurrent service calls, and a
 soak with reference swaps and parameter changes — nothing crashes, nothing invalid is out."""
-import os
-import threading
 import time
 
 import numpy as np
