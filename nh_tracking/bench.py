@@ -96,12 +96,11 @@ def _dompc_cold(problem: TrackingProblem) -> tuple[float, float, float]:
                                  + problem.epsilon * ca.sumsqr(u))
     mpc.set_objective(lterm=running, mterm=ca.DM(0))
     mpc.set_rterm(u=0.0)
-    q_end, v_end = problem.reference_at(problem.grid[-1])
+    q_knots, v_knots = problem.reference_samples[:2]
     for bound in ("lower", "upper"):
-        mpc.terminal_bounds[bound, "q"] = q_end[0]
-        mpc.terminal_bounds[bound, "v"] = v_end[0]
+        mpc.terminal_bounds[bound, "q"] = q_knots[-1]
+        mpc.terminal_bounds[bound, "v"] = v_knots[-1]
     template = mpc.get_tvp_template()
-    q_knots, v_knots = problem.reference_at(problem.t0 + problem.h * np.arange(problem.steps + 1))
 
     def tvp(t_now: float):
         for i in range(problem.steps + 1):

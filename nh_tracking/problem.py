@@ -170,7 +170,7 @@ def running_cost_profile(problem: TrackingProblem, solution: Solution) -> np.nda
     """h L at each interval's midpoint: the discrete running action of a plan, interval by
     interval (its sum is the variational method's running cost)."""
     lagrangian = tracking_lagrangian(problem.system)
-    q_ref, v_ref = problem.reference_at(problem.grid[:-1] + 0.5 * problem.h)
+    q_ref, v_ref = problem.reference_samples[2:]
     q_mid = 0.5 * (solution.q[1:] + solution.q[:-1])
     v_mid = 0.5 * (solution.v[1:] + solution.v[:-1])
     values = lagrangian.map(problem.steps)(q_mid.T, v_mid.T, solution.u.T, q_ref.T, v_ref.T,

@@ -145,9 +145,10 @@ class RecedingHorizonPlanner:
         if missed:  # a late plan describes a past that has moved on: do not use it
             error = (f"missed the deadline ({sol.solve_time * 1e3:.1f} ms > "
                      f"{s.max_solve_time * 1e3:.1f} ms)")
-        if sol is not None and sol.success and not missed and not _finite(sol):
+        finite = sol is not None and _finite(sol)
+        if sol is not None and sol.success and not missed and not finite:
             error = "solver returned non-finite values"
-        ok = sol is not None and sol.success and _finite(sol) and not missed
+        ok = sol is not None and sol.success and finite and not missed
         self.stats.plans += 1
         self.stats.deadline_misses += int(missed)
         if sol is not None:

@@ -77,7 +77,7 @@ def random_guess(problem: TrackingProblem, rng: np.random.Generator
     sleigh, smaller excursions all fall back into the best basin and find nothing else.
     """
     sys = problem.system
-    q, v = problem.reference_at(problem.grid)
+    q, v = problem.reference_samples[:2]
     s = (problem.grid - problem.grid[0]) / problem.horizon
 
     def excursion(columns: int, scale: np.ndarray) -> np.ndarray:

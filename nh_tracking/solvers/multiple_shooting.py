@@ -92,7 +92,7 @@ def solve_multiple_shooting(problem: TrackingProblem,
     tr = shooting_transcription(sys, big_n, problem.terminal, max_time)
     p = tr.parameters(problem)
     if initial_guess is None:
-        q_g, v_g = problem.reference_at(problem.grid)
+        q_g, v_g = problem.reference_samples[:2]
         u_g = np.zeros((big_n, k))
     else:
         q_g, v_g, u_g = initial_guess
@@ -103,8 +103,9 @@ def solve_multiple_shooting(problem: TrackingProblem,
     lbw, ubw = np.full(w0.size, -np.inf), np.full(w0.size, np.inf)
     lbw[:n + k] = ubw[:n + k] = x_g[0]
     if problem.terminal == "equality":
-        q_end, v_end = problem.reference_at(problem.grid[-1])
-        lbw[-(n + k):] = ubw[-(n + k):] = w0[-(n + k):] = np.concatenate([q_end[0], v_end[0]])
+        q_knots, v_knots = problem.reference_samples[:2]
+        lbw[-(n + k):] = ubw[-(n + k):] = w0[-(n + k):] = np.concatenate([q_knots[-1],
+                                                                          v_knots[-1]])
     start = time.perf_counter()
     result = tr.solver(x0=w0, p=p, lbx=lbw, ubx=ubw, lbg=0, ubg=0)
     elapsed = time.perf_counter() - start

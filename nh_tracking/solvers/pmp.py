@@ -152,11 +152,11 @@ class _Shooter:
 
     def terminal_residual(self, z_end: np.ndarray) -> np.ndarray:
         n, k, prob = self.n, self.k, self.problem
-        q_ref, v_ref = prob.reference_at(prob.grid[-1])
+        q_ref, v_ref = prob.reference_samples[0][-1], prob.reference_samples[1][-1]
         if prob.terminal == "cost":  # transversality, ERRATA #5
-            return np.concatenate([z_end[n + k:2 * n + k] - prob.omega * (z_end[:n] - q_ref[0]),
+            return np.concatenate([z_end[n + k:2 * n + k] - prob.omega * (z_end[:n] - q_ref),
                                    z_end[2 * n + k:]])
-        return np.concatenate([z_end[:n] - q_ref[0], z_end[n:n + k] - v_ref[0]])
+        return np.concatenate([z_end[:n] - q_ref, z_end[n:n + k] - v_ref])
 
 
 def _solve_root(fun, w0: np.ndarray) -> tuple[np.ndarray, bool]:
