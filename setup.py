@@ -1,4 +1,7 @@
-"""ament_python package setup: installs the library, the ament index marker and the executables."""
+"""ament_python package setup: installs the library, the ament index marker, the executables,
+the parameter file and the launch file."""
+from glob import glob
+
 from setuptools import find_packages, setup
 
 package_name = 'nh_tracking'
@@ -10,6 +13,8 @@ setup(
     data_files=[
         ('share/ament_index/resource_index/packages', ['resource/' + package_name]),
         ('share/' + package_name, ['package.xml']),
+        ('share/' + package_name + '/config', glob('config/*.yaml')),
+        ('share/' + package_name + '/launch', glob('launch/*.launch.py')),
     ],
     install_requires=['setuptools'],
     extras_require={'bench': ['do-mpc==5.1.2']},

@@ -19,7 +19,7 @@ from nh_tracking.metrics import cross_track_error, percentiles_ms
 from nh_tracking.poses import PoseMap
 from nh_tracking.ros import conversions as cv
 from nh_tracking.ros.graph import InProcessGraph, parameters, wait_until
-from nh_tracking.ros.planner_node import PlannerNode
+from nh_tracking.ros.planner_node import LATCHED, PlannerNode
 from nh_tracking.ros.simulator_node import SimulatorNode
 from nh_tracking.simulate import simulate
 from nh_tracking.trajectory import Trajectory
@@ -67,9 +67,11 @@ class ClosedLoop:
         self._lock = threading.Lock()
         self.odometry: list[tuple[float, np.ndarray]] = []
         self.feeder.create_subscription(Odometry, "odom", self._on_odom, 100)
-        self.publishers = {"path": self.feeder.create_publisher(PathMsg, "reference_path", 1),
+        # latched, as a reference should be: a restarted planner picks it up again
+        self.publishers = {"path": self.feeder.create_publisher(PathMsg, "reference_path",
+                                                                LATCHED),
                            "trajectory": self.feeder.create_publisher(
-                               MultiDOFJointTrajectory, "reference_trajectory", 1)}
+                               MultiDOFJointTrajectory, "reference_trajectory", LATCHED)}
 
     def _on_odom(self, msg: Odometry) -> None:
         stamp, pose, _ = cv.odom_to_arrays(msg, "odom")

@@ -1,24 +1,46 @@
-"""``main()`` plumbing shared by the executables: spin, and shut down cleanly on Ctrl-C."""
+"""``main()`` plumbing shared by the executables: ``--help``, start-up errors as one line and
+exit code 2, spin, and a clean exit (code 0) on Ctrl-C or SIGTERM."""
 from __future__ import annotations
 
+import signal
 import sys
 from collections.abc import Callable, Sequence
 
 import rclpy
+from rclpy.exceptions import ParameterException
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
 
+HELP = ("-h", "--help")
 
-def run(make_node: Callable[[], Node], args: Sequence[str] | None = None) -> int:
-    """Create the node and spin it until Ctrl-C or an external shutdown; exit code 0, or 2
-    when the node cannot start (bad parameters), with the reason on stderr."""
-    rclpy.init(args=args)
+
+def _wants_help(args: Sequence[str]) -> bool:
+    """``--help`` before any ``--ros-args`` section (what follows that belongs to ROS)."""
+    ours = list(args)[:list(args).index("--ros-args")] if "--ros-args" in args else list(args)
+    return any(a in HELP for a in ours)
+
+
+def run(make_node: Callable[[], Node], usage: Callable[[], str],
+        args: Sequence[str] | None = None) -> int:
+    """Create the node and spin it until Ctrl-C, SIGTERM or an external shutdown; exit code
+    0, or 2 when the node cannot start (bad parameters), with the reason on stderr."""
+    argv = list(sys.argv if args is None else args)
+    if _wants_help(argv[1:]):
+        print(usage())
+        return 0
+    try:
+        rclpy.init(args=argv)
+    except Exception as exc:  # noqa: BLE001 - malformed --ros-args: say so, in one line
+        print(f"cannot start: bad command line: {str(exc).splitlines()[0]}", file=sys.stderr)
+        return 2
     try:
         node = make_node()
-    except ValueError as exc:
-        print(f"cannot start: {exc}", file=sys.stderr)
+    except (ValueError, TypeError, ParameterException) as exc:
+        print(f"cannot start: {str(exc).splitlines()[0]}", file=sys.stderr)
         rclpy.try_shutdown()
         return 2
+    # SIGTERM (what process managers and `kill` send) ends as cleanly as Ctrl-C
+    signal.signal(signal.SIGTERM, lambda *_: rclpy.try_shutdown())
     # Single-threaded on purpose: the solver runs in the planner's own worker thread, and
     # rclpy's MultiThreadedExecutor (7.1, Jazzy) starves timers when another node subscribes
     # to what they publish (ros2/rclpy#1223, #1452).

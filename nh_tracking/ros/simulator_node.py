@@ -19,15 +19,30 @@ from trajectory_msgs.msg import JointTrajectory
 from nh_tracking import models
 from nh_tracking.poses import PoseMap
 from nh_tracking.ros import conversions as cv
-from nh_tracking.ros.parameters import declare, declare_model
+from nh_tracking.ros.parameters import ParameterSpec, declare, declare_all, declare_model
 from nh_tracking.ros.safety import SafeNode, guarded
 from nh_tracking.simulate import simulate
 
-MODES = ("effort", "velocity")
+PARAMETERS = (
+    ParameterSpec("rate", 50.0, "integration and odometry rate [Hz]", (1.0, 2000.0),
+                  read_only=True),
+    ParameterSpec("control_timeout", 0.5, "zero control after this long without commands [s]",
+                  (1e-3, 3600.0)),
+    ParameterSpec("mode", "effort", "effort: follow control_sequence; velocity: follow cmd_vel",
+                  read_only=True, choices=("effort", "velocity")),
+    ParameterSpec("frame_id", "odom", "odometry frame", read_only=True),
+    ParameterSpec("child_frame_id", "base_link", "body frame", read_only=True),
+    ParameterSpec("publish_clock", False, "own the clock: publish /clock (sim time)",
+                  read_only=True),
+    ParameterSpec("time_scale", 1.0, "simulated seconds per wall second when publishing "
+                  "/clock", (1e-3, 1000.0), read_only=True),
+    ParameterSpec("start_time", 0.0, "initial /clock time [s]", (0.0, 1e9), read_only=True),
+    ParameterSpec("cmd_vel_stamped", False, "cmd_vel is TwistStamped", read_only=True),
+)
 
 
 class SimulatorNode(SafeNode):
-    """``nh_tracking_sim``: see DESIGN §3."""
+    """``nh_tracking_sim``: topics and parameters in the README's table."""
 
     def __init__(self, **kwargs) -> None:
         super().__init__("nh_tracking_sim", **kwargs)
@@ -35,32 +50,17 @@ class SimulatorNode(SafeNode):
         self.system = models.create(model, **params)
         self.pose_map = PoseMap(self.system)
         n, k = self.system.n, self.system.k
-        initial = declare(self, "initial_state", [0.0] * (n + k),
-                          f"initial q then v ({n} + {k} numbers)")
+        initial = declare(self, ParameterSpec("initial_state", [0.0] * (n + k),
+                                              f"initial q then v ({n} + {k} numbers)"))
         initial = np.asarray(initial, dtype=float)
         if initial.size != n + k or not np.all(np.isfinite(initial)):
             raise ValueError(f"parameter initial_state needs {n + k} finite numbers "
                              f"(q then v of {model}), got {list(initial)}")
-        self.rate = declare(self, "rate", 50.0, "integration and odometry rate [Hz]",
-                            (1.0, 2000.0), read_only=True)
-        self.control_timeout = declare(self, "control_timeout", 0.5,
-                                       "zero control after this long without commands [s]",
-                                       (1e-3, 3600.0))
-        self.mode = declare(self, "mode", "effort", "effort: control_sequence; velocity: "
-                            "cmd_vel", read_only=True)
-        if self.mode not in MODES:
-            raise ValueError(f"parameter mode must be one of {MODES}, got {self.mode!r}")
-        self.frame = declare(self, "frame_id", "odom", "odometry frame", read_only=True)
-        self.child_frame = declare(self, "child_frame_id", "base_link", "body frame",
-                                   read_only=True)
-        self.publish_clock = declare(self, "publish_clock", False,
-                                     "own the clock: publish /clock (sim time)", read_only=True)
-        scale = declare(self, "time_scale", 1.0, "simulated seconds per wall second when "
-                        "publishing /clock", (1e-3, 1000.0), read_only=True)
-        start = declare(self, "start_time", 0.0, "initial /clock time [s]", (0.0, 1e9),
-                        read_only=True)
-        stamped = declare(self, "cmd_vel_stamped", False, "cmd_vel is TwistStamped",
-                          read_only=True)
+        p = declare_all(self, PARAMETERS)
+        self.rate, self.control_timeout, self.mode = p["rate"], p["control_timeout"], p["mode"]
+        self.frame, self.child_frame = p["frame_id"], p["child_frame_id"]
+        self.publish_clock, scale, start = p["publish_clock"], p["time_scale"], p["start_time"]
+        stamped = p["cmd_vel_stamped"]
 
         self._lock = threading.Lock()
         self._q, self._v = initial[:n].copy(), initial[n:].copy()
@@ -69,6 +69,7 @@ class SimulatorNode(SafeNode):
         self._command_ns = 0
         self._step_ns = int(round(1e9 / self.rate))
         self._sim_ns = int(round(start * 1e9)) if self.publish_clock else self._clock_ns()
+        self._last_ns = self._sim_ns
 
         self.pub_odom = self.create_publisher(Odometry, "odom", 10)
         self.pub_clock = (self.create_publisher(ClockMsg, "/clock", 10)
@@ -79,13 +80,19 @@ class SimulatorNode(SafeNode):
                                  self.on_cmd_vel, 10)
         self.create_subscription(PoseWithCovarianceStamped, "initialpose", self.on_initialpose,
                                  10)
+        self.add_post_set_parameters_callback(self._apply_parameters)
         if self.publish_clock:
             self.create_timer(1.0 / (self.rate * scale), self.step,
                               clock=Clock(clock_type=ClockType.STEADY_TIME))
         else:
             self.create_timer(1.0 / self.rate, self.step)
-        self.get_logger().info(f"simulating {model} {params} from {list(initial)}, "
+        self.get_logger().info(f"simulating {model} {params} from {initial.tolist()}, "
                                f"{self.mode} mode at {self.rate:g} Hz")
+
+    def _apply_parameters(self, params) -> None:
+        for p in params:
+            if p.name == "control_timeout":
+                self.control_timeout = p.value
 
     def _clock_ns(self) -> int:
         return self.get_clock().now().nanoseconds
@@ -144,7 +151,7 @@ class SimulatorNode(SafeNode):
 
     @guarded("simulation step")
     def step(self) -> None:
-        t0 = self._sim_ns if self.publish_clock else getattr(self, "_last_ns", self._clock_ns())
+        t0 = self._sim_ns if self.publish_clock else self._last_ns
         t1 = t0 + self._step_ns if self.publish_clock else self._clock_ns()
         self._last_ns = t1
         if t1 <= t0:
@@ -159,8 +166,11 @@ class SimulatorNode(SafeNode):
             else:
                 pieces = self._pieces(t0, t1)
         for a, b, u in pieces:
+            # The dynamics are autonomous: integrate each piece from 0 over its length in
+            # integer nanoseconds. Wall-clock stamps (~1.8e18 ns) times 1e-9 would collapse
+            # pieces a few ns long to nothing.
             law = (lambda s, qq, vv: -self.system.dynamics(qq, vv)[1]) if u is None else None
-            traj = simulate(self.system, q, v, [a * 1e-9, b * 1e-9],
+            traj = simulate(self.system, q, v, [0.0, (b - a) * 1e-9],
                             law if u is None else u[None, :], rtol=1e-9, atol=1e-11)
             q, v = traj.q[-1], traj.v[-1]
         with self._lock:

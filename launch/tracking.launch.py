@@ -1,0 +1,38 @@
+"""Planner and simulator for one robot: ``ros2 launch nh_tracking tracking.launch.py``.
+
+Arguments: ``params_file`` (default: the installed config/sleigh.yaml), ``namespace`` (one
+robot per namespace), ``use_sim_time``, ``autostart`` (false: the planner waits for a lifecycle
+manager to configure and activate it, as Nav2's servers do).
+"""
+from launch import LaunchDescription
+from launch.actions import DeclareLaunchArgument
+from launch.substitutions import LaunchConfiguration, PathJoinSubstitution
+from launch_ros.actions import Node
+from launch_ros.substitutions import FindPackageShare
+
+
+def generate_launch_description() -> LaunchDescription:
+    params_file = LaunchConfiguration("params_file")
+    namespace = LaunchConfiguration("namespace")
+    use_sim_time = LaunchConfiguration("use_sim_time")
+    autostart = LaunchConfiguration("autostart")
+    return LaunchDescription([
+        DeclareLaunchArgument(
+            "params_file",
+            default_value=PathJoinSubstitution(
+                [FindPackageShare("nh_tracking"), "config", "sleigh.yaml"]),
+            description="parameter file for both nodes (standard ros__parameters layout)"),
+        DeclareLaunchArgument("namespace", default_value="",
+                              description="namespace of this robot's nodes and topics"),
+        DeclareLaunchArgument("use_sim_time", default_value="false",
+                              description="follow /clock"),
+        DeclareLaunchArgument("autostart", default_value="true",
+                              description="planner configures and activates itself"),
+        Node(package="nh_tracking", executable="planner", name="nh_tracking_planner",
+             namespace=namespace, output="screen",
+             parameters=[params_file, {"use_sim_time": use_sim_time,
+                                       "autostart": autostart}]),
+        Node(package="nh_tracking", executable="sim", name="nh_tracking_sim",
+             namespace=namespace, output="screen",
+             parameters=[params_file, {"use_sim_time": use_sim_time}]),
+    ])

@@ -1,0 +1,106 @@
+"""The planner's services, answered on a thread of their own.
+
+A service that solves (``plan``) or waits for a solve (``replan``) must not hold the executor
+that publishes ``cmd_vel``. rclpy cannot hand one node's callback group to a second executor,
+and its MultiThreadedExecutor starves timers (ros2/rclpy#1223), so — like Nav2's controller
+server, which spins a dedicated callback-group executor on its own thread — the services live
+on a companion node (``<planner>_services``, same namespace, so the service names are the
+planner's) spun by a single-threaded executor of its own.
+"""
+from __future__ import annotations
+
+import threading
+from typing import TYPE_CHECKING
+
+import numpy as np
+import rclpy
+from nav_msgs.msg import Path
+from nav_msgs.srv import GetPlan
+from rclpy.executors import SingleThreadedExecutor
+from rclpy.qos import QoSProfile, ReliabilityPolicy
+from std_srvs.srv import Trigger
+
+from nh_tracking.ros import conversions as cv
+
+if TYPE_CHECKING:
+    from nh_tracking.ros.planner_node import PlannerNode
+
+SERVICE_QUEUE = 100  # requests: a burst is queued, not dropped (the default keeps 10)
+
+
+class PlannerServices:
+    """``plan`` (nav_msgs/GetPlan) and ``replan`` (std_srvs/Trigger) for one planner."""
+
+    def __init__(self, planner: PlannerNode) -> None:
+        self.planner = planner
+        self.node = rclpy.create_node(f"{planner.get_name()}_services",
+                                      namespace=planner.get_namespace(),
+                                      context=planner.context,
+                                      start_parameter_services=False)
+        requests = QoSProfile(depth=SERVICE_QUEUE, reliability=ReliabilityPolicy.RELIABLE)
+        self.node.create_service(GetPlan, "plan", self.on_plan, qos_profile=requests)
+        self.node.create_service(Trigger, "replan", self.on_replan, qos_profile=requests)
+        self.executor = SingleThreadedExecutor(context=planner.context)
+        self.executor.add_node(self.node)
+        self._thread = threading.Thread(target=self._spin, name="nh_tracking_services",
+                                         daemon=True)
+        self._thread.start()
+
+    def _spin(self) -> None:
+        try:
+            self.executor.spin()
+        except Exception:  # noqa: BLE001 - a context shut down under us ends the thread
+            pass
+
+    def close(self) -> None:
+        self.executor.shutdown(timeout_sec=5.0)
+        if threading.current_thread() is not self._thread:
+            self._thread.join(timeout=5.0)
+        self.node.destroy_node()
+
+    def on_plan(self, request: GetPlan.Request, response: GetPlan.Response
+                ) -> GetPlan.Response:
+        """A plan from ``start`` (at rest), or from the latest odometry when start's frame is
+        empty, tracking the active reference; an empty path when there is none to give."""
+        node = self.planner
+        response.plan = Path()
+        response.plan.header.frame_id = node.frame
+        try:
+            pose = None
+            if request.start.header.frame_id:
+                cv.check_frame(request.start.header.frame_id, node.frame, "plan start")
+                pose = cv.pose_array(request.start.pose, "plan start")
+            session = node.session
+            if session is None:
+                node.get_logger().warn("plan request: the planner is not configured")
+                return response
+            solution, reason = session.preview(pose)
+        except cv.InputRejected as exc:
+            node.reject("plan request", str(exc))
+            return response
+        except Exception as exc:  # noqa: BLE001 - a service must always answer
+            node.fail("plan service", exc)
+            return response
+        if solution is None:
+            node.get_logger().warn(f"plan request: {reason}")
+            return response
+        stamps = [session.ns(t) for t in solution.t]
+        response.plan = cv.path_msg(node.frame, stamps,
+                                    np.array([session.pose_map.pose(q) for q in solution.q]))
+        return response
+
+    def on_replan(self, request: Trigger.Request, response: Trigger.Response
+                  ) -> Trigger.Response:
+        """Replan now; ``message`` says what happened (optimal / shifted / fallback / why not)."""
+        session = self.planner.session
+        try:
+            result = session.replan() if session is not None else None
+        except Exception as exc:  # noqa: BLE001 - a service must always answer
+            self.planner.fail("replan service", exc)
+            response.success, response.message = False, f"replanning failed: {exc}"
+            return response
+        if result is None:
+            response.success, response.message = False, "the planner is not configured"
+        else:
+            response.success, response.message = result.outcome is not None, result.reason
+        return response

@@ -1,0 +1,279 @@
+"""A tracking session: reference and odometry in, plans out, on one time base — without ROS.
+
+What a planner front end needs between its messages and the receding-horizon planner: the
+time base (integer nanoseconds in, seconds from an epoch inside, so wall-clock stamps near
+1.8e18 ns keep their resolution), the latest state estimate, a worker thread that solves so
+callbacks never wait, and reconfiguration built in the background: a model or NLP rebuild
+(seconds, when compiling) never stops the plan in force — the old solver keeps replanning
+until the new one is ready and is swapped in between two replans.
+"""
+from __future__ import annotations
+
+import dataclasses
+import threading
+import time
+from collections import deque
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass
+
+import numpy as np
+
+from nh_tracking import models
+from nh_tracking.poses import PoseMap
+from nh_tracking.problem import Solution
+from nh_tracking.receding_horizon import PlannerSettings, PlanOutcome, RecedingHorizonPlanner
+from nh_tracking.trajectory import Trajectory
+
+Clock = Callable[[], int]  # now, in integer nanoseconds
+
+
+@dataclass(frozen=True)
+class StateEstimate:
+    """The robot's state from one odometry message."""
+
+    ns: int
+    q: np.ndarray
+    v: np.ndarray
+    received: float  # time.perf_counter() at receipt, for latency figures
+
+
+@dataclass(frozen=True)
+class PlanResult:
+    """What one replanning attempt produced: an outcome to publish, or why there is none."""
+
+    outcome: PlanOutcome | None
+    state: StateEstimate | None
+    reason: str
+
+
+@dataclass(frozen=True)
+class _Build:
+    physical: dict
+    settings: PlannerSettings
+
+
+class TrackingSession:
+    """One robot's tracking: model, planner, reference, odometry, and the solver thread."""
+
+    def __init__(self, model: str, physical: Mapping[str, float], settings: PlannerSettings,
+                 clock: Clock, odom_timeout: float = 0.5,
+                 log: Callable[[str, str], None] = lambda level, text: None) -> None:
+        self.model = model
+        self.clock = clock
+        self.odom_timeout = odom_timeout
+        self.log = log
+        self.epoch_ns = clock()
+        self.system = models.create(model, **physical)
+        self.pose_map = PoseMap(self.system)
+        self.planner = RecedingHorizonPlanner(self.system, settings)
+        self.active = False  # plans are made only while active (the lifecycle's "active")
+        self.stale = False
+        self.outcome: PlanOutcome | None = None
+        self.plan_trajectory: Trajectory | None = None
+        # (odometry receipt -> plan ready, of which the numerical planner, of which the NLP
+        # solver) [s], for the recent plans
+        self.latencies: deque[tuple[float, float, float]] = deque(maxlen=2000)
+        self._state: StateEstimate | None = None
+        self._lock = threading.Lock()  # the fields above shared between threads
+        self._solve_lock = threading.Lock()  # one solve at a time; swaps happen between them
+        self._pending: _Build | None = None
+        self._wake, self._rebuild, self._stop = (threading.Event() for _ in range(3))
+        self._threads: list[threading.Thread] = []
+        self._on_plan: Callable[[PlanResult], None] = lambda result: None
+
+    # time -------------------------------------------------------------------------------------
+    def seconds(self, ns: int) -> float:
+        """Seconds since the session's epoch (the planner's time axis)."""
+        return (ns - self.epoch_ns) * 1e-9
+
+    def ns(self, seconds: float) -> int:
+        return self.epoch_ns + int(round(seconds * 1e9))
+
+    # threads ----------------------------------------------------------------------------------
+    def prepare(self) -> None:
+        """Build the solver now (blocking), so the first plan is not late."""
+        self.planner.prepare()
+
+    def start(self, on_plan: Callable[[PlanResult], None]) -> None:
+        """Start the solver and builder threads; ``on_plan`` receives every new plan."""
+        self._on_plan = on_plan
+        self._stop.clear()
+        self._threads = [threading.Thread(target=self._loop, args=(self._wake, self._replan_now),
+                                          name="nh_tracking_solver", daemon=True),
+                         threading.Thread(target=self._loop, args=(self._rebuild, self._build),
+                                          name="nh_tracking_builder", daemon=True)]
+        for thread in self._threads:
+            thread.start()
+
+    def stop(self, timeout: float = 10.0) -> None:
+        self._stop.set()
+        self._wake.set()
+        self._rebuild.set()
+        for thread in self._threads:
+            if thread.is_alive() and thread is not threading.current_thread():
+                thread.join(timeout)
+        self._threads = []
+
+    def wake(self) -> None:
+        """Ask the solver thread for a new plan (latest request wins)."""
+        self._wake.set()
+
+    def _loop(self, event: threading.Event, work: Callable[[], object]) -> None:
+        while not self._stop.is_set():
+            if event.wait(0.2):
+                event.clear()
+                if not self._stop.is_set():
+                    try:
+                        work()
+                    except Exception as exc:  # noqa: BLE001 - the thread must survive
+                        self.log("error", f"{threading.current_thread().name}: "
+                                          f"{type(exc).__name__}: {exc}")
+
+    # inputs -----------------------------------------------------------------------------------
+    def set_reference(self, stamps_ns: np.ndarray, poses: np.ndarray,
+                      twists: np.ndarray | None) -> Trajectory:
+        """Track timed poses (and body twists, if given) from the next plan on."""
+        with self._lock:
+            hidden = None if self._state is None else self._state.q
+        times = np.array([self.seconds(int(ns)) for ns in stamps_ns])
+        with self._solve_lock:
+            reference = self.pose_map.reference(times, poses, twists, hidden)
+            self.planner.set_reference(reference)
+        return reference
+
+    def set_odometry(self, ns: int, pose: np.ndarray, twist: np.ndarray,
+                     received: float) -> None:
+        """The latest measured pose and body twist (hidden coordinates dead-reckoned)."""
+        with self._lock:
+            prev = self._state
+        pose_map = self.pose_map
+        q_prev = None if prev is None else prev.q
+        dt = 0.0 if prev is None else (ns - prev.ns) * 1e-9
+        q = pose_map.configuration(pose, q_prev)
+        v = pose_map.velocity(q, twist)
+        q = pose_map.dead_reckon(pose, v, q_prev, None if prev is None else prev.v, dt)
+        with self._lock:
+            self._state = StateEstimate(ns, q, v, received)
+
+    @property
+    def state(self) -> StateEstimate | None:
+        with self._lock:
+            return self._state
+
+    # reconfiguration --------------------------------------------------------------------------
+    def reconfigure(self, physical: Mapping[str, float], settings: PlannerSettings) -> None:
+        """New model parameters and/or settings, built on the builder thread; until they are
+        ready, the current solver keeps planning. The latest request wins."""
+        with self._lock:
+            self._pending = _Build(dict(physical), settings)
+        self._rebuild.set()
+
+    @property
+    def reconfiguring(self) -> bool:
+        with self._lock:
+            return self._pending is not None
+
+    def _build(self) -> None:
+        with self._lock:
+            build = self._pending
+        if build is None:
+            return
+        current = self.planner
+        same_model = build.physical == current.system.parameters
+        system = current.system if same_model else models.create(self.model, **build.physical)
+        planner = RecedingHorizonPlanner(system, build.settings)
+        started = time.perf_counter()
+        planner.prepare()  # the slow part: NLP construction, C compilation
+        with self._solve_lock:
+            old = self.planner
+            planner.reference, planner.stats = old.reference, old.stats
+            if same_model:
+                planner.previous = old.previous  # the warm start survives a settings change
+            if not same_model:
+                self.system, self.pose_map = system, PoseMap(system)
+            self.planner = planner
+        with self._lock:
+            if self._pending is build:
+                self._pending = None
+        self.log("info", f"new solver in force after {time.perf_counter() - started:.2f} s "
+                         f"of building: {build.settings}")
+
+    # planning ---------------------------------------------------------------------------------
+    def _replan_now(self) -> None:
+        self.replan()
+
+    def replan(self) -> PlanResult:
+        """Plan from the latest state; the result goes to ``on_plan`` as well."""
+        state = self.state
+        reason = self._why_not(state)
+        if reason:
+            return PlanResult(None, state, reason)
+        with self._solve_lock:
+            planner = self.planner
+            outcome = planner.plan(self.seconds(state.ns), state.q, state.v)
+            planned = time.perf_counter()
+            self.latencies.append((planned - state.received, planner.stats.plan_durations[-1],
+                                   outcome.solve_time))
+        trajectory = outcome.plan.trajectory()
+        with self._lock:
+            if self.stale:
+                self.log("info", "odometry is fresh again: planning resumed")
+            self.stale = False
+            self.outcome, self.plan_trajectory = outcome, trajectory
+        result = PlanResult(outcome, state, f"{outcome.status}: {outcome.message} "
+                                            f"({outcome.solve_time * 1e3:.1f} ms)")
+        self._on_plan(result)
+        return result
+
+    def _why_not(self, state: StateEstimate | None) -> str:
+        """Why no plan can be made now ('' if one can)."""
+        if not self.active:
+            return "not active"
+        if self.planner.reference is None:
+            return "no reference yet"
+        if state is None:
+            return "no odometry yet"
+        age = (self.clock() - state.ns) * 1e-9
+        if age > self.odom_timeout:
+            with self._lock:
+                newly_stale, self.stale = not self.stale, True
+            if newly_stale:
+                self.log("warn", f"odometry is {age:.2f} s old: stopped commanding")
+            return f"odometry is stale ({age:.2f} s old); not planning"
+        return ""
+
+    def preview(self, pose: np.ndarray | None) -> tuple[Solution | None, str]:
+        """A plan from ``pose`` at rest now, or from the latest state when ``pose`` is None,
+        leaving the replanning loop alone; (None, reason) when there is none to give."""
+        state = self.state
+        if self.planner.reference is None:
+            return None, "no reference to track yet"
+        if pose is None:
+            if state is None:
+                return None, "empty start and no odometry yet"
+            t, q, v = self.seconds(state.ns), state.q, state.v
+        else:
+            q = self.pose_map.configuration(pose, None if state is None else state.q)
+            t, v = self.seconds(self.clock()), np.zeros(self.system.k)
+        with self._solve_lock:
+            solution = self.planner.preview(t, q, v)
+        if not solution.success:
+            return None, f"solver failed ({solution.message})"
+        return solution, ""
+
+    def command(self, now_ns: int) -> np.ndarray | None:
+        """The plan's body twist now (zero when stale or outside the plan); None before the
+        first plan."""
+        with self._lock:
+            trajectory, stale = self.plan_trajectory, self.stale
+        if trajectory is None:
+            return None
+        t = self.seconds(now_ns)
+        if stale or not self.active or not trajectory.t[0] <= t <= trajectory.t[-1]:
+            return np.zeros(4)
+        q, v = trajectory.sample(t)
+        return self.pose_map.body_twist(q[0], v[0])
+
+    def settings_with(self, **changes: object) -> PlannerSettings:
+        """The current settings with ``changes`` (validated: ValueError/TypeError)."""
+        return dataclasses.replace(self.planner.settings, **changes)

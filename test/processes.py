@@ -1,0 +1,105 @@
+"""The installed executables as separate processes, the way users deploy them: each test on a
+ROS_DOMAIN_ID of its own, this process talking to them over DDS through its own Context."""
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+import rclpy
+from rclpy.context import Context
+from rclpy.executors import SingleThreadedExecutor
+
+BIN = Path(sys.executable).parent
+_domains = iter(range(30 + os.getpid() % 50, 232))
+
+
+def domain_env() -> dict[str, str]:
+    """An environment on a fresh domain: tests never hear each other's nodes."""
+    return dict(os.environ, ROS_DOMAIN_ID=str(next(_domains)),
+                ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST", PYTHONUNBUFFERED="1")
+
+
+class Process:
+    """One executable; its output collected line by line on a thread."""
+
+    def __init__(self, executable: str, args: list[str], env: dict[str, str]) -> None:
+        self.proc = subprocess.Popen([str(BIN / executable), *args], stdout=subprocess.PIPE,
+                                     stderr=subprocess.STDOUT, text=True, env=env)
+        self.lines: list[str] = []
+        self._reader = threading.Thread(target=self._read, daemon=True)
+        self._reader.start()
+
+    def _read(self) -> None:
+        for line in self.proc.stdout:
+            self.lines.append(line)
+
+    @property
+    def output(self) -> str:
+        return "".join(self.lines)
+
+    def wait_for(self, text: str, timeout: float = 60.0) -> bool:
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            if text in self.output:
+                return True
+            if self.proc.poll() is not None:
+                self._reader.join(timeout=5.0)
+                return text in self.output
+            time.sleep(0.05)
+        return False
+
+    def interrupt(self, timeout: float = 30.0) -> int:
+        """Ctrl-C, and the exit code."""
+        if self.proc.poll() is None:
+            self.proc.send_signal(signal.SIGINT)
+        return self.finish(timeout)
+
+    def kill(self) -> None:
+        """kill -9: no chance to clean up, as in a crash."""
+        self.proc.kill()
+        self.finish()
+
+    def finish(self, timeout: float = 30.0) -> int:
+        try:
+            code = self.proc.wait(timeout=timeout)
+        except subprocess.TimeoutExpired:
+            self.proc.kill()
+            code = self.proc.wait()
+        self._reader.join(timeout=5.0)
+        return code
+
+
+def run(executable: str, args: list[str], env: dict[str, str], timeout: float = 60.0
+        ) -> subprocess.CompletedProcess:
+    return subprocess.run([str(BIN / executable), *args], capture_output=True, text=True,
+                          env=env, timeout=timeout)
+
+
+class Peer:
+    """This test's own ROS participant on the processes' domain, spun on a thread."""
+
+    def __init__(self, env: dict[str, str], name: str = "test_peer") -> None:
+        self.context = Context()
+        rclpy.init(context=self.context, domain_id=int(env["ROS_DOMAIN_ID"]))
+        self.node = rclpy.create_node(name, context=self.context)
+        self.executor = SingleThreadedExecutor(context=self.context)
+        self.executor.add_node(self.node)
+        self._thread = threading.Thread(target=self._spin, daemon=True)
+        self._thread.start()
+
+    def _spin(self) -> None:
+        try:
+            self.executor.spin()
+        except Exception:  # noqa: BLE001 - shutdown races end the thread quietly
+            pass
+
+    def close(self) -> None:
+        self.executor.shutdown(timeout_sec=5.0)
+        self._thread.join(timeout=5.0)
+        self.node.destroy_node()
+        rclpy.try_shutdown(context=self.context)

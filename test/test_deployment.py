@@ -1,0 +1,166 @@
+"""Deployment as users run it: the installed ``planner`` and ``sim`` as separate processes over
+DDS on the wall clock, a latched reference from a third participant, a planner killed and
+restarted, start-up parameters from the command line and the installed parameter file."""
+import math
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+from nav_msgs.msg import Odometry
+from nav_msgs.msg import Path as PathMsg
+from trajectory_msgs.msg import JointTrajectory
+
+from nh_tracking.metrics import cross_track_error
+from nh_tracking.ros import conversions as cv
+from nh_tracking.ros.graph import wait_until
+from nh_tracking.ros.planner_node import LATCHED
+from processes import Peer, Process, domain_env, run
+
+pytestmark = pytest.mark.timeout(300)
+ROOT = Path(__file__).resolve().parents[1]
+RADIUS, SPEED = 2.0, 0.5  # m, m/s
+
+
+def circle(start_ns: int, duration: float = 300.0, dt: float = 0.1) -> tuple[PathMsg, np.ndarray]:
+    """A counter-clockwise circle about the origin, stamped on the wall clock from start_ns."""
+    t = np.arange(0.0, duration, dt)
+    angle = SPEED / RADIUS * t
+    poses = np.stack([RADIUS * np.cos(angle), RADIUS * np.sin(angle), 0 * t,
+                      angle + math.pi / 2], axis=1)
+    stamps = [start_ns + int(round(s * 1e9)) for s in t]
+    return cv.path_msg("odom", stamps, poses), poses[:, :2]
+
+
+class Robot:
+    """What this test sees of the robot: odometry (stamp [s], x, y) and control sequences."""
+
+    def __init__(self, peer: Peer) -> None:
+        self._lock = threading.Lock()
+        self.odom: list[tuple[float, float, float]] = []
+        self.sequences: list[float] = []  # time.monotonic() of receipt
+        peer.node.create_subscription(Odometry, "odom", self._on_odom, 100)
+        peer.node.create_subscription(JointTrajectory, "control_sequence",
+                                      lambda m: self.sequences.append(time.monotonic()), 10)
+
+    def _on_odom(self, msg: Odometry) -> None:
+        p = msg.pose.pose.position
+        with self._lock:
+            self.odom.append((cv.stamp_ns(msg.header.stamp) * 1e-9, p.x, p.y))
+
+    def track(self) -> np.ndarray:
+        with self._lock:
+            return np.array(self.odom)
+
+    def error_now(self, path: np.ndarray, samples: int = 10) -> float:
+        rows = self.track()[-samples:]
+        return float(cross_track_error(rows[:, 1:], path).max()) if len(rows) else math.inf
+
+
+def test_planner_and_sim_processes_track_a_latched_circle_and_survive_a_planner_kill():
+    env = domain_env()
+    start = ["--ros-args", "-p", f"initial_state:=[{RADIUS + 0.3}, 0.0, {math.pi / 2}, 0.0, 0.0]"]
+    sim = Process("sim", start, env)
+    planner = Process("planner", [], env)
+    peer = Peer(env)
+    try:
+        robot = Robot(peer)
+        assert sim.wait_for("simulating") and planner.wait_for("planning for"), \
+            sim.output + planner.output
+        reference = peer.node.create_publisher(PathMsg, "reference_path", LATCHED)
+        begin = peer.node.get_clock().now().nanoseconds + 1_000_000_000
+        msg, path = circle(begin)
+        reference.publish(msg)  # once, latched: never sent again
+        assert planner.wait_for("new reference", 20.0), planner.output
+        # 1. tracking on the wall clock, two processes
+        assert wait_until(lambda: len(robot.odom) and robot.odom[-1][0] > begin * 1e-9 + 18, 60)
+        track = robot.track()
+        t = track[:, 0] - begin * 1e-9
+        settled = cross_track_error(track[t >= 15.0, 1:], path)
+        gaps = np.diff(track[:, 0])
+        print(f"\ntracking: cross-track error after 15 s max {settled.max():.4f} m; odometry "
+              f"gap max {gaps.max() * 1e3:.1f} ms over {len(track)} messages")
+        assert settled.size > 50 and settled.max() < 0.05
+        # 2. kill -9 the planner mid-run; restart it; it finds the latched reference itself
+        planner.kill()
+        killed = time.monotonic()
+        assert wait_until(lambda: False, 1.0) is False
+        drifted = robot.error_now(path)
+        restarted = time.monotonic()
+        before = len(robot.sequences)
+        planner = Process("planner", [], env)
+        assert planner.wait_for("new reference", 60.0), planner.output
+        assert wait_until(lambda: len(robot.sequences) > before, 30.0)
+        first_plan = robot.sequences[before] - restarted
+        assert wait_until(lambda: robot.error_now(path) < 0.05, 60.0), robot.error_now(path)
+        recovered = time.monotonic() - restarted
+        wait_until(lambda: False, 3.0)
+        final = robot.error_now(path, 100)
+        track = robot.track()
+        after_kill = track[track[:, 0] >= track[-1, 0] - (time.monotonic() - killed)]
+        gap_during_restart = np.diff(after_kill[:, 0]).max()
+        print(f"restart: error {drifted:.3f} m one second after kill -9; first control "
+              f"sequence {first_plan:.2f} s after the restart, error back under 0.05 m after "
+              f"{recovered:.2f} s, then {final:.4f} m; odometry gap max "
+              f"{gap_during_restart * 1e3:.1f} ms during the restart")
+        assert final < 0.05
+        gaps = np.diff(robot.track()[:, 0])
+        assert gaps.max() < 0.2, gaps.max()
+        assert "failed" not in sim.output and "Traceback" not in sim.output, sim.output
+    finally:
+        peer.close()
+        codes = planner.interrupt(), sim.interrupt()
+    assert codes == (0, 0), planner.output + sim.output
+    assert "Traceback" not in planner.output, planner.output
+
+
+def _running(process: Process, ready: str) -> str:
+    """Started (its ready line logged) and ends with code 0 on Ctrl-C; its output."""
+    assert process.wait_for(ready), process.output
+    assert process.interrupt() == 0, process.output
+    assert "Traceback" not in process.output, process.output
+    return process.output
+
+
+def test_start_up_parameters_run_or_exit_2_with_one_line(tmp_path):
+    params = yaml.safe_load((ROOT / "config" / "sleigh.yaml").read_text())
+    params["/**/nh_tracking_planner"]["ros__parameters"].update(horizon=2, steps=20)
+    params["/**/nh_tracking_sim"]["ros__parameters"].update(
+        J=4.4, initial_state=[1, 2, 0, 0, 0])
+    edited = tmp_path / "robot.yaml"
+    edited.write_text(yaml.safe_dump(params))
+    running = {  # started together, each on its own domain
+        "horizon:=3": (Process("planner", ["--ros-args", "-p", "horizon:=3"], domain_env()),
+                       "planning for", "horizon=3.0"),
+        "J:=4": (Process("sim", ["--ros-args", "-p", "J:=4"], domain_env()),
+                 "simulating", "'J': 4.0"),
+        "installed file": (Process("planner", ["--ros-args", "--params-file",
+                                               str(ROOT / "config" / "sleigh.yaml")],
+                                   domain_env()), "planning for", "horizon=3.0, steps=30"),
+        "edited file, planner": (Process("planner", ["--ros-args", "--params-file",
+                                                     str(edited)], domain_env()),
+                                 "planning for", "horizon=2.0, steps=20"),
+        "edited file, sim": (Process("sim", ["--ros-args", "--params-file", str(edited)],
+                                     domain_env()),
+                             "simulating", "'J': 4.4} from [1.0, 2.0, 0.0, 0.0, 0.0]"),
+    }
+    for case, (process, ready, shown) in running.items():
+        assert shown in _running(process, ready), case
+    refused = [("planner", "horizon:=-1.0", "parameter horizon must be in [0.05, 600]"),
+               ("planner", "steps:=1", "parameter steps must be in [2, 2000]"),
+               ("planner", "method:=magic", "parameter method must be one of"),
+               ("planner", "horizon:=fast", "parameter horizon must be a number"),
+               ("sim", "rate:=0.0", "parameter rate must be in [1, 2000]"),
+               ("sim", "initial_state:=[1.0]", "initial_state needs 5 finite numbers")]
+    for exe, setting, reason in refused:
+        done = run(exe, ["--ros-args", "-p", setting], domain_env())
+        lines = done.stderr.strip().splitlines()
+        assert done.returncode == 2, (setting, done.stdout, done.stderr)
+        assert len(lines) == 1 and reason in lines[0], (setting, done.stderr)
+        assert "Traceback" not in done.stdout + done.stderr
+    for exe, node in (("planner", "nh_tracking_planner"), ("sim", "nh_tracking_sim")):
+        done = run(exe, ["--help"], domain_env())
+        assert done.returncode == 0 and done.stdout.startswith(f"usage: {exe}")
+        assert node in done.stdout and "--params-file" in done.stdout
