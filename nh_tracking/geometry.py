@@ -52,7 +52,7 @@ def christoffel(metric: ca.SX, rho: ca.SX, q: ca.SX) -> ca.SX:
 
     Returned as a (k, k*k) matrix: row C, column A*k + B. Valid in any basis of D; the paper's
     formula (relation), built from structure constants alone, holds only in a G_D-orthonormal
-    basis (ERRATA #2), so it is not used here.
+    basis (docs/theory.md C2), so it is not used here.
     """
     k = rho.shape[1]
     g = metric_on_distribution(metric, rho)

@@ -26,8 +26,8 @@ def chaplygin_sleigh(m: float = 1.0, J: float = 4.0, a: float = 0.2) -> Nonholon
     m: mass, J: inertia about the centre of mass, a: distance from the blade's contact point to
     the centre of mass (along the blade). v1 is the rotation (X1 = d_theta / sqrt(J + m a^2)), v2
     the motion along the blade (X2 = (cos, sin, 0) / sqrt(m)); u1 acts on v1 (a torque), u2 on
-    v2 (a force along the blade) — ERRATA notes. Constraint: no slip across the blade,
-    x2' cos theta = x1' sin theta (ERRATA #1).
+    v2 (a force along the blade) — docs/theory.md §6. Constraint: no slip across the blade,
+    x2' cos theta = x1' sin theta (docs/theory.md C1).
     """
     _check(m=m, J=J)
     if not math.isfinite(a):

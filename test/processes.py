@@ -28,7 +28,8 @@ class Process:
     """One executable; its output collected line by line on a thread."""
 
     def __init__(self, executable: str, args: list[str], env: dict[str, str]) -> None:
-        self.proc = subprocess.Popen([str(BIN / executable), *args], stdout=subprocess.PIPE,
+        path = Path(executable) if os.sep in executable else BIN / executable
+        self.proc = subprocess.Popen([str(path), *args], stdout=subprocess.PIPE,
                                      stderr=subprocess.STDOUT, text=True, env=env)
         self.lines: list[str] = []
         self._reader = threading.Thread(target=self._read, daemon=True)
@@ -72,6 +73,15 @@ class Process:
             code = self.proc.wait()
         self._reader.join(timeout=5.0)
         return code
+
+
+def starts_and_stops(process: Process, ready: str) -> str:
+    """Started (its ready line logged), and Ctrl-C ends it with code 0 and no traceback; its
+    output."""
+    assert process.wait_for(ready), process.output
+    assert process.interrupt() == 0, process.output
+    assert "Traceback" not in process.output, process.output
+    return process.output
 
 
 def run(executable: str, args: list[str], env: dict[str, str], timeout: float = 60.0

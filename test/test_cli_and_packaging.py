@@ -2,15 +2,14 @@
 import json
 import os
 import shutil
-import signal
 import subprocess
 import sys
-import time
 from pathlib import Path
 
 import pytest
 
 from nh_tracking.cli import main
+from processes import Process, domain_env, starts_and_stops
 
 ROOT = Path(__file__).resolve().parents[1]
 BIN = Path(sys.executable).parent
@@ -53,34 +52,16 @@ def test_colcon_build_installs_the_package_and_its_executables(tmp_path):
     run = subprocess.run([str(install / "lib/nh_tracking/nh-tracking"), "--help"],
                          capture_output=True, text=True, env=env, timeout=60)
     assert run.returncode == 0 and "usage" in run.stdout
-    for exe in ("planner", "sim"):
+    share = install / "share" / "nh_tracking"
+    assert (share / "config" / "sleigh.yaml").exists()
+    assert (share / "launch" / "tracking.launch.py").exists()
+    for exe, ready in (("planner", "planning for"), ("sim", "simulating")):
         path = install / "lib" / "nh_tracking" / exe
         assert path.exists(), f"{exe} not installed to lib/nh_tracking"
-        _starts_and_stops_on_ctrl_c([str(path), "--ros-args", "-r",
-                                     f"__ns:=/pkg{os.getpid()}"], env)
-
-
-def _starts_and_stops_on_ctrl_c(command, env):
-    """The node comes up (logs its start line), and Ctrl-C ends it cleanly with code 0."""
-    proc = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
-                            text=True, env=env)
-    lines = []
-    try:
-        deadline = time.monotonic() + 60
-        while time.monotonic() < deadline:
-            line = proc.stdout.readline()
-            lines.append(line)
-            if "planning for" in line or "simulating" in line or not line:
-                break
-        time.sleep(1.0)
-        proc.send_signal(signal.SIGINT)
-        out, _ = proc.communicate(timeout=30)
-    finally:
-        if proc.poll() is None:
-            proc.kill()
-    text = "".join(lines) + out
-    assert proc.returncode == 0, text
-    assert "Traceback" not in text, text
+        starts_and_stops(Process(str(path), ["--ros-args", "--params-file",
+                                             str(share / "config" / "sleigh.yaml")],
+                                 dict(domain_env(), PATH=env["PATH"],
+                                      PYTHONPATH=env["PYTHONPATH"])), ready)
 
 
 def test_executable_reports_bad_parameters_without_traceback():

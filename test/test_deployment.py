@@ -1,6 +1,7 @@
 """Deployment as users run it: the installed ``planner`` and ``sim`` as separate processes over
-DDS on the wall clock, a latched reference from a third participant, a planner killed and
-restarted, start-up parameters from the command line and the installed parameter file."""
+DDS, on the wall clock and on the simulator's clock, a latched reference from a third
+participant, a planner killed and restarted, start-up parameters from the command line and the
+installed parameter file."""
 import math
 import threading
 import time
@@ -17,7 +18,7 @@ from nh_tracking.metrics import cross_track_error
 from nh_tracking.ros import conversions as cv
 from nh_tracking.ros.graph import wait_until
 from nh_tracking.ros.planner_node import LATCHED
-from processes import Peer, Process, domain_env, run
+from processes import Peer, Process, domain_env, run, starts_and_stops
 
 pytestmark = pytest.mark.timeout(300)
 ROOT = Path(__file__).resolve().parents[1]
@@ -59,18 +60,28 @@ class Robot:
         return float(cross_track_error(rows[:, 1:], path).max()) if len(rows) else math.inf
 
 
-def test_planner_and_sim_processes_track_a_latched_circle_and_survive_a_planner_kill():
+CLOCKS = {  # (simulator, planner) arguments: the wall clock, or the simulator's /clock at 2x
+    "wall clock": ([], []),
+    "sim time": (["-p", "publish_clock:=true", "-p", "time_scale:=2.0"],
+                 ["--ros-args", "-p", "use_sim_time:=true"]),
+}
+
+
+@pytest.mark.parametrize("clock", CLOCKS)
+def test_planner_and_sim_processes_track_a_latched_circle_and_survive_a_planner_kill(clock):
     env = domain_env()
+    sim_args, planner_args = CLOCKS[clock]
     start = ["--ros-args", "-p", f"initial_state:=[{RADIUS + 0.3}, 0.0, {math.pi / 2}, 0.0, 0.0]"]
-    sim = Process("sim", start, env)
-    planner = Process("planner", [], env)
+    sim = Process("sim", start + sim_args, env)
+    planner = Process("planner", planner_args, env)
     peer = Peer(env)
     try:
         robot = Robot(peer)
         assert sim.wait_for("simulating") and planner.wait_for("planning for"), \
             sim.output + planner.output
         reference = peer.node.create_publisher(PathMsg, "reference_path", LATCHED)
-        begin = peer.node.get_clock().now().nanoseconds + 1_000_000_000
+        assert wait_until(lambda: len(robot.odom) > 0, 20.0)
+        begin = int(robot.odom[-1][0] * 1e9) + 1_000_000_000  # on the robot's clock
         msg, path = circle(begin)
         reference.publish(msg)  # once, latched: never sent again
         assert planner.wait_for("new reference", 20.0), planner.output
@@ -80,31 +91,31 @@ def test_planner_and_sim_processes_track_a_latched_circle_and_survive_a_planner_
         t = track[:, 0] - begin * 1e-9
         settled = cross_track_error(track[t >= 15.0, 1:], path)
         gaps = np.diff(track[:, 0])
-        print(f"\ntracking: cross-track error after 15 s max {settled.max():.4f} m; odometry "
+        print(f"\n{clock}: cross-track error after 15 s max {settled.max():.4f} m; odometry "
               f"gap max {gaps.max() * 1e3:.1f} ms over {len(track)} messages")
         assert settled.size > 50 and settled.max() < 0.05
         # 2. kill -9 the planner mid-run; restart it; it finds the latched reference itself
         planner.kill()
-        killed = time.monotonic()
+        at_kill = len(robot.odom)
         assert wait_until(lambda: False, 1.0) is False
         drifted = robot.error_now(path)
         restarted = time.monotonic()
         before = len(robot.sequences)
-        planner = Process("planner", [], env)
+        planner = Process("planner", planner_args, env)
         assert planner.wait_for("new reference", 60.0), planner.output
         assert wait_until(lambda: len(robot.sequences) > before, 30.0)
         first_plan = robot.sequences[before] - restarted
         assert wait_until(lambda: robot.error_now(path) < 0.05, 60.0), robot.error_now(path)
         recovered = time.monotonic() - restarted
-        wait_until(lambda: False, 3.0)
-        final = robot.error_now(path, 100)
+        wait_until(lambda: False, 8.0)
         track = robot.track()
-        after_kill = track[track[:, 0] >= track[-1, 0] - (time.monotonic() - killed)]
-        gap_during_restart = np.diff(after_kill[:, 0]).max()
-        print(f"restart: error {drifted:.3f} m one second after kill -9; first control "
-              f"sequence {first_plan:.2f} s after the restart, error back under 0.05 m after "
-              f"{recovered:.2f} s, then {final:.4f} m; odometry gap max "
-              f"{gap_during_restart * 1e3:.1f} ms during the restart")
+        since_kill = track[at_kill:]
+        error = cross_track_error(since_kill[:, 1:], path)
+        final = error[since_kill[:, 0] >= since_kill[-1, 0] - 2.0].max()
+        print(f"restart: error {drifted:.3f} m one second after kill -9, worst {error.max():.3f}"
+              f" m; first control sequence {first_plan:.2f} s after the restart, error under "
+              f"0.05 m {recovered:.2f} s after it, {final:.4f} m in the last 2 s; odometry gap "
+              f"max {np.diff(since_kill[:, 0]).max() * 1e3:.1f} ms since the kill")
         assert final < 0.05
         gaps = np.diff(robot.track()[:, 0])
         assert gaps.max() < 0.2, gaps.max()
@@ -114,14 +125,6 @@ def test_planner_and_sim_processes_track_a_latched_circle_and_survive_a_planner_
         codes = planner.interrupt(), sim.interrupt()
     assert codes == (0, 0), planner.output + sim.output
     assert "Traceback" not in planner.output, planner.output
-
-
-def _running(process: Process, ready: str) -> str:
-    """Started (its ready line logged) and ends with code 0 on Ctrl-C; its output."""
-    assert process.wait_for(ready), process.output
-    assert process.interrupt() == 0, process.output
-    assert "Traceback" not in process.output, process.output
-    return process.output
 
 
 def test_start_up_parameters_run_or_exit_2_with_one_line(tmp_path):
@@ -144,10 +147,10 @@ def test_start_up_parameters_run_or_exit_2_with_one_line(tmp_path):
                                  "planning for", "horizon=2.0, steps=20"),
         "edited file, sim": (Process("sim", ["--ros-args", "--params-file", str(edited)],
                                      domain_env()),
-                             "simulating", "'J': 4.4} from [1.0, 2.0, 0.0, 0.0, 0.0]"),
+                             "simulating", "'J': 4.4, 'a': 0.2} from [1.0, 2.0, 0.0, 0.0, 0.0]"),
     }
     for case, (process, ready, shown) in running.items():
-        assert shown in _running(process, ready), case
+        assert shown in starts_and_stops(process, ready), case
     refused = [("planner", "horizon:=-1.0", "parameter horizon must be in [0.05, 600]"),
                ("planner", "steps:=1", "parameter steps must be in [2, 2000]"),
                ("planner", "method:=magic", "parameter method must be one of"),

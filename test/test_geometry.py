@@ -87,7 +87,7 @@ def _christoffel_by_paper_relation(system, q):
 
 
 def test_koszul_agrees_with_paper_relation_in_orthonormal_basis_only():
-    """ERRATA #2: (relation) holds for the sleigh's orthonormal X1, X2, not the particle's Y1, Y2."""
+    """docs/theory.md C2: (relation) holds for the sleigh's orthonormal X1, X2, not the particle's Y1, Y2."""
     sleigh = nht.models.chaplygin_sleigh()
     for th in (0.0, 0.7, 2.5):
         q = np.array([0.1, 0.2, th])

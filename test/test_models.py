@@ -7,7 +7,7 @@ import nh_tracking as nht
 
 @pytest.mark.parametrize("m, J, a", [(1.0, 4.0, 0.2), (2.5, 0.3, 0.9), (0.7, 1.1, -0.4)])
 def test_sleigh_matches_eps_chaplygin(m, J, a):
-    """EPSChaplygin + admissibility (with ERRATA #12): v1' = -eta v1 v2 + u1,
+    """EPSChaplygin + admissibility (with docs/theory.md C12): v1' = -eta v1 v2 + u1,
     v2' = eta v1^2 + u2, x1' = cos th v2/sqrt m, x2' = sin th v2/sqrt m, th' = v1/sqrt(I)."""
     sleigh = nht.models.chaplygin_sleigh(m=m, J=J, a=a)
     inertia = J + m * a**2
@@ -20,12 +20,12 @@ def test_sleigh_matches_eps_chaplygin(m, J, a):
         assert np.allclose(qdot, [np.cos(th) * v[1] / np.sqrt(m), np.sin(th) * v[1] / np.sqrt(m),
                                   v[0] / np.sqrt(inertia)], atol=1e-13)
         assert np.allclose(vdot, [-eta * v[0] * v[1] + u[0], eta * v[0] ** 2 + u[1]], atol=1e-13)
-        # no slip across the blade (ERRATA #1): x2' cos th = x1' sin th
+        # no slip across the blade (docs/theory.md C1): x2' cos th = x1' sin th
         assert abs(qdot[1] * np.cos(th) - qdot[0] * np.sin(th)) < 1e-14
 
 
 def test_particle_matches_eqq3():
-    """eqq3 with controls: v1' = u1, v2' = u2 - y/(1+y^2) v1 v2; x' = -y v2 (ERRATA #3)."""
+    """eqq3 with controls: v1' = u1, v2' = u2 - y/(1+y^2) v1 v2; x' = -y v2 (docs/theory.md C3)."""
     particle = nht.models.nonholonomic_particle()
     rng = np.random.default_rng(5)
     for _ in range(20):

@@ -31,7 +31,7 @@ def test_sleigh_reproduces_the_paper(sleigh_literal):
 
 
 def test_halving_h_converges_at_second_order():
-    """ERRATA figures: 42.3535, 42.3497, 42.3487 for N = 100, 200, 400."""
+    """Reference figures (docs/theory.md §5): 42.3535, 42.3497, 42.3487 for N = 100, 200, 400."""
     costs = [nht.solve(sleigh_problem(steps=n), "variational").cost for n in (50, 100, 200)]
     d1, d2 = costs[0] - costs[1], costs[1] - costs[2]
     assert abs(costs[1] - 42.3535) < 2e-3 and abs(costs[2] - 42.3497) < 2e-3

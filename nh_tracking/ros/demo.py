@@ -20,6 +20,7 @@ from nh_tracking.poses import PoseMap
 from nh_tracking.ros import conversions as cv
 from nh_tracking.ros.graph import InProcessGraph, parameters, wait_until
 from nh_tracking.ros.planner_node import LATCHED, PlannerNode
+from nh_tracking.ros.runner import responsive_threads
 from nh_tracking.ros.simulator_node import SimulatorNode
 from nh_tracking.simulate import simulate
 from nh_tracking.trajectory import Trajectory
@@ -116,6 +117,7 @@ def run_demo(out: Path, duration: float = 15.0, reference_kind: str = "path",
     out.mkdir(parents=True, exist_ok=True)
     reference = sleigh_reference(duration + 10.0)
     path_xy = reference.q[:, :2]
+    responsive_threads()
     with InProcessGraph() as graph:
         loop = ClosedLoop(graph)
         loop.start(reference, reference_kind, time_scale)

@@ -11,6 +11,7 @@ from nh_tracking.metrics import percentiles_ms
 from nh_tracking.ros import conversions as cv
 from nh_tracking.ros.demo import ClosedLoop, sleigh_reference
 from nh_tracking.ros.graph import InProcessGraph, wait_until
+from nh_tracking.ros.runner import responsive_threads
 
 
 def ros_latency(log: Callable[[str], None], duration: float = 6.0, rate: float = 100.0) -> dict:
@@ -21,6 +22,7 @@ def ros_latency(log: Callable[[str], None], duration: float = 6.0, rate: float =
     The odometry is replayed rather than simulated in the same process, so the figure is the
     planner's own pipeline, not its competition for the interpreter with a simulator."""
     reference = sleigh_reference(duration + 30.0)
+    responsive_threads()
     with InProcessGraph() as graph:
         loop = ClosedLoop(graph, namespace="/bench", planner_overrides={
             "use_sim_time": False, "replan_on_odom": True, "replan_period": 60.0})

@@ -8,6 +8,7 @@ floating-point parameter (``horizon:=3``) is that number, as every ROS user expe
 from __future__ import annotations
 
 import math
+import weakref
 from dataclasses import dataclass
 
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
@@ -80,12 +81,25 @@ def _type_name(default: object) -> str:
             list: "a list of numbers"}[type(default)]
 
 
+_FLOATS: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()  # node -> float names
+
+
 def declare(node: Node, spec: ParameterSpec):
-    """Declare ``spec`` on ``node``, checking (and coercing) a start-up override first."""
+    """Declare ``spec`` on ``node``, checking (and coercing) a start-up override first. At run
+    time too, an integer set on a floating-point parameter (``ros2 param set ... horizon 3``)
+    is taken as that number instead of refused."""
     overrides = node._parameter_overrides  # rclpy keeps -p / params-file values here
     if spec.name in overrides:
         value = spec.check(overrides[spec.name].value)
         overrides[spec.name] = Parameter(spec.name, value=value)
+    if isinstance(spec.default, float):
+        if node not in _FLOATS:  # one callback per node: rclpy concatenates their results
+            names = _FLOATS[node] = set()
+            node.add_pre_set_parameters_callback(
+                lambda params: [Parameter(p.name, value=float(p.value))
+                                if p.name in names and p.type_ == Parameter.Type.INTEGER
+                                else p for p in params])
+        _FLOATS[node].add(spec.name)
     return node.declare_parameter(spec.name, spec.default, spec.descriptor()).value
 
 

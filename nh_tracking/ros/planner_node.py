@@ -201,6 +201,7 @@ class PlannerNode(SafeNode, LifecycleNode):
             else:
                 self.destroy_subscription(entity)
         self._entities = []
+        self._last_reference = None  # a new session takes the latched reference again
 
     # inputs -----------------------------------------------------------------------------------
     def on_problem(self) -> None:

@@ -15,6 +15,7 @@ class SafeNode(Node):
     def __init__(self, name: str, **kwargs) -> None:
         super().__init__(name, **kwargs)
         self._problem_lock = threading.Lock()
+        self._reporting = threading.local()
         self.rejected_inputs = 0
         self.errors = 0
         self.last_problem = ""
@@ -25,14 +26,26 @@ class SafeNode(Node):
         with self._problem_lock:
             self.rejected_inputs += 1
             self.last_problem = f"rejected {what}: {reason}"
-        self.on_problem()
+        self._report()
 
     def fail(self, what: str, exc: BaseException) -> None:
+        if not self.context.ok():  # shutting down: publishing fails, nothing is wrong
+            return
         self.get_logger().error(f"{what} failed: {type(exc).__name__}: {exc}")
         with self._problem_lock:
             self.errors += 1
             self.last_problem = f"{what} failed: {type(exc).__name__}: {exc}"
-        self.on_problem()
+        self._report()
+
+    def _report(self) -> None:
+        """``on_problem`` once: a problem met while reporting one is not reported again."""
+        if getattr(self._reporting, "active", False):
+            return
+        self._reporting.active = True
+        try:
+            self.on_problem()
+        finally:
+            self._reporting.active = False
 
     def take_problem(self) -> str:
         """The last problem since the previous call (for diagnostics)."""

@@ -2,7 +2,7 @@
 
 The Hamiltonian H = L(q, v, u) + lambda^T rho(q) v + mu^T f(q, v, u) (normal case, lambda0 = 1)
 is built from the system; u* minimises it (exactly: H is quadratic in u), and the state-costate
-flow xdot = dH*/dp, pdot = -dH*/dx is its derivative — nothing is typed in (cf. ERRATA #4-#7).
+flow xdot = dH*/dp, pdot = -dH*/dx is its derivative — nothing is typed in (cf. docs/theory.md C4-C7).
 
 Shooting on the initial costates from zero, as in the paper, is fragile: the flow often blows
 up in finite time before T. So every integration is guarded (bounded state, bounded work, a
@@ -153,7 +153,7 @@ class _Shooter:
     def terminal_residual(self, z_end: np.ndarray) -> np.ndarray:
         n, k, prob = self.n, self.k, self.problem
         q_ref, v_ref = prob.reference_samples[0][-1], prob.reference_samples[1][-1]
-        if prob.terminal == "cost":  # transversality, ERRATA #5
+        if prob.terminal == "cost":  # transversality, docs/theory.md C5
             return np.concatenate([z_end[n + k:2 * n + k] - prob.omega * (z_end[:n] - q_ref),
                                    z_end[2 * n + k:]])
         return np.concatenate([z_end[:n] - q_ref, z_end[n:n + k] - v_ref])

@@ -3,7 +3,7 @@
 Unknowns are the knots x_k = (q_k, v_k), k = 1..N, of a curve on D. The discrete Lagrangian
 is h L(q_{k+1/2}, v_{k+1/2}, v_{k,k+1}) — L written in (q, v, vdot) by eliminating the control,
 u = vdot + Gamma(v, v) + grad V — and the discrete admissibility constraint is the corrected
-Psi_d (ERRATA #13): (q_{k+1} - q_k)/h = rho(q_{k+1/2}) v_{k+1/2}, k = 0..N-1.
+Psi_d (docs/theory.md C13): (q_{k+1} - q_k)/h = rho(q_{k+1/2}) v_{k+1/2}, k = 0..N-1.
 
 The NLP is built once per (system, N, terminal kind); everything that changes between solves
 (initial state, reference samples, h, eps, omega) is a parameter, so replanning only updates

@@ -1,0 +1,169 @@
+"""The planner's lifecycle, reconfiguration while commanding, and services that never hold up
+cmd_vel — in process, real nodes and the real solver, one Context per test."""
+import time
+
+import numpy as np
+import pytest
+from geometry_msgs.msg import Twist
+from lifecycle_msgs.msg import State, Transition
+from lifecycle_msgs.srv import ChangeState, GetState
+from nav_msgs.msg import Odometry, Path
+from nav_msgs.srv import GetPlan
+from rclpy.parameter import Parameter
+from trajectory_msgs.msg import JointTrajectory
+
+from nh_tracking.ros import SimulatorNode
+from nh_tracking.ros import conversions as cv
+from nh_tracking.ros.demo import reference_message
+from nh_tracking.ros.graph import wait_until
+from nh_tracking.ros.planner_node import LATCHED
+from test_ros import WallClockPair, unique_namespace
+
+pytestmark = pytest.mark.timeout(240)
+
+
+class Stream:
+    """Receipt times of one topic's messages (time.monotonic())."""
+
+    def __init__(self, node, msg_type, topic) -> None:
+        self.times, self.messages = [], []
+        node.create_subscription(msg_type, topic, self._on, 100)
+
+    def _on(self, msg) -> None:
+        self.times.append(time.monotonic())
+        self.messages.append(msg)
+
+    def count(self) -> int:
+        return len(self.times)
+
+    def max_gap(self, since: float) -> float:
+        times = [t for t in self.times if t >= since]
+        return max(np.diff(times)) if len(times) > 1 else float("inf")
+
+
+def test_lifecycle_transitions_through_the_standard_services(graph):
+    pair = WallClockPair(graph, planner_params={"autostart": False})
+    ns, planner, node = pair.ns, pair.planner, pair.node
+    get_state = node.create_client(GetState, f"{ns}/nh_tracking_planner/get_state")
+    change = node.create_client(ChangeState, f"{ns}/nh_tracking_planner/change_state")
+    assert get_state.wait_for_service(10.0) and change.wait_for_service(10.0)
+
+    def state() -> int:
+        future = get_state.call_async(GetState.Request())
+        assert wait_until(future.done, 10.0)
+        return future.result().current_state.id
+
+    def transition(transition_id: int) -> bool:
+        future = change.call_async(ChangeState.Request(transition=Transition(id=transition_id)))
+        assert wait_until(future.done, 60.0)
+        return future.result().success
+
+    assert state() == State.PRIMARY_STATE_UNCONFIGURED and planner.session is None
+    reference = node.create_publisher(Path, "reference_path", LATCHED)
+    assert transition(Transition.TRANSITION_CONFIGURE)
+    assert state() == State.PRIMARY_STATE_INACTIVE
+    msg = reference_message(pair.reference, planner.pose_map, 0.0, "path")
+    msg.header.stamp = cv.time_msg(0)
+    reference.publish(msg)  # latched: every (re)configured planner picks it up
+    assert wait_until(lambda: planner.planner.reference is not None, 10.0)
+    wait_until(lambda: False, 1.0)
+    assert pair.published["control_sequence"] == [] and pair.published["cmd_vel"] == []
+
+    assert transition(Transition.TRANSITION_ACTIVATE)
+    assert state() == State.PRIMARY_STATE_ACTIVE
+    assert wait_until(lambda: len(pair.published["control_sequence"]) >= 3, 20.0)
+    assert wait_until(lambda: any(abs(m.linear.x) > 0.1 for m in pair.published["cmd_vel"]), 10)
+
+    assert transition(Transition.TRANSITION_DEACTIVATE)
+    assert state() == State.PRIMARY_STATE_INACTIVE
+    assert wait_until(lambda: pair.published["cmd_vel"][-1].linear.x == 0.0, 5.0)
+    wait_until(lambda: False, 0.3)  # anything in flight arrives
+    sequences, commands = (len(pair.published[k]) for k in ("control_sequence", "cmd_vel"))
+    wait_until(lambda: False, 1.0)
+    assert len(pair.published["control_sequence"]) == sequences
+    assert len(pair.published["cmd_vel"]) == commands  # nothing commands the robot
+
+    assert transition(Transition.TRANSITION_CLEANUP)
+    assert state() == State.PRIMARY_STATE_UNCONFIGURED and planner.session is None
+    assert transition(Transition.TRANSITION_CONFIGURE)
+    assert transition(Transition.TRANSITION_ACTIVATE)
+    assert wait_until(lambda: len(pair.published["control_sequence"]) > sequences + 3, 20.0)
+    assert planner.errors == 0
+
+
+def test_reconfiguring_never_stops_the_plan_in_force(graph, tmp_path, monkeypatch):
+    """compiled=true on an empty cache (C compilation, seconds) and a method change (a new
+    NLP): both built in the background while cmd_vel and control_sequence keep flowing."""
+    monkeypatch.setenv("NH_TRACKING_CACHE", str(tmp_path))
+    pair = WallClockPair(graph)
+    cmd = Stream(pair.node, Twist, "cmd_vel")
+    sequences = Stream(pair.node, JointTrajectory, "control_sequence")
+    pair.send_reference()
+    planner = pair.planner
+    for name, value in (("compiled", True), ("method", "multiple_shooting")):
+        since = time.monotonic()
+        assert planner.set_parameters([Parameter(name, value=value)])[0].successful
+        assert wait_until(lambda: planner.planner.settings == planner.session.settings_with(
+            **{name: value}) and not planner.session.reconfiguring, 120.0), name
+        took = time.monotonic() - since
+        count = sequences.count()
+        assert wait_until(lambda: sequences.count() > count + 3, 10.0)
+        gaps = cmd.max_gap(since), sequences.max_gap(since)
+        print(f"\n{name}={value}: new solver after {took:.2f} s; longest gap meanwhile: "
+              f"cmd_vel {gaps[0] * 1e3:.0f} ms, control_sequence {gaps[1] * 1e3:.0f} ms")
+        assert max(gaps) < 0.5, (name, gaps)  # 20 Hz and 10 Hz streams never stopped
+    assert planner.planner.settings.method == "multiple_shooting" and planner.errors == 0
+    assert planner.planner.stats.fallbacks == 0
+
+
+def test_service_calls_do_not_hold_up_cmd_vel(graph):
+    pair = WallClockPair(graph, planner_params={"cmd_rate": 50.0})
+    cmd = Stream(pair.node, Twist, "cmd_vel")
+    pair.send_reference()
+    client = pair.node.create_client(GetPlan, f"{pair.ns}/plan")
+    assert client.wait_for_service(10.0)
+    since = time.monotonic()
+    futures = [client.call_async(GetPlan.Request()) for _ in range(30)]
+    assert wait_until(lambda: all(f.done() for f in futures), 60.0)
+    busy = time.monotonic() - since
+    assert all(len(f.result().plan.poses) == 31 for f in futures)
+    gap = cmd.max_gap(since)
+    print(f"\n30 plan requests answered in {busy:.2f} s; longest cmd_vel gap {gap * 1e3:.0f} ms")
+    assert gap < 0.25  # at 50 Hz: the executor kept publishing through every solve
+
+
+def test_simulator_keeps_every_step_on_the_wall_clock_with_nanosecond_pieces(graph):
+    """Wall-clock stamps near 1.8e18 ns: a control sequence starting 1 ns after a step's start
+    makes a 1 ns piece, which seconds-as-float would collapse to nothing."""
+    ns = unique_namespace()
+    sim = graph.add(SimulatorNode, namespace=ns)
+    probe = graph.plain_node("probe", ns)
+    odom = Stream(probe, Odometry, "odom")
+    pub = probe.create_publisher(JointTrajectory, "control_sequence", 10)
+    assert wait_until(lambda: pub.get_subscription_count() > 0 and odom.count() > 0, 10.0)
+    names = sim.system.control_names
+    start = odom.count()
+    deadline = time.monotonic() + 2.0
+    while time.monotonic() < deadline:
+        last = cv.stamp_ns(odom.messages[-1].header.stamp)  # the next step starts here
+        pub.publish(cv.control_sequence_msg("odom", last + 1, np.arange(0.0, 1.0, 0.1), names,
+                                            np.full((10, 2), 0.1)))
+        time.sleep(0.01)
+    steps = odom.count() - start
+    stamps = [cv.stamp_ns(m.header.stamp) for m in odom.messages[start:]]
+    assert sim.errors == 0 and steps > 60  # 50 Hz for 2 s, none dropped
+    assert max(np.diff(stamps)) < 0.1e9
+    assert sim.state[1][0] > 0.05  # the controls were applied
+
+
+def test_integers_are_accepted_for_floating_point_parameters_at_run_time(graph):
+    pair = WallClockPair(graph)
+    results = pair.planner.set_parameters([Parameter("horizon", value=2),
+                                           Parameter("J", value=5)])
+    assert all(r.successful for r in results), [r.reason for r in results]
+    assert pair.planner.get_parameter("horizon").value == 2.0
+    assert pair.planner.get_parameter("J").type_ == Parameter.Type.DOUBLE
+    assert wait_until(lambda: pair.planner.planner.settings.horizon == 2.0
+                      and pair.planner.system.parameters["J"] == 5.0, 20.0)
+    assert pair.sim.set_parameters([Parameter("control_timeout", value=1)])[0].successful
+    assert pair.sim.control_timeout == 1.0
