@@ -12,7 +12,6 @@ from nh_tracking import models
 from nh_tracking.plotting import plot_simulation
 from nh_tracking.simulate import simulate
 
-PAPER_SLEIGH_REFERENCE = {"q0": [0.0, 0.5, 0.0], "v0": [1 / 3, 1.0]}  # paper §5
 
 
 def _floats(text: str) -> list[float]:
@@ -28,9 +27,11 @@ def _param(text: str) -> tuple[str, float]:
 
 def cmd_simulate(args: argparse.Namespace) -> int:
     """Free (or constant-control) motion of a model; writes a PNG and a JSON summary."""
-    system = models.create(args.model, **dict(args.param))
-    q0 = args.q0 if args.q0 is not None else _default_q0(system)
-    v0 = args.v0 if args.v0 is not None else _default_v0(system)
+    spec = models.spec(args.model)
+    system = spec.create(**dict(args.param))
+    start = spec.start or ((0.0,) * system.n, (1.0,) * system.k)
+    q0 = args.q0 if args.q0 is not None else start[0]
+    v0 = args.v0 if args.v0 is not None else start[1]
     t = np.linspace(0.0, args.duration, args.steps + 1)
     u = np.tile(args.u, (args.steps, 1)) if args.u is not None else None
     traj = simulate(system, q0, v0, t, u)
@@ -87,14 +88,6 @@ def cmd_bench(args: argparse.Namespace) -> int:
     return 0
 
 
-def _default_q0(system) -> list[float]:
-    return PAPER_SLEIGH_REFERENCE["q0"] if system.name == "chaplygin_sleigh" else [0.0] * system.n
-
-
-def _default_v0(system) -> list[float]:
-    return PAPER_SLEIGH_REFERENCE["v0"] if system.name == "chaplygin_sleigh" else [1.0] * system.k
-
-
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="nh-tracking",
@@ -102,7 +95,8 @@ def build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", required=True)
     sim = sub.add_parser("simulate", help="simulate a built-in model and plot it",
                          description=cmd_simulate.__doc__)
-    sim.add_argument("--model", default="chaplygin_sleigh", choices=sorted(models.MODELS))
+    sim.add_argument("--model", default="chaplygin_sleigh",
+                     help=f"built-in ({', '.join(models.MODELS)}) or package.module:attribute")
     sim.add_argument("--param", type=_param, action="append", default=[],
                      metavar="NAME=VALUE", help="a physical parameter of the model (repeatable)")
     sim.add_argument("--q0", type=_floats, help="initial configuration (default: paper's sleigh)")

@@ -14,12 +14,10 @@ import numpy as np
 from scipy.integrate import cumulative_trapezoid
 from scipy.interpolate import CubicSpline
 
-from nh_tracking.system import NonholonomicSystem
+from nh_tracking.system import POSE_AXES, NonholonomicSystem
 from nh_tracking.trajectory import Trajectory
 
-AXES = ("x", "y", "z", "yaw")
-_AXIS_BY_NAME = {"x": "x", "x1": "x", "y": "y", "x2": "y", "z": "z",
-                 "theta": "yaw", "yaw": "yaw", "psi": "yaw"}
+AXES = POSE_AXES
 
 
 def wrap_angle(angle: np.ndarray | float) -> np.ndarray | float:
@@ -30,14 +28,17 @@ def wrap_angle(angle: np.ndarray | float) -> np.ndarray | float:
 class PoseMap:
     """Maps a system's (q, v) to and from world poses (x, y, z, yaw) and body twists.
 
-    ``axes`` maps coordinate names to pose axes; by default coordinates are matched by name
-    (x/x1 -> x, y/x2 -> y, z -> z, theta/yaw/psi -> yaw); unmatched coordinates are hidden.
+    ``axes`` maps coordinate names to pose axes (default: the system's own ``pose``, which every
+    built-in model declares); coordinates without an axis are hidden from a pose.
     """
 
     def __init__(self, system: NonholonomicSystem,
                  axes: Mapping[str, str] | None = None) -> None:
-        mapping = dict(axes) if axes is not None else {
-            c: _AXIS_BY_NAME[c] for c in system.coordinates if c in _AXIS_BY_NAME}
+        mapping = dict(axes) if axes is not None else system.pose
+        if mapping is None:
+            raise ValueError(f"{system.name}: which coordinates are the pose's x, y, yaw is not "
+                             "known; give pose={...} to NonholonomicSystem.from_constraints "
+                             "(or axes to PoseMap)")
         if not set(mapping.values()) <= set(AXES) or len(set(mapping.values())) != len(mapping):
             raise ValueError(f"pose axes must be distinct members of {AXES}, got {mapping}")
         if "x" not in mapping.values():

@@ -9,7 +9,6 @@ previous plan, shifted, stays in force; with no previous plan, a classical track
 from __future__ import annotations
 
 import dataclasses
-import math
 import time
 from dataclasses import dataclass, field
 from typing import Literal
@@ -17,10 +16,9 @@ from typing import Literal
 import numpy as np
 
 from nh_tracking.fallback import fallback_plan, stop_plan
-from nh_tracking.problem import Solution, TrackingProblem, terminal_error
-from nh_tracking.solvers import METHODS, sample_plan, solve
-from nh_tracking.solvers.multiple_shooting import shooting_transcription
-from nh_tracking.solvers.variational import transcription
+from nh_tracking.problem import Solution, Terminal, TrackingProblem, terminal_error
+from nh_tracking.settings import check_fields, setting
+from nh_tracking.solvers import METHODS, Method, Structure, make_method, sample_plan
 from nh_tracking.system import NonholonomicSystem
 from nh_tracking.trajectory import Trajectory
 
@@ -29,32 +27,28 @@ Status = Literal["optimal", "shifted", "fallback"]
 
 @dataclass(frozen=True)
 class PlannerSettings:
-    """What a replanning loop solves: horizon (s) on ``steps`` intervals, weights, method and
-    the deadline of one solve, ``max_solve_time`` (s)."""
+    """What a replanning loop solves, and with which method; each field is checked against
+    its own declaration (:mod:`nh_tracking.settings`)."""
 
-    horizon: float = 3.0
-    steps: int = 30
-    epsilon: float = 1.0
-    omega: float = 10.0
-    terminal: str = "cost"
-    method: str = "variational"
-    max_solve_time: float = 0.25
-    wrap_angles: bool = True
-    compiled: bool = False  # variational NLP as compiled C (built once per machine, cached)
+    horizon: float = setting(3.0, "planning horizon", "s", (0.05, 600.0))
+    steps: int = setting(30, "intervals on the horizon", "", (2, 2000))
+    epsilon: float = setting(1.0, "control weight eps", "", (1e-9, 1e9))
+    omega: float = setting(10.0, "terminal cost weight (terminal: cost)", "", (1e-9, 1e9))
+    terminal: Terminal = setting("cost", "terminal condition", choices=("cost", "equality"))
+    method: str = setting("variational", "tracking method", choices=tuple(METHODS))
+    max_solve_time: float = setting(0.25, "deadline of one solve; a later solve is discarded "
+                                    "and the previous plan kept", "s", (1e-6, 3600.0))
+    wrap_angles: bool = setting(True, "compare angles modulo 2 pi")
+    compiled: bool = setting(False, "variational NLP compiled to C (built once per machine "
+                             "and structure, then cached)")
 
     def __post_init__(self) -> None:
-        checks = {
-            "horizon": math.isfinite(self.horizon) and 0 < self.horizon <= 600,
-            "steps": int(self.steps) == self.steps and 2 <= self.steps <= 2000,
-            "epsilon": math.isfinite(self.epsilon) and self.epsilon > 0,
-            "omega": math.isfinite(self.omega) and self.omega > 0,
-            "terminal": self.terminal in ("cost", "equality"),
-            "method": self.method in METHODS,
-            "max_solve_time": math.isfinite(self.max_solve_time) and self.max_solve_time > 0,
-        }
-        bad = [name for name, ok in checks.items() if not ok]
-        if bad:
-            raise ValueError(f"invalid planner settings: {', '.join(f'{b}={getattr(self, b)!r}' for b in bad)}")
+        check_fields(self)
+        self.solver()  # an option the method does not take is an error here, not later
+
+    def solver(self) -> Method:
+        """The method object these settings describe."""
+        return make_method(self.method, **({"compiled": True} if self.compiled else {}))
 
 
 @dataclass
@@ -91,15 +85,12 @@ class RecedingHorizonPlanner:
         self.reference: Trajectory | None = None
         self.previous: Solution | None = None
         self.stats = PlannerStatistics()
+        self.method = settings.solver()
 
     def prepare(self) -> None:
         """Build the solver for the current settings now, so the first plan is not late."""
         s = self.settings
-        if s.method == "variational":
-            transcription(self.system, s.steps, s.terminal, s.max_solve_time,
-                          compiled=s.compiled)
-        elif s.method == "multiple_shooting":
-            shooting_transcription(self.system, s.steps, s.terminal, s.max_solve_time)
+        self.method.prepare(self.system, Structure(s.steps, s.terminal, s.max_solve_time))
 
     def set_reference(self, reference: Trajectory) -> None:
         """Track ``reference`` (times on the planner's clock) from the next plan on."""
@@ -110,6 +101,7 @@ class RecedingHorizonPlanner:
     def update(self, **changes: object) -> PlannerSettings:
         """Change settings (validated); the warm start is kept."""
         self.settings = dataclasses.replace(self.settings, **changes)
+        self.method = self.settings.solver()
         return self.settings
 
     def problem(self, t: float, q: np.ndarray, v: np.ndarray) -> TrackingProblem:
@@ -136,8 +128,8 @@ class RecedingHorizonPlanner:
         if guess is not None and guess.q.shape[1] != self.system.n:
             guess = None
         try:
-            sol = solve(problem, s.method, initial_guess=guess, max_time=s.max_solve_time,
-                        compiled=s.compiled)
+            sol = self.method.solve(problem, None if guess is None
+                                    else sample_plan(problem, guess), s.max_solve_time)
             error = "" if sol.success else f"solver: {sol.message}"
         except (ArithmeticError, RuntimeError, ValueError) as exc:  # a numerical failure
             sol, error = None, f"solver raised {type(exc).__name__}: {exc}"
@@ -181,8 +173,9 @@ class RecedingHorizonPlanner:
     def preview(self, t: float, q: np.ndarray, v: np.ndarray) -> Solution:
         """A plan from (q, v) at t that leaves the replanning loop's state alone (a query)."""
         s = self.settings
-        return solve(self.problem(t, q, v), s.method, initial_guess=self.previous,
-                     max_time=s.max_solve_time, compiled=s.compiled)
+        problem = self.problem(t, q, v)
+        guess = None if self.previous is None else sample_plan(problem, self.previous)
+        return self.method.solve(problem, guess, s.max_solve_time)
 
     @staticmethod
     def _shifted(problem: TrackingProblem, previous: Solution) -> Solution:

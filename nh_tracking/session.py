@@ -22,9 +22,24 @@ from nh_tracking import models
 from nh_tracking.poses import PoseMap
 from nh_tracking.problem import Solution
 from nh_tracking.receding_horizon import PlannerSettings, PlanOutcome, RecedingHorizonPlanner
+from nh_tracking.settings import check_fields, setting
 from nh_tracking.trajectory import Trajectory
 
 Clock = Callable[[], int]  # now, in integer nanoseconds
+
+
+@dataclass(frozen=True)
+class SessionSettings:
+    """How a session runs: when it replans, how often it commands, when odometry is stale."""
+
+    replan_period: float = setting(0.1, "time between replans", "s", (1e-3, 60.0))
+    replan_on_odom: bool = setting(False, "also replan on every odometry message")
+    cmd_rate: float = setting(20.0, "velocity command rate", "Hz", (0.1, 1000.0))
+    odom_timeout: float = setting(0.5, "odometry older than this is stale: zero command, no "
+                                  "plans", "s", (1e-3, 3600.0))
+
+    def __post_init__(self) -> None:
+        check_fields(self)
 
 
 @dataclass(frozen=True)

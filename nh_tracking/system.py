@@ -12,7 +12,7 @@ solvers, which call them on symbols) with numpy wrappers (for users).
 """
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from typing import Any
 
 import casadi as ca
@@ -22,6 +22,7 @@ from nh_tracking import geometry
 
 SymbolicMap = Callable[[ca.SX], Any]
 
+POSE_AXES = ("x", "y", "z", "yaw")  # of a ROS pose: position and heading
 _SAMPLES = 64  # configurations at which data is checked and a default basis is chosen
 
 
@@ -48,6 +49,7 @@ class NonholonomicSystem:
         velocities: Sequence[str] | None = None,
         parameters: dict[str, float] | None = None,
         basis_condition: float = 1.0,
+        pose: Mapping[str, str] | None = None,
     ) -> None:
         self.name = name
         self.coordinates = tuple(coordinates)
@@ -60,6 +62,7 @@ class NonholonomicSystem:
         self.velocity_names = tuple(velocities or (f"v{a + 1}" for a in range(self.k)))
         self.parameters = dict(parameters or {})
         self.basis_condition = basis_condition
+        self.pose = _pose_axes(name, self.coordinates, pose)
         if len(self.control_names) != self.k or len(self.velocity_names) != self.k:
             raise ValueError(f"{name}: need {self.k} control and velocity names")
 
@@ -102,6 +105,7 @@ class NonholonomicSystem:
         velocities: Sequence[str] | None = None,
         name: str = "custom",
         parameters: dict[str, float] | None = None,
+        pose: Mapping[str, str] | None = None,
     ) -> NonholonomicSystem:
         """Build a system from its Lagrangian data; each argument maps a CasADi SX column q.
 
@@ -113,6 +117,8 @@ class NonholonomicSystem:
         the smooth kernel fields of mu and the projected coordinate fields; the k that stay
         farthest from dependent over sampled configurations are kept (``basis_condition``).
         Such a basis can still degenerate somewhere unsampled: pass ``basis`` for global use.
+        ``pose`` says which coordinates a ROS pose shows, e.g. ``{"x1": "x", "x2": "y",
+        "theta": "yaw"}`` (axes x, y, z, yaw); the others are hidden from it.
         """
         coordinates = tuple(coordinates)
         n = len(coordinates)
@@ -138,7 +144,7 @@ class NonholonomicSystem:
         return cls(
             name=name, coordinates=coordinates, q=q, metric=g, constraints=mu, potential=pot,
             rho=rho, angles=angles, controls=controls, velocities=velocities,
-            parameters=parameters, basis_condition=condition,
+            parameters=parameters, basis_condition=condition, pose=pose,
         )
 
     # numpy interface -------------------------------------------------------------------------
@@ -261,3 +267,18 @@ def _orthonormal_basis(
             "pass basis= explicitly"
         )
     return geometry.gram_schmidt(g, [candidates[i] for i in chosen]), condition
+
+
+def _pose_axes(name: str, coordinates: tuple[str, ...],
+               pose: Mapping[str, str] | None) -> dict[str, str] | None:
+    if pose is None:
+        return None
+    pose = dict(pose)
+    if not set(pose) <= set(coordinates):
+        raise ValueError(f"{name}: pose names {sorted(set(pose) - set(coordinates))}, which "
+                         f"are not coordinates {coordinates}")
+    axes = list(pose.values())
+    if not set(axes) <= set(POSE_AXES) or len(set(axes)) != len(axes):
+        raise ValueError(f"{name}: pose axes must be distinct members of {POSE_AXES}, "
+                         f"got {pose}")
+    return pose

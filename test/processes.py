@@ -10,9 +10,7 @@ import threading
 import time
 from pathlib import Path
 
-import rclpy
-from rclpy.context import Context
-from rclpy.executors import SingleThreadedExecutor
+from nh_tracking.ros.graph import InProcessGraph
 
 BIN = Path(sys.executable).parent
 _domains = iter(range(30 + os.getpid() % 50, 232))
@@ -94,22 +92,8 @@ class Peer:
     """This test's own ROS participant on the processes' domain, spun on a thread."""
 
     def __init__(self, env: dict[str, str], name: str = "test_peer") -> None:
-        self.context = Context()
-        rclpy.init(context=self.context, domain_id=int(env["ROS_DOMAIN_ID"]))
-        self.node = rclpy.create_node(name, context=self.context)
-        self.executor = SingleThreadedExecutor(context=self.context)
-        self.executor.add_node(self.node)
-        self._thread = threading.Thread(target=self._spin, daemon=True)
-        self._thread.start()
-
-    def _spin(self) -> None:
-        try:
-            self.executor.spin()
-        except Exception:  # noqa: BLE001 - shutdown races end the thread quietly
-            pass
+        self.graph = InProcessGraph(domain_id=int(env["ROS_DOMAIN_ID"]))
+        self.node = self.graph.plain_node(name)
 
     def close(self) -> None:
-        self.executor.shutdown(timeout_sec=5.0)
-        self._thread.join(timeout=5.0)
-        self.node.destroy_node()
-        rclpy.try_shutdown(context=self.context)
+        self.graph.close()

@@ -18,7 +18,7 @@ def inclined_knife_edge(m: float = 1.3, J: float = 0.4, alpha: float = 0.35,
         metric=lambda q: ca.diag(ca.vertcat(m, m, J)),
         constraints=lambda q: ca.horzcat(ca.sin(q[2]), -ca.cos(q[2]), 0),
         potential=lambda q: -m * g * ca.sin(alpha) * q[0],
-        angles=["phi"], name="inclined_knife_edge",
+        angles=["phi"], pose={"x": "x", "y": "y", "phi": "yaw"}, name="inclined_knife_edge",
     )
 
 

@@ -89,3 +89,13 @@ def test_launch_file_starts_installed_executables_with_declared_parameters(monke
     # installed where `ros2 launch nh_tracking tracking.launch.py` looks
     setup = (ROOT / "setup.py").read_text()
     assert "glob('launch/*.launch.py')" in setup and "glob('config/*.yaml')" in setup
+
+
+def test_readme_parameter_tables_are_the_declared_ones():
+    """The README's tables are generated from the same declarations as the ROS descriptors,
+    the checks and --help: regenerate them when a setting changes."""
+    from nh_tracking.ros.parameters import parameter_table
+
+    readme = (ROOT / "README.md").read_text()
+    for specs in (planner_node.PARAMETERS, simulator_node.PARAMETERS):
+        assert parameter_table(specs) in readme

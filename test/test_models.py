@@ -1,4 +1,5 @@
 """Built-in models reproduce the paper's printed (and errata-checked) equations."""
+import casadi as ca
 import numpy as np
 import pytest
 
@@ -63,9 +64,51 @@ def test_models_by_name_with_parameters():
         nht.models.create("hovercraft")
     with pytest.raises(ValueError, match="takes"):
         nht.models.create("unicycle", mass=2.0)
-    for bad in (0.0, -1.0, float("nan"), float("inf")):
-        with pytest.raises(ValueError, match="must be a finite number > 0"):
+    for bad in (0.0, -1.0, float("nan"), float("inf"), "1"):
+        with pytest.raises(ValueError, match="model parameter m must be a number in"):
             nht.models.create("unicycle", m=bad)
+        if not isinstance(bad, str):  # the factory alone checks too
+            with pytest.raises(ValueError, match="must be a finite number > 0"):
+                nht.models.unicycle(m=bad)
+
+
+def test_every_model_spec_matches_its_factory_and_declares_its_pose():
+    for name, spec in nht.models.MODELS.items():
+        system = spec.create()
+        assert system.name == name and system.parameters == spec.defaults
+        assert system.pose is not None and "x" in system.pose.values()
+        assert all(p.unit and p.description for p in spec.parameters)
+        q0, v0 = spec.start
+        assert len(q0) == system.n and len(v0) == system.k
+
+
+def test_user_models_load_by_module_path_and_by_factory():
+    """The car-like robot of test/user_robots.py, by ``package.module:attribute``: as a
+    ModelSpec, and as a bare factory whose keyword defaults become its parameters."""
+    car = nht.models.spec("user_robots:CAR")
+    assert [p.name for p in car.parameters] == ["m", "J", "I_steer", "L"]
+    system = nht.models.create("user_robots:CAR", L=0.8)
+    assert system.parameters["L"] == 0.8 and system.pose["theta"] == "yaw"
+    bare = nht.models.spec("user_robots:car_like")
+    assert bare.defaults == car.defaults and bare.create().n == 4
+    with pytest.raises(ValueError, match="cannot load model 'user_robots:nothing'"):
+        nht.models.spec("user_robots:nothing")
+    with pytest.raises(ValueError, match="cannot load model 'no_such_module:X'"):
+        nht.models.spec("no_such_module:X")
+    with pytest.raises(ValueError, match="neither a ModelSpec nor a factory"):
+        nht.models.spec("user_robots:NOT_A_MODEL")
+
+
+def test_a_system_without_pose_axes_says_how_to_give_them():
+    from nh_tracking.poses import PoseMap
+
+    plain = nht.NonholonomicSystem.from_constraints(
+        ["a", "b"], lambda q: ca.SX.eye(2), name="plain")
+    with pytest.raises(ValueError, match="give pose=.* to NonholonomicSystem.from_constraints"):
+        PoseMap(plain)
+    with pytest.raises(ValueError, match="pose names \\['c'\\]"):
+        nht.NonholonomicSystem.from_constraints(["a", "b"], lambda q: ca.SX.eye(2),
+                                                pose={"c": "x"})
 
 
 def test_numpy_interface_rejects_wrong_sizes():

@@ -194,7 +194,9 @@ def test_soak_with_reference_swaps_and_parameter_changes(graph):
           f"threads {threads}")
     assert t[-1] - START >= 60.0
     assert growth < 15.0  # MiB over the last 50 s: flat, not accumulating per plan
-    assert max(threads[2:]) == min(threads[2:])
+    # never more than at the start (a previous test's DDS participant may end meanwhile, when
+    # its Context is collected: that drops the count by its threads)
+    assert max(threads[2:]) <= threads[2]
     error = cross_track_error(xy[t - START > 55.0], reference.q[:, :2])
     assert error.max() < 0.05
     assert loop.planner.errors == 0 and loop.planner.planner.stats.fallbacks == 0

@@ -201,3 +201,29 @@ def test_compiled_nlp_gives_the_same_plan_and_is_cached(tmp_path, monkeypatch):
     interpreted = solve_variational(problem)
     assert compiled.success and compiled.cost == pytest.approx(interpreted.cost, rel=1e-12)
     assert np.allclose(compiled.q, interpreted.q, atol=1e-10)
+
+
+def test_methods_are_objects_with_their_own_options(sleigh_literal):
+    """By name or as an object, the same method gives the same plan; an option a method does
+    not take is an error naming the methods that do; backends agree."""
+    from nh_tracking.receding_horizon import PlannerSettings
+    from nh_tracking.solvers import METHODS, Variational, make_method
+
+    problem, reference = sleigh_literal
+    assert set(METHODS) == {"variational", "pmp", "multiple_shooting"}
+    by_object = nht.solve(problem, Variational(backend="ipopt"))
+    assert by_object.route == "ipopt" and by_object.success
+    assert by_object.cost == pytest.approx(reference.cost, rel=1e-6)
+    with pytest.raises(ValueError, match="takes no option compiled.*taken by \\['variational'"):
+        nht.solve(problem, "pmp", compiled=True)
+    with pytest.raises(ValueError, match="takes no option budget"):
+        make_method("multiple_shooting", budget=3.0)
+    with pytest.raises(ValueError, match="unknown method 'magic'"):
+        make_method("magic")
+    with pytest.raises(ValueError, match="backend must be one of"):
+        Variational(backend="snopt")
+    with pytest.raises(ValueError, match="give options to the method object"):
+        make_method(Variational(), compiled=True)
+    with pytest.raises(ValueError, match="takes no option compiled"):
+        PlannerSettings(method="multiple_shooting", compiled=True)
+    assert make_method("pmp", budget=5.0).budget == 5.0

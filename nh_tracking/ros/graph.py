@@ -34,9 +34,9 @@ def wait_until(predicate: Callable[[], bool], timeout: float, period: float = 0.
 class InProcessGraph:
     """Owns a Context and an executor thread; ``close()`` tears everything down."""
 
-    def __init__(self) -> None:
+    def __init__(self, domain_id: int | None = None) -> None:
         self.context = Context()
-        rclpy.init(context=self.context)
+        rclpy.init(context=self.context, domain_id=domain_id)
         self.executor = SingleThreadedExecutor(context=self.context)
         self.nodes: list[Node] = []
         self._thread = threading.Thread(target=self._spin, name="ros_graph", daemon=True)

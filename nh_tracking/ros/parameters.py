@@ -7,7 +7,6 @@ floating-point parameter (``horizon:=3``) is that number, as every ROS user expe
 """
 from __future__ import annotations
 
-import math
 import weakref
 from dataclasses import dataclass
 
@@ -16,14 +15,7 @@ from rclpy.node import Node
 from rclpy.parameter import Parameter
 
 from nh_tracking import models
-
-MODEL_PARAMETER_RANGE = (1e-6, 1e6)
-MODEL_PARAMETER_HELP = {
-    "m": "mass [kg]", "J": "moment of inertia about the centre of mass [kg m^2]",
-    "a": "distance from the blade's contact point to the centre of mass [m]",
-    "R": "wheel radius [m]", "I_spin": "inertia about the wheel axle [kg m^2]",
-    "I_turn": "inertia about the vertical axis [kg m^2]",
-}
+from nh_tracking.settings import Setting, check, described, markdown_table
 
 
 @dataclass(frozen=True)
@@ -32,53 +24,47 @@ class ParameterSpec:
 
     name: str
     default: object
-    description: str
-    bounds: tuple[float, float] | None = None
+    meta: Setting
     read_only: bool = False
-    choices: tuple[str, ...] = ()
+
+    @classmethod
+    def of(cls, settings: type, read_only: bool = False) -> tuple[ParameterSpec, ...]:
+        """The parameters of a settings dataclass, one per described field."""
+        return tuple(cls(name, default, meta, read_only)
+                     for name, default, meta in described(settings))
+
+    @property
+    def description(self) -> str:
+        meta = self.meta
+        return meta.description + (f" [{meta.unit}]" if meta.unit else "")
 
     def descriptor(self) -> ParameterDescriptor:
-        text = self.description + (f" (one of {', '.join(self.choices)})" if self.choices else "")
+        choices = self.meta.choices
+        text = self.description + (f" (one of {', '.join(choices)})" if choices else "")
         descriptor = ParameterDescriptor(description=text, read_only=self.read_only)
-        if self.bounds is not None and isinstance(self.default, int) \
+        bounds = self.meta.bounds
+        if bounds is not None and isinstance(self.default, int) \
                 and not isinstance(self.default, bool):
-            descriptor.integer_range = [IntegerRange(from_value=int(self.bounds[0]),
-                                                     to_value=int(self.bounds[1]), step=1)]
-        elif self.bounds is not None:
+            descriptor.integer_range = [IntegerRange(from_value=int(bounds[0]),
+                                                     to_value=int(bounds[1]), step=1)]
+        elif bounds is not None:
             descriptor.floating_point_range = [FloatingPointRange(
-                from_value=float(self.bounds[0]), to_value=float(self.bounds[1]), step=0.0)]
+                from_value=float(bounds[0]), to_value=float(bounds[1]), step=0.0)]
         return descriptor
 
     def check(self, value: object) -> object:
         """``value`` as this parameter's type, or ValueError naming the parameter."""
-        value = _coerce(self.default, value)
-        kind = type(self.default)
-        if not isinstance(value, kind) or (kind is int and isinstance(value, bool)):
-            raise ValueError(f"parameter {self.name} must be {_type_name(self.default)}, "
-                             f"got {value!r}")
-        if self.bounds is not None and isinstance(value, (int, float)) and not (
-                math.isfinite(value) and self.bounds[0] <= value <= self.bounds[1]):
-            raise ValueError(f"parameter {self.name} must be in [{self.bounds[0]:g}, "
-                             f"{self.bounds[1]:g}], got {value!r}")
-        if self.choices and value not in self.choices:
-            raise ValueError(f"parameter {self.name} must be one of {list(self.choices)}, "
-                             f"got {value!r}")
-        return value
+        if isinstance(self.default, list) and isinstance(value, (list, tuple)):
+            value = [float(v) if isinstance(v, int) and not isinstance(v, bool) else v
+                     for v in value]
+        return check(value, f"parameter {self.name}", self.default, self.meta)
 
 
-def _coerce(default: object, value: object) -> object:
-    """Integers where floats are expected are those floats (also inside arrays)."""
-    if isinstance(default, float) and isinstance(value, int) and not isinstance(value, bool):
-        return float(value)
-    if isinstance(default, list) and isinstance(value, (list, tuple)):
-        return [float(v) if isinstance(v, int) and not isinstance(v, bool) else v
-                for v in value]
-    return value
-
-
-def _type_name(default: object) -> str:
-    return {bool: "true or false", int: "an integer", float: "a number", str: "a string",
-            list: "a list of numbers"}[type(default)]
+def plain(name: str, default: object, description: str, unit: str = "",
+          bounds: tuple[float, float] | None = None, read_only: bool = False,
+          choices: tuple[str, ...] = ()) -> ParameterSpec:
+    """A parameter of the ROS layer alone (frames, message types, start-up)."""
+    return ParameterSpec(name, default, Setting(description, unit, bounds, choices), read_only)
 
 
 _FLOATS: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()  # node -> float names
@@ -108,19 +94,17 @@ def declare_all(node: Node, specs: tuple[ParameterSpec, ...]) -> dict[str, objec
 
 
 def model_specs(model: str) -> tuple[ParameterSpec, ...]:
-    """The physical parameters of a built-in model, with its defaults."""
+    """The physical parameters of ``model``, as its spec describes them."""
     try:
-        defaults = models.model_parameters(model)
+        physical = models.spec(model).parameters
     except ValueError as exc:
         raise ValueError(f"parameter model: {exc}") from None
-    return tuple(ParameterSpec(
-        name, float(default), MODEL_PARAMETER_HELP.get(name, name),
-        (-MODEL_PARAMETER_RANGE[1] if name == "a" else MODEL_PARAMETER_RANGE[0],
-         MODEL_PARAMETER_RANGE[1])) for name, default in defaults.items())
+    return tuple(plain(p.name, p.default, p.description, p.unit, p.bounds) for p in physical)
 
 
-MODEL = ParameterSpec("model", "chaplygin_sleigh", "built-in model (a node drives one kind of "
-                      "robot)", read_only=True, choices=tuple(sorted(models.MODELS)))
+MODEL = plain("model", "chaplygin_sleigh", "the robot's model: a built-in one "
+              f"({', '.join(models.MODELS)}), an entry point of group {models.ENTRY_POINTS}, "
+              "or package.module:attribute", read_only=True)
 
 
 def declare_model(node: Node) -> tuple[str, dict[str, float]]:
@@ -135,11 +119,20 @@ def usage(executable: str, node_name: str, specs: tuple[ParameterSpec, ...]) -> 
              f"-r __ns:=/NAMESPACE]", "",
              f"Starts the ROS 2 node {node_name}. Parameters (default, range):"]
     for spec in (MODEL, *specs):
-        limits = f", [{spec.bounds[0]:g}, {spec.bounds[1]:g}]" if spec.bounds else ""
+        bounds, choices = spec.meta.bounds, spec.meta.choices
+        limits = f", [{bounds[0]:g}, {bounds[1]:g}]" if bounds else ""
         fixed = ", read-only" if spec.read_only else ""
-        choices = f" — one of {', '.join(spec.choices)}" if spec.choices else ""
+        one_of = f" — one of {', '.join(choices)}" if choices else ""
         lines.append(f"  {spec.name} ({spec.default!r}{limits}{fixed}): {spec.description}"
-                     f"{choices}")
+                     f"{one_of}")
     lines.append("  and the model's physical parameters, e.g. for chaplygin_sleigh: " + ", ".join(
         f"{s.name} ({s.default!r}): {s.description}" for s in model_specs("chaplygin_sleigh")))
     return "\n".join(lines)
+
+
+def parameter_table(specs: tuple[ParameterSpec, ...]) -> str:
+    """The README's table of a node's parameters (``model`` first), from the same specs."""
+    rows = [(s.name, s.default, s.meta if not s.read_only else Setting(
+        s.meta.description + " (read-only)", s.meta.unit, s.meta.bounds, s.meta.choices))
+        for s in (MODEL, *specs)]
+    return markdown_table(rows)

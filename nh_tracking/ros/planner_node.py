@@ -25,11 +25,10 @@ from visualization_msgs.msg import MarkerArray
 
 from nh_tracking.receding_horizon import PlannerSettings, PlanOutcome
 from nh_tracking.ros import conversions as cv
-from nh_tracking.ros.parameters import ParameterSpec, declare, declare_all, declare_model
+from nh_tracking.ros.parameters import ParameterSpec, declare_all, declare_model, plain
 from nh_tracking.ros.planner_services import PlannerServices
 from nh_tracking.ros.safety import SafeNode, guarded
-from nh_tracking.session import PlanResult, TrackingSession
-from nh_tracking.solvers import METHODS
+from nh_tracking.session import PlanResult, SessionSettings, TrackingSession
 
 LATCHED = QoSProfile(depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL,
                      reliability=ReliabilityPolicy.RELIABLE)
@@ -39,31 +38,15 @@ LATCHED = QoSProfile(depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL,
 # a sample both deliver is recognised by its publication stamp and sequence number.
 REFERENCE_QOS = (LATCHED, QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE))
 
-_d = PlannerSettings()
-SETTINGS = (
-    ParameterSpec("horizon", _d.horizon, "planning horizon [s]", (0.05, 600.0)),
-    ParameterSpec("steps", _d.steps, "intervals on the horizon", (2, 2000)),
-    ParameterSpec("epsilon", _d.epsilon, "control weight eps", (1e-9, 1e9)),
-    ParameterSpec("omega", _d.omega, "terminal cost weight (terminal=cost)", (1e-9, 1e9)),
-    ParameterSpec("terminal", _d.terminal, "terminal condition", choices=("cost", "equality")),
-    ParameterSpec("method", _d.method, "solver", choices=tuple(METHODS)),
-    ParameterSpec("max_solve_time", _d.max_solve_time, "deadline of one solve [s]; a later "
-                  "solve keeps the previous plan", (1e-3, 60.0)),
-    ParameterSpec("wrap_angles", _d.wrap_angles, "compare angles modulo 2 pi"),
-    ParameterSpec("compiled", _d.compiled, "solve with the NLP compiled to C (built in the "
-                  "background the first time per machine and structure, then cached)"),
-)
+SETTINGS = ParameterSpec.of(PlannerSettings)
+SESSION = ParameterSpec.of(SessionSettings)
 NODE = (
-    ParameterSpec("replan_period", 0.1, "time between replans [s]", (1e-3, 60.0)),
-    ParameterSpec("replan_on_odom", False, "also replan on every odometry message"),
-    ParameterSpec("cmd_rate", 20.0, "cmd_vel publishing rate [Hz]", (0.1, 1000.0)),
-    ParameterSpec("odom_timeout", 0.5, "odometry older than this is stale [s]", (1e-3, 3600.0)),
-    ParameterSpec("frame_id", "odom", "fixed frame of references and odometry", read_only=True),
-    ParameterSpec("cmd_vel_stamped", False, "publish TwistStamped on cmd_vel", read_only=True),
-    ParameterSpec("autostart", True, "configure and activate at start-up (false: wait for a "
-                  "lifecycle manager)", read_only=True),
+    plain("frame_id", "odom", "fixed frame of references and odometry", read_only=True),
+    plain("cmd_vel_stamped", False, "publish TwistStamped on cmd_vel", read_only=True),
+    plain("autostart", True, "configure and activate at start-up (false: wait for a "
+          "lifecycle manager)", read_only=True),
 )
-PARAMETERS = SETTINGS + NODE
+PARAMETERS = SETTINGS + SESSION + NODE
 
 
 class PlannerNode(SafeNode, LifecycleNode):

@@ -19,25 +19,23 @@ from trajectory_msgs.msg import JointTrajectory
 from nh_tracking import models
 from nh_tracking.poses import PoseMap
 from nh_tracking.ros import conversions as cv
-from nh_tracking.ros.parameters import ParameterSpec, declare, declare_all, declare_model
+from nh_tracking.ros.parameters import declare, declare_all, declare_model, plain
 from nh_tracking.ros.safety import SafeNode, guarded
 from nh_tracking.simulate import simulate
 
 PARAMETERS = (
-    ParameterSpec("rate", 50.0, "integration and odometry rate [Hz]", (1.0, 2000.0),
-                  read_only=True),
-    ParameterSpec("control_timeout", 0.5, "zero control after this long without commands [s]",
-                  (1e-3, 3600.0)),
-    ParameterSpec("mode", "effort", "effort: follow control_sequence; velocity: follow cmd_vel",
-                  read_only=True, choices=("effort", "velocity")),
-    ParameterSpec("frame_id", "odom", "odometry frame", read_only=True),
-    ParameterSpec("child_frame_id", "base_link", "body frame", read_only=True),
-    ParameterSpec("publish_clock", False, "own the clock: publish /clock (sim time)",
-                  read_only=True),
-    ParameterSpec("time_scale", 1.0, "simulated seconds per wall second when publishing "
-                  "/clock", (1e-3, 1000.0), read_only=True),
-    ParameterSpec("start_time", 0.0, "initial /clock time [s]", (0.0, 1e9), read_only=True),
-    ParameterSpec("cmd_vel_stamped", False, "cmd_vel is TwistStamped", read_only=True),
+    plain("rate", 50.0, "integration and odometry rate", "Hz", (1.0, 2000.0), read_only=True),
+    plain("control_timeout", 0.5, "zero control after this long without commands", "s",
+          (1e-3, 3600.0)),
+    plain("mode", "effort", "effort: follow control_sequence; velocity: follow cmd_vel",
+          read_only=True, choices=("effort", "velocity")),
+    plain("frame_id", "odom", "odometry frame", read_only=True),
+    plain("child_frame_id", "base_link", "body frame", read_only=True),
+    plain("publish_clock", False, "own the clock: publish /clock (sim time)", read_only=True),
+    plain("time_scale", 1.0, "simulated seconds per wall second when publishing /clock", "",
+          (1e-3, 1000.0), read_only=True),
+    plain("start_time", 0.0, "initial /clock time", "s", (0.0, 1e9), read_only=True),
+    plain("cmd_vel_stamped", False, "cmd_vel is TwistStamped", read_only=True),
 )
 
 
@@ -50,8 +48,8 @@ class SimulatorNode(SafeNode):
         self.system = models.create(model, **params)
         self.pose_map = PoseMap(self.system)
         n, k = self.system.n, self.system.k
-        initial = declare(self, ParameterSpec("initial_state", [0.0] * (n + k),
-                                              f"initial q then v ({n} + {k} numbers)"))
+        initial = declare(self, plain("initial_state", [0.0] * (n + k),
+                                      f"initial q then v ({n} + {k} numbers)"))
         initial = np.asarray(initial, dtype=float)
         if initial.size != n + k or not np.all(np.isfinite(initial)):
             raise ValueError(f"parameter initial_state needs {n + k} finite numbers "

@@ -1,7 +1,9 @@
-"""``solve(problem, method=...)``: the tracking solvers, chosen by name, and global search.
+"""``solve(problem, method=...)``: the tracking methods, by name or as objects, and global search.
 
-Methods: ``"variational"`` (discrete Lagrange–d'Alembert midpoint transcription, §5),
-``"pmp"`` (Pontryagin + shooting, §4), ``"multiple_shooting"`` (direct RK4 baseline).
+Methods (:mod:`.base`): :class:`Variational` (discrete Lagrange–d'Alembert midpoint
+transcription, §5; options ``backend``, ``compiled``), :class:`Pontryagin` (shooting, §4;
+``budget``, ``fallback``), :class:`MultipleShooting` (direct RK4 baseline). A new method is a
+:class:`Method` subclass in a module of its own and one entry in :data:`METHODS`.
 """
 from __future__ import annotations
 
@@ -12,47 +14,60 @@ from concurrent.futures import ProcessPoolExecutor
 import numpy as np
 
 from nh_tracking.problem import Solution, TrackingProblem
-from nh_tracking.solvers.multiple_shooting import solve_multiple_shooting
-from nh_tracking.solvers.pmp import solve_pmp
-from nh_tracking.solvers.variational import solve_variational, transcription
+from nh_tracking.solvers.base import Guess, Method, Structure
+from nh_tracking.solvers.multiple_shooting import MultipleShooting
+from nh_tracking.solvers.pmp import Pontryagin
+from nh_tracking.solvers.variational import Variational
 from nh_tracking.trajectory import Trajectory
 
-METHODS = ("variational", "pmp", "multiple_shooting")
+__all__ = ["METHODS", "Method", "MultipleShooting", "Pontryagin", "Structure", "Variational",
+           "make_method", "solve"]
+
+METHODS: dict[str, type[Method]] = {m.name: m for m in (Variational, Pontryagin,
+                                                        MultipleShooting)}
 DISTINCT_RTOL = 1e-4  # two local minima are the same when their costs agree to this
 
 
-def solve(problem: TrackingProblem, method: str = "variational", *, starts: int = 1,
+def make_method(method: str | Method, **options: object) -> Method:
+    """The method called ``method`` with ``options``, or ``method`` itself if it is one.
+    An option the method does not take is an error naming the methods that do."""
+    if isinstance(method, Method):
+        if options:
+            raise ValueError(f"give options to the method object, not with it: {options}")
+        return method
+    if method not in METHODS:
+        raise ValueError(f"unknown method {method!r}; choose one of {list(METHODS)}")
+    cls = METHODS[method]
+    unknown = sorted(set(options) - set(cls.options()))
+    if unknown:
+        takers = {o: [n for n, m in METHODS.items() if o in m.options()] for o in unknown}
+        raise ValueError(f"method {method!r} takes no option {', '.join(unknown)} (its "
+                         f"options: {list(cls.options()) or 'none'}; "
+                         + "; ".join(f"{o} is taken by {t or 'no method'}"
+                                     for o, t in takers.items()) + ")")
+    return cls(**options)
+
+
+def solve(problem: TrackingProblem, method: str | Method = "variational", *, starts: int = 1,
           initial_guess: Solution | Trajectory | None = None, seed: int = 0,
           processes: int | None = None, max_time: float | None = None,
-          compiled: bool = False) -> Solution:
-    """Solve ``problem``; with ``starts`` > 1, run that many initial guesses (the default one
-    and random perturbations of it) in parallel processes and return the best, with the
-    distinct local minima found in ``Solution.minima``. ``max_time`` bounds one solve's wall
-    time (the solver then stops and reports failure). ``compiled`` (variational method) runs
-    the NLP as compiled C, built once and cached on disk (:mod:`.compiled`)."""
-    if method not in METHODS:
-        raise ValueError(f"unknown method {method!r}; choose one of {METHODS}")
+          **options: object) -> Solution:
+    """Solve ``problem`` with ``method`` (a name and its ``options``, e.g.
+    ``compiled=True``, or a :class:`Method`); with ``starts`` > 1, run that many initial guesses
+    (``initial_guess`` or the default one, and random perturbations of it) in parallel
+    processes and return the best, with the distinct local minima found in
+    ``Solution.minima``. ``max_time`` bounds one solve's wall time (the solver then stops and
+    reports failure)."""
+    solver = make_method(method, **options)
     if int(starts) != starts or starts < 1:
         raise ValueError(f"starts must be an integer >= 1, got {starts}")
+    guess = None if initial_guess is None else sample_plan(problem, initial_guess)
     if starts == 1:
-        guess = None if initial_guess is None else sample_plan(problem, initial_guess)
-        return _solve_one(problem, method, guess, max_time, compiled)
-    return _multi_start(problem, method, int(starts), seed, processes)
+        return solver.solve(problem, guess, max_time)
+    return _multi_start(problem, solver, guess, int(starts), seed, processes, max_time)
 
 
-def _solve_one(problem: TrackingProblem, method: str,
-               guess: tuple[np.ndarray, np.ndarray, np.ndarray] | None,
-               max_time: float | None = None, compiled: bool = False) -> Solution:
-    if method == "variational":
-        return solve_variational(problem, None if guess is None else guess[:2], max_time,
-                                 compiled=compiled)
-    if method == "multiple_shooting":
-        return solve_multiple_shooting(problem, guess, max_time)
-    return solve_pmp(problem) if max_time is None else solve_pmp(problem, max_time=max_time)
-
-
-def sample_plan(problem: TrackingProblem, plan: Solution | Trajectory
-                ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def sample_plan(problem: TrackingProblem, plan: Solution | Trajectory) -> Guess:
     """(q, v, u) of a previous plan or trajectory at this problem's knots (held past its end),
     its angles moved by whole turns onto q0's branch: a warm start, or a shifted plan.
     Linear between knots: a guess needs no spline, and replanning runs this every cycle."""
@@ -68,8 +83,7 @@ def sample_plan(problem: TrackingProblem, plan: Solution | Trajectory
     return q + 2 * np.pi * turns, v, plan.u[idx]
 
 
-def random_guess(problem: TrackingProblem, rng: np.random.Generator
-                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def random_guess(problem: TrackingProblem, rng: np.random.Generator) -> Guess:
     """The reference plus smooth random excursions that vanish at t0: a start in another basin.
 
     Amplitudes are large — several units in q, more than a turn and a half for angles, and
@@ -89,25 +103,24 @@ def random_guess(problem: TrackingProblem, rng: np.random.Generator
             np.zeros((problem.steps, sys.k)))
 
 
-_POOL_PROBLEM: tuple[TrackingProblem, str] | None = None
+_POOL_PROBLEM: tuple[TrackingProblem, Method, float | None] | None = None
 
 
-def _pool_solve(guess: tuple[np.ndarray, np.ndarray, np.ndarray] | None) -> Solution:
-    problem, method = _POOL_PROBLEM
-    return _solve_one(problem, method, guess)
+def _pool_solve(guess: Guess | None) -> Solution:
+    problem, method, max_time = _POOL_PROBLEM
+    return method.solve(problem, guess, max_time)
 
 
-def _multi_start(problem: TrackingProblem, method: str, starts: int, seed: int,
-                 processes: int | None) -> Solution:
+def _multi_start(problem: TrackingProblem, method: Method, guess: Guess | None, starts: int,
+                 seed: int, processes: int | None, max_time: float | None) -> Solution:
     global _POOL_PROBLEM
     rng = np.random.default_rng(seed)
-    guesses = [None] + [random_guess(problem, rng) for _ in range(starts - 1)]
-    if method == "variational":
-        transcription(problem.system, problem.steps, problem.terminal)  # build once, then fork
+    guesses = [guess] + [random_guess(problem, rng) for _ in range(starts - 1)]
+    method.prepare(problem.system, Structure(problem.steps, problem.terminal, max_time))
     workers = max(1, min(starts, processes or os.cpu_count() or 1))
-    _POOL_PROBLEM = (problem, method)
+    _POOL_PROBLEM = (problem, method, max_time)
     try:
-        # fork: workers inherit the compiled problem instead of re-building it from a pickle.
+        # fork: workers inherit the built problem instead of re-building it from a pickle.
         context = multiprocessing.get_context("fork")
         with ProcessPoolExecutor(workers, mp_context=context) as pool:
             solutions = list(pool.map(_pool_solve, guesses))

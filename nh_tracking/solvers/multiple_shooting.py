@@ -7,13 +7,14 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass
+from typing import ClassVar
 
 import casadi as ca
 import numpy as np
 
 from nh_tracking.problem import (Solution, TrackingProblem, terminal_cost, terminal_error,
                                  tracking_lagrangian)
-from nh_tracking.solvers.variational import ipopt_options
+from nh_tracking.solvers.base import Guess, Method, Structure, ipopt_options
 from nh_tracking.solvers.cache import PerSystemCache
 from nh_tracking.system import NonholonomicSystem
 
@@ -83,8 +84,7 @@ def _build(system: NonholonomicSystem, steps: int, terminal: str,
                                  running_cost=ca.Function("running", [w, p], [running]))
 
 
-def solve_multiple_shooting(problem: TrackingProblem,
-                            initial_guess: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,
+def solve_multiple_shooting(problem: TrackingProblem, initial_guess: Guess | None = None,
                             max_time: float | None = None) -> Solution:
     """Solve the baseline NLP; ``initial_guess`` is (q (N+1, n), v (N+1, k), u (N, k))."""
     sys, big_n = problem.system, problem.steps
@@ -122,3 +122,18 @@ def solve_multiple_shooting(problem: TrackingProblem,
         terminal_error=terminal_error(problem, q[-1], v[-1]), method="multiple_shooting",
         message=stats["return_status"], route="ipopt",
     )
+
+
+@dataclass(frozen=True)
+class MultipleShooting(Method):
+    """Direct multiple shooting (RK4, piecewise-constant controls) with IPOPT: the baseline a
+    user would write without the geometry. It has no options."""
+
+    name: ClassVar[str] = "multiple_shooting"
+
+    def prepare(self, system: NonholonomicSystem, structure: Structure) -> None:
+        shooting_transcription(system, structure.steps, structure.terminal, structure.deadline)
+
+    def solve(self, problem: TrackingProblem, guess: Guess | None = None,
+              deadline: float | None = None) -> Solution:
+        return solve_multiple_shooting(problem, guess, deadline)

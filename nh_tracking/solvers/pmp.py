@@ -13,7 +13,8 @@ solution. The route that succeeded is reported.
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
+from typing import ClassVar
 
 import casadi as ca
 import numpy as np
@@ -23,7 +24,9 @@ from scipy.optimize import root
 from nh_tracking.numeric import NumericFunction
 from nh_tracking.problem import (Solution, TrackingProblem, terminal_cost, terminal_error,
                                  tracking_lagrangian)
+from nh_tracking.solvers.base import Guess, Method, Structure
 from nh_tracking.solvers.cache import PerSystemCache
+from nh_tracking.solvers.variational import Variational
 from nh_tracking.system import NonholonomicSystem
 
 BLOW_UP = 1e6  # |state, costate| beyond this ends an integration as diverged
@@ -232,10 +235,10 @@ def mu_knots(mu_intervals: np.ndarray) -> np.ndarray:
 
 
 def solve_pmp(problem: TrackingProblem, max_time: float = 60.0,
-              initial_costates: np.ndarray | None = None) -> Solution:
-    """Shoot from zero costates (or ``initial_costates``); fall back as the module says."""
-    from nh_tracking.solvers.variational import solve_variational
-
+              initial_costates: np.ndarray | None = None,
+              fallback: Method = Variational()) -> Solution:
+    """Shoot from zero costates (or ``initial_costates``); fall back as the module says, with
+    the costates of ``fallback``'s solution (a method that returns costates)."""
     start = time.perf_counter()
     shooter = _Shooter(problem, deadline=start + max_time)
     n, k = problem.system.n, problem.system.k
@@ -247,7 +250,7 @@ def solve_pmp(problem: TrackingProblem, max_time: float = 60.0,
         attempts.append("zero-costates" if initial_costates is None else "given-costates")
         starts, ok = _single_shooting(shooter, p0)
         if not ok:
-            variational = solve_variational(problem)
+            variational = fallback.solve(problem)
             lam, mu = variational.costates
             attempts.append("variational-costates")
             starts, ok = _single_shooting(shooter, np.concatenate([lam[0], mu_knots(mu)[0]]))
@@ -292,3 +295,27 @@ def _solution(problem: TrackingProblem, shooter: _Shooter, starts: list[np.ndarr
         costates=(z[:, n + k:2 * n + k], z[:, 2 * n + k:]),
         details={"shooting_residual": residual},
     )
+
+
+@dataclass(frozen=True)
+class Pontryagin(Method):
+    """Pontryagin's principle by shooting (§4). ``budget`` [s] bounds a solve that has no
+    deadline; ``fallback`` supplies costates to restart from when plain shooting fails.
+    Shooting starts from costates, not from a plan, so a (q, v, u) guess is not used."""
+
+    budget: float = 60.0
+    fallback: Method = field(default_factory=Variational)
+    name: ClassVar[str] = "pmp"
+
+    def __post_init__(self) -> None:
+        if not (isinstance(self.budget, (int, float)) and self.budget > 0):
+            raise ValueError(f"pmp option budget must be a number > 0, got {self.budget!r}")
+
+    def prepare(self, system: NonholonomicSystem, structure: Structure) -> None:
+        pontryagin_flow(system)
+        self.fallback.prepare(system, Structure(structure.steps, structure.terminal))
+
+    def solve(self, problem: TrackingProblem, guess: Guess | None = None,
+              deadline: float | None = None) -> Solution:
+        return solve_pmp(problem, self.budget if deadline is None else deadline,
+                         fallback=self.fallback)

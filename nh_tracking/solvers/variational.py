@@ -14,6 +14,7 @@ from __future__ import annotations
 import dataclasses
 import time
 from dataclasses import dataclass
+from typing import ClassVar, Literal
 
 import casadi as ca
 import numpy as np
@@ -21,20 +22,14 @@ import numpy as np
 from nh_tracking.numeric import NumericFunction
 from nh_tracking.problem import (Solution, TrackingProblem, terminal_cost, terminal_error,
                                  tracking_lagrangian)
+from nh_tracking.solvers.base import Guess, Method, Structure, ipopt_options
 from nh_tracking.solvers.cache import PerSystemCache
 from nh_tracking.solvers.compiled import compiled_library
 from nh_tracking.system import NonholonomicSystem
 
-SOLVERS = ("fatrop", "ipopt")
-IPOPT_OPTIONS = {
-    "ipopt.print_level": 0,
-    "ipopt.sb": "yes",
-    "print_time": False,
-    "ipopt.tol": 1e-10,
-    "ipopt.constr_viol_tol": 1e-12,
-    "ipopt.max_iter": 500,
-}
+BACKENDS = ("fatrop", "ipopt")
 FATROP_OPTIONS = {"print_level": 0, "tol": 1e-10, "max_iter": 500}
+FATROP_DEADLINE_ITERATIONS = 50  # fatrop has no wall-time limit: under a deadline, this bound
 CONTINUATION_MIN_STEPS = 100  # cold solves with this many intervals or more start coarse
 COARSE_STEPS = 50
 
@@ -81,23 +76,19 @@ def transcription(system: NonholonomicSystem, steps: int, terminal: str,
                   compiled: bool = False) -> Transcription:
     """The NLP for this structure (solver, time limit, compiled or interpreted), built on
     first use and cached."""
-    # fatrop only needs to know whether there is a deadline (it bounds its iterations);
-    # IPOPT takes the wall time itself
-    deadline = max_time if solver == "ipopt" or max_time is None else 1.0
-    return _CACHE.get(system, (steps, terminal, deadline, solver, compiled),
-                      lambda: _build(system, steps, terminal, deadline, solver, compiled))
+    if solver not in BACKENDS:
+        raise ValueError(f"unknown NLP solver {solver!r}; choose one of {BACKENDS}")
+    # IPOPT takes the wall-time limit itself, so it is part of its NLP; fatrop only needs to
+    # know whether its iterations are bounded
+    wall_time = max_time if solver == "ipopt" else None
+    bounded = max_time is not None
+    return _CACHE.get(system, (steps, terminal, solver, compiled, wall_time, bounded),
+                      lambda: _build(system, steps, terminal, solver, compiled, wall_time,
+                                     bounded))
 
 
-def ipopt_options(max_time: float | None) -> dict:
-    """IPOPT settings; ``max_time`` bounds the wall time of one solve (a replanning deadline)."""
-    return IPOPT_OPTIONS if max_time is None else {**IPOPT_OPTIONS,
-                                                   "ipopt.max_wall_time": float(max_time)}
-
-
-def _build(system: NonholonomicSystem, steps: int, terminal: str, max_time: float | None,
-           solver: str, compiled: bool = False) -> Transcription:
-    if solver not in SOLVERS:
-        raise ValueError(f"unknown NLP solver {solver!r}; choose one of {SOLVERS}")
+def _build(system: NonholonomicSystem, steps: int, terminal: str, solver: str,
+           compiled: bool, wall_time: float | None, bounded: bool) -> Transcription:
     n, k, big_n = system.n, system.k, steps
     nx = n + k
     xs = [ca.SX.sym(f"x{i}", nx) for i in range(big_n + 1)]
@@ -143,12 +134,12 @@ def _build(system: NonholonomicSystem, steps: int, terminal: str, max_time: floa
     name = f"variational_{system.name}_{big_n}"
     if solver == "fatrop":
         fatrop = dict(FATROP_OPTIONS)
-        if max_time is not None:  # fatrop has no wall-time limit: bound the iterations
-            fatrop["max_iter"] = 50
+        if bounded:
+            fatrop["max_iter"] = FATROP_DEADLINE_ITERATIONS
         options = {"structure_detection": "auto", "equality": [True] * g.shape[0],
                    "print_time": False, "fatrop": fatrop}
     else:
-        options = ipopt_options(max_time)
+        options = ipopt_options(wall_time)
     options["show_eval_warnings"] = False  # failures are reported in the Solution instead
     nlp_solver = ca.nlpsol(name, solver, nlp, options)
     library = compiled_library(nlp_solver) if compiled else None
@@ -244,3 +235,30 @@ def _failed(problem: TrackingProblem, q: np.ndarray, v: np.ndarray, elapsed: flo
         t=problem.grid, q=q, v=v, u=np.zeros((problem.steps, problem.system.k)),
         cost=float("inf"), success=False, iterations=0, solve_time=elapsed,
         terminal_error=float("inf"), method="variational", message=message, route=solver)
+
+
+@dataclass(frozen=True)
+class Variational(Method):
+    """The paper's discrete variational (midpoint) transcription, solved by ``backend``
+    (fatrop exploits the stage structure; IPOPT is the general fallback). ``compiled`` runs the
+    NLP's derivatives as C, compiled once per structure and machine (:mod:`.compiled`)."""
+
+    backend: Literal["fatrop", "ipopt"] = "fatrop"
+    compiled: bool = False
+    name: ClassVar[str] = "variational"
+
+    def __post_init__(self) -> None:
+        if self.backend not in BACKENDS:
+            raise ValueError(f"variational backend must be one of {BACKENDS}, "
+                             f"got {self.backend!r}")
+        if not isinstance(self.compiled, bool):
+            raise TypeError(f"variational option compiled must be a bool, got {self.compiled!r}")
+
+    def prepare(self, system: NonholonomicSystem, structure: Structure) -> None:
+        transcription(system, structure.steps, structure.terminal,
+                      structure.deadline, self.backend, self.compiled)
+
+    def solve(self, problem: TrackingProblem, guess: Guess | None = None,
+              deadline: float | None = None) -> Solution:
+        return solve_variational(problem, None if guess is None else guess[:2], deadline,
+                                 self.backend, self.compiled)

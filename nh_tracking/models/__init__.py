@@ -1,0 +1,66 @@
+"""Models: built-in ones by name, and user models with no edit to the package.
+
+Each built-in model is one module holding its Lagrangian data (metric, constraints, basis —
+the dynamics are derived) and a :class:`ModelSpec`; adding one is a new module and one line in
+:data:`MODELS`. A user model is named ``package.module:attribute`` (a ModelSpec, or a factory
+function whose numeric keyword defaults are its physical parameters) or registered by an entry
+point in the group ``nh_tracking.models``.
+"""
+from __future__ import annotations
+
+import importlib
+from importlib.metadata import entry_points
+
+from nh_tracking.models import chaplygin_sleigh as _sleigh
+from nh_tracking.models import nonholonomic_particle as _particle
+from nh_tracking.models import rolling_disk as _disk
+from nh_tracking.models import unicycle as _unicycle
+from nh_tracking.models.chaplygin_sleigh import chaplygin_sleigh
+from nh_tracking.models.nonholonomic_particle import nonholonomic_particle
+from nh_tracking.models.rolling_disk import rolling_disk
+from nh_tracking.models.spec import ModelSpec, PhysicalParameter
+from nh_tracking.models.unicycle import unicycle
+from nh_tracking.system import NonholonomicSystem
+
+__all__ = ["MODELS", "ModelSpec", "PhysicalParameter", "chaplygin_sleigh", "create",
+           "model_parameters", "nonholonomic_particle", "rolling_disk", "spec", "unicycle"]
+
+MODELS: dict[str, ModelSpec] = {m.SPEC.name: m.SPEC for m in (_sleigh, _particle, _unicycle,
+                                                              _disk)}
+ENTRY_POINTS = "nh_tracking.models"
+
+
+def spec(name: str) -> ModelSpec:
+    """The model called ``name``: built-in, from an entry point, or ``package.module:attr``."""
+    if name in MODELS:
+        return MODELS[name]
+    plugins = {ep.name: ep for ep in entry_points(group=ENTRY_POINTS)}
+    if name in plugins:
+        return _as_spec(name, plugins[name].load())
+    if ":" in name:
+        module, _, attribute = name.partition(":")
+        try:
+            target = getattr(importlib.import_module(module), attribute)
+        except (ImportError, AttributeError, ValueError) as exc:
+            raise ValueError(f"cannot load model {name!r}: {type(exc).__name__}: {exc}") from None
+        return _as_spec(name, target)
+    raise ValueError(f"unknown model {name!r}; built-in: {sorted(MODELS)}, from entry points: "
+                     f"{sorted(plugins)}, or give package.module:attribute")
+
+
+def _as_spec(name: str, target: object) -> ModelSpec:
+    if isinstance(target, ModelSpec):
+        return target
+    if callable(target):
+        return ModelSpec.from_factory(name, target)
+    raise ValueError(f"model {name!r} is neither a ModelSpec nor a factory function")
+
+
+def model_parameters(name: str) -> dict[str, float]:
+    """The physical parameters a model takes, with their defaults."""
+    return spec(name).defaults
+
+
+def create(name: str, **parameters: float) -> NonholonomicSystem:
+    """A model by name (as the ROS parameter ``model`` names it), its parameters checked."""
+    return spec(name).create(**parameters)

@@ -1,0 +1,85 @@
+"""What the package knows about a model beyond its equations: its physical parameters (range,
+unit, meaning), so every front end — ROS parameters, the command line, documentation — reads
+them from one place instead of knowing each robot."""
+from __future__ import annotations
+
+import inspect
+import math
+from collections.abc import Callable
+from dataclasses import dataclass
+
+from nh_tracking.system import NonholonomicSystem
+
+POSITIVE = (1e-6, 1e6)
+
+
+def positive(**values: float) -> None:
+    """Factories check their own arguments too: they can be called without a spec."""
+    for name, value in values.items():
+        if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
+            raise ValueError(f"model parameter {name} must be a finite number > 0, got {value!r}")
+
+
+@dataclass(frozen=True)
+class PhysicalParameter:
+    """One physical parameter of a model."""
+
+    name: str
+    default: float
+    unit: str
+    description: str
+    bounds: tuple[float, float] = POSITIVE
+
+    def check(self, value: object) -> float:
+        if isinstance(value, bool) or not isinstance(value, (int, float)) or not (
+                math.isfinite(value) and self.bounds[0] <= value <= self.bounds[1]):
+            raise ValueError(f"model parameter {self.name} must be a number in "
+                             f"[{self.bounds[0]:g}, {self.bounds[1]:g}], got {value!r}")
+        return float(value)
+
+
+@dataclass(frozen=True)
+class ModelSpec:
+    """A model: its factory (keyword arguments = the physical parameters) and their specs.
+
+    ``start`` is a typical initial state (q, v) for demonstrations."""
+
+    name: str
+    factory: Callable[..., NonholonomicSystem]
+    parameters: tuple[PhysicalParameter, ...] = ()
+    summary: str = ""
+    start: tuple[tuple[float, ...], tuple[float, ...]] | None = None
+
+    def __post_init__(self) -> None:
+        accepted = set(inspect.signature(self.factory).parameters)
+        declared = {p.name for p in self.parameters}
+        if declared != accepted:
+            raise ValueError(f"model {self.name}: parameters {sorted(declared)} do not match "
+                             f"the factory's arguments {sorted(accepted)}")
+
+    @property
+    def defaults(self) -> dict[str, float]:
+        return {p.name: p.default for p in self.parameters}
+
+    def check(self, **values: object) -> dict[str, float]:
+        """``values`` checked against the ranges, completed with defaults; no model is built."""
+        known = {p.name: p for p in self.parameters}
+        unknown = set(values) - set(known)
+        if unknown:
+            raise ValueError(f"model {self.name} takes {sorted(known)}, not {sorted(unknown)}")
+        return {**self.defaults, **{k: known[k].check(v) for k, v in values.items()}}
+
+    def create(self, **values: object) -> NonholonomicSystem:
+        return self.factory(**self.check(**values))
+
+    @classmethod
+    def from_factory(cls, name: str, factory: Callable[..., NonholonomicSystem]) -> ModelSpec:
+        """A spec for a plain factory function: its keyword defaults are the parameters, each
+        a positive number (write a ModelSpec to say more)."""
+        parameters = []
+        for p in inspect.signature(factory).parameters.values():
+            if isinstance(p.default, bool) or not isinstance(p.default, (int, float)):
+                raise ValueError(f"model {name}: argument {p.name} needs a numeric default "
+                                 "to be a physical parameter")
+            parameters.append(PhysicalParameter(p.name, float(p.default), "", p.name))
+        return cls(name, factory, tuple(parameters), (factory.__doc__ or "").strip())

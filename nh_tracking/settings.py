@@ -1,0 +1,81 @@
+"""Settings as data: each field of a settings dataclass carries its meaning, unit and limits.
+
+One declaration gives the check (:func:`check`), the ROS parameter descriptors and ``--help``
+(:mod:`nh_tracking.ros.parameters`) and the README's parameter table (:func:`markdown_table`),
+so the three cannot disagree. The pattern of do-mpc's settings dataclasses, with the limits
+machine-readable.
+"""
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass, field
+from typing import Any
+
+
+@dataclass(frozen=True)
+class Setting:
+    """What a settings field means: its description, unit, numeric bounds or choices."""
+
+    description: str
+    unit: str = ""
+    bounds: tuple[float, float] | None = None
+    choices: tuple[str, ...] = ()
+
+
+def setting(default: Any, description: str, unit: str = "",
+            bounds: tuple[float, float] | None = None, choices: tuple[str, ...] = ()) -> Any:
+    """A dataclass field with its :class:`Setting` as metadata."""
+    return field(default=default, metadata={"setting": Setting(description, unit, bounds,
+                                                               choices)})
+
+
+def described(cls: type) -> list[tuple[str, Any, Setting]]:
+    """(name, default, setting) of each described field of a settings dataclass."""
+    return [(f.name, f.default, f.metadata["setting"]) for f in dataclasses.fields(cls)
+            if "setting" in f.metadata]
+
+
+def check(value: Any, name: str, default: Any, meta: Setting) -> Any:
+    """``value`` as the type of ``default`` within ``meta``'s limits, or ValueError naming
+    the field (an integer is accepted for a floating-point field)."""
+    kind = type(default)
+    if kind is float and isinstance(value, int) and not isinstance(value, bool):
+        value = float(value)
+    if not isinstance(value, kind) or (kind is int and isinstance(value, bool)):
+        raise ValueError(f"{name} must be {_type_name(kind)}, got {value!r}")
+    if meta.bounds is not None and not (math.isfinite(value)
+                                        and meta.bounds[0] <= value <= meta.bounds[1]):
+        raise ValueError(f"{name} must be in [{meta.bounds[0]:g}, {meta.bounds[1]:g}], "
+                         f"got {value!r}")
+    if meta.choices and value not in meta.choices:
+        raise ValueError(f"{name} must be one of {list(meta.choices)}, got {value!r}")
+    return value
+
+
+def check_fields(obj: Any) -> None:
+    """Check every described field of a frozen settings instance (coercing ints to floats)."""
+    problems = []
+    for name, default, meta in described(type(obj)):
+        try:
+            object.__setattr__(obj, name, check(getattr(obj, name), name, default, meta))
+        except ValueError as exc:
+            problems.append(str(exc))
+    if problems:
+        raise ValueError(f"invalid {type(obj).__name__}: {'; '.join(problems)}")
+
+
+def _type_name(kind: type) -> str:
+    return {bool: "true or false", int: "an integer", float: "a number", str: "a string",
+            list: "a list of numbers"}.get(kind, kind.__name__)
+
+
+def markdown_table(rows: list[tuple[str, Any, Setting]]) -> str:
+    """A README table: name, default, unit, range or choices, meaning."""
+    lines = ["| parameter | default | unit | range | meaning |", "|---|---|---|---|---|"]
+    for name, default, meta in rows:
+        limits = (f"{meta.bounds[0]:g} – {meta.bounds[1]:g}" if meta.bounds else
+                  " \\| ".join(meta.choices))
+        shown = str(default).lower() if isinstance(default, bool) else default
+        lines.append(f"| `{name}` | `{shown}` | {meta.unit} | {limits} | {meta.description} |")
+    return "\n".join(lines)

@@ -1,0 +1,43 @@
+"""A robot the package does not ship, written as a user would, in a module of their own: the
+car-like robot (rear-wheel drive, front-wheel steering), loaded with ``model`` =
+``user_robots:CAR`` by the library, the command line and the ROS nodes."""
+import casadi as ca
+
+from nh_tracking import NonholonomicSystem
+from nh_tracking.models import ModelSpec, PhysicalParameter
+
+
+def car_like(m: float = 1.0, J: float = 0.5, I_steer: float = 0.05,
+             L: float = 0.5) -> NonholonomicSystem:
+    """q = (x, y, theta, phi): rear axle position, heading, steering angle. Neither wheel slips
+    sideways; basis: driving e1 = (L cos th cos phi, L sin th cos phi, sin phi, 0) (smooth for
+    every phi) and steering e2 = d_phi."""
+
+    def constraints(q):
+        th, phi = q[2], q[3]
+        rear = ca.horzcat(ca.sin(th), -ca.cos(th), 0, 0)
+        front = ca.horzcat(ca.sin(th + phi), -ca.cos(th + phi), -L * ca.cos(phi), 0)
+        return ca.vertcat(rear, front)
+
+    def basis(q):
+        th, phi = q[2], q[3]
+        drive = ca.vertcat(L * ca.cos(th) * ca.cos(phi), L * ca.sin(th) * ca.cos(phi),
+                           ca.sin(phi), 0)
+        return ca.horzcat(drive, ca.vertcat(0, 0, 0, 1))
+
+    return NonholonomicSystem.from_constraints(
+        ["x", "y", "theta", "phi"], lambda q: ca.diag(ca.vertcat(m, m, J, I_steer)),
+        constraints, basis=basis, angles=["theta", "phi"], controls=["drive", "steer"],
+        pose={"x": "x", "y": "y", "theta": "yaw"}, name="car_like",
+        parameters={"m": m, "J": J, "I_steer": I_steer, "L": L})
+
+
+CAR = ModelSpec(
+    "car_like", car_like,
+    (PhysicalParameter("m", 1.0, "kg", "mass"),
+     PhysicalParameter("J", 0.5, "kg m^2", "yaw inertia"),
+     PhysicalParameter("I_steer", 0.05, "kg m^2", "steering inertia"),
+     PhysicalParameter("L", 0.5, "m", "wheelbase")),
+    "a car-like robot", start=((0.0, 0.0, 0.0, 0.0), (1.0, 0.0)))
+
+NOT_A_MODEL = 42
