@@ -1,14 +1,19 @@
 """ament_python package setup: installs the library, the ament index marker, the executables,
 the parameter file and the launch file."""
+import re
 from glob import glob
+from pathlib import Path
 
 from setuptools import find_packages, setup
 
 package_name = 'nh_tracking'
+# the version lives in package.xml alone (the ROS convention); Python reads it from here
+version = re.search(r'<version>([^<]+)</version>',
+                    (Path(__file__).parent / 'package.xml').read_text()).group(1)
 
 setup(
     name=package_name,
-    version='0.1.0',
+    version=version,
     packages=find_packages(exclude=['test']),
     data_files=[
         ('share/ament_index/resource_index/packages', ['resource/' + package_name]),
@@ -26,7 +31,7 @@ setup(
     python_requires='>=3.10',
     entry_points={
         'console_scripts': [
-            'nh-tracking = nh_tracking.cli:main',
+            'nh-tracking = nh_tracking.examples.cli:main',
             'planner = nh_tracking.ros:planner_main',
             'sim = nh_tracking.ros:sim_main',
         ],

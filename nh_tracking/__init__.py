@@ -1,9 +1,12 @@
 """nh_tracking: optimal trajectory tracking for nonholonomic mechanical systems.
 
 Layers, each usable without the ones above it: the geometric core (``NonholonomicSystem``,
-``models``), simulation (``simulate``), and — in later modules — the tracking solvers and the
-ROS 2 nodes (``nh_tracking.ros``, the only part that imports rclpy).
+``models``, ``simulate``, the problem), the tracking methods (``solvers``), the planner
+(receding horizon, ``session``), the ROS 2 nodes (``nh_tracking.ros``, the only part that
+imports rclpy) and the examples (``nh_tracking.examples``: demo, benchmark, experiments).
 """
+from importlib.metadata import PackageNotFoundError, version
+
 from nh_tracking import models
 from nh_tracking.problem import Solution, TrackingProblem
 from nh_tracking.simulate import simulate
@@ -13,4 +16,7 @@ from nh_tracking.trajectory import Trajectory
 
 __all__ = ["NonholonomicSystem", "Solution", "TrackingProblem", "Trajectory", "models",
            "simulate", "solve"]
-__version__ = "0.1.0"
+try:
+    __version__ = version("nh_tracking")  # one source: package.xml, read by setup.py
+except PackageNotFoundError:  # running from a source tree that is not installed
+    __version__ = "unknown"

@@ -64,10 +64,10 @@ def fallback_plan(problem: TrackingProblem, gains: KanayamaGains = KanayamaGains
     traj = simulate(problem.system, problem.q0, problem.v0, problem.grid, law,
                     rtol=1e-6, atol=1e-8)
     return Solution(
-        t=traj.t, q=traj.q, v=traj.v, u=traj.u, cost=float("nan"), success=True,
+        t=traj.t, q=traj.q, v=traj.v, u=traj.u, cost=float("nan"), success=False,
         iterations=0, solve_time=0.0,
         terminal_error=terminal_error(problem, traj.q[-1], traj.v[-1]), method="fallback",
-        message="Kanayama tracking law", route="fallback",
+        message="not optimal: the Kanayama tracking law rolled out", route="kanayama",
     )
 
 
@@ -78,7 +78,7 @@ def stop_plan(problem: TrackingProblem, reason: str) -> Solution:
     q = np.tile(problem.q0, (steps + 1, 1))
     return Solution(
         t=problem.grid, q=q, v=np.zeros((steps + 1, k)), u=np.zeros((steps, k)),
-        cost=float("nan"), success=True, iterations=0, solve_time=0.0,
+        cost=float("nan"), success=False, iterations=0, solve_time=0.0,
         terminal_error=terminal_error(problem, q[-1], np.zeros(k)), method="fallback",
-        message=f"stop: {reason}", route="stop",
+        message=f"not optimal: holding still ({reason})", route="stop",
     )

@@ -10,8 +10,9 @@ from __future__ import annotations
 
 import dataclasses
 import time
+from collections import deque
 from dataclasses import dataclass, field
-from typing import Literal
+from enum import Enum
 
 import numpy as np
 
@@ -22,7 +23,19 @@ from nh_tracking.solvers import METHODS, Method, Structure, make_method, sample_
 from nh_tracking.system import NonholonomicSystem
 from nh_tracking.trajectory import Trajectory
 
-Status = Literal["optimal", "shifted", "fallback"]
+HISTORY = 10_000  # recent solves kept for statistics: a long-running node must not grow
+
+
+class PlanStatus(str, Enum):
+    """How the plan in force came about (a str, so it prints and compares as its value)."""
+
+    OPTIMAL = "optimal"  # the solver converged in time
+    SHIFTED = "shifted"  # the solve failed or was late: the previous plan, shifted
+    FALLBACK = "fallback"  # no previous plan: the Kanayama tracking law rolled out
+    STOP = "stop"  # even the tracking law failed: hold the configuration at rest
+
+    def __str__(self) -> str:
+        return self.value
 
 
 @dataclass(frozen=True)
@@ -56,23 +69,29 @@ class PlanOutcome:
     """One replanning step: the plan in force and how it came about."""
 
     plan: Solution
-    status: Status
+    status: PlanStatus
     solve_time: float
     deadline_missed: bool
     message: str
     reference: np.ndarray  # q_r at the plan's knots, for display
 
 
+def _recent() -> deque:
+    return deque(maxlen=HISTORY)
+
+
 @dataclass
 class PlannerStatistics:
+    """Counts since the start, and the last :data:`HISTORY` solves' timings."""
+
     plans: int = 0
     optimal: int = 0
     shifted: int = 0
-    fallbacks: int = 0
+    fallbacks: int = 0  # tracking law or stop plans
     deadline_misses: int = 0
-    solve_times: list[float] = field(default_factory=list)
-    plan_times: list[float] = field(default_factory=list)  # the t of each solve
-    plan_durations: list[float] = field(default_factory=list)  # wall time of plan(), all in
+    solve_times: deque[float] = field(default_factory=_recent)
+    plan_times: deque[float] = field(default_factory=_recent)  # the t of each solve
+    plan_durations: deque[float] = field(default_factory=_recent)  # wall time of plan()
 
 
 class RecedingHorizonPlanner:
@@ -149,7 +168,7 @@ class RecedingHorizonPlanner:
         if ok:
             self.previous = sol
             self.stats.optimal += 1
-            return PlanOutcome(sol, "optimal", sol.solve_time, missed,
+            return PlanOutcome(sol, PlanStatus.OPTIMAL, sol.solve_time, missed,
                                f"{s.method}: cost {sol.cost:.4g} in {sol.iterations} iterations",
                                reference)
         solve_time = sol.solve_time if sol is not None else 0.0
@@ -157,18 +176,19 @@ class RecedingHorizonPlanner:
             shifted = self._shifted(problem, self.previous)
             self.previous = shifted
             self.stats.shifted += 1
-            return PlanOutcome(shifted, "shifted", solve_time, missed,
+            return PlanOutcome(shifted, PlanStatus.SHIFTED, solve_time, missed,
                                f"kept the previous plan, shifted ({error})", reference)
         try:
             plan, what = fallback_plan(problem), "tracking law fallback"
+            status = PlanStatus.FALLBACK
             if not _finite(plan):
                 raise ValueError("the tracking law gave non-finite values")
         except (ArithmeticError, RuntimeError, ValueError) as exc:
             plan, what = stop_plan(problem, str(exc)), f"stopping, tracking law failed: {exc}"
+            status = PlanStatus.STOP
         self.previous = plan  # the plan in force: shifted if the next solve fails too
         self.stats.fallbacks += 1
-        return PlanOutcome(plan, "fallback", solve_time, missed, f"{what} ({error})",
-                           reference)
+        return PlanOutcome(plan, status, solve_time, missed, f"{what} ({error})", reference)
 
     def preview(self, t: float, q: np.ndarray, v: np.ndarray) -> Solution:
         """A plan from (q, v) at t that leaves the replanning loop's state alone (a query)."""

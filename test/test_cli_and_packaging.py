@@ -8,7 +8,7 @@ from pathlib import Path
 
 import pytest
 
-from nh_tracking.cli import main
+from nh_tracking.examples.cli import main
 from processes import Process, domain_env, starts_and_stops
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -76,7 +76,7 @@ def test_executable_reports_bad_parameters_without_traceback():
 
 def test_reproduce_writes_metrics_and_figures(tmp_path):
     lines = []
-    from nh_tracking.experiments import reproduce
+    from nh_tracking.examples.experiments import reproduce
 
     metrics = reproduce(tmp_path, log=lines.append)
     assert any(line.startswith("[4/4]") for line in lines)  # progress was shown

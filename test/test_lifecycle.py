@@ -14,7 +14,6 @@ from trajectory_msgs.msg import JointTrajectory
 
 from nh_tracking.ros import SimulatorNode
 from nh_tracking.ros import conversions as cv
-from nh_tracking.ros.demo import reference_message
 from nh_tracking.ros.graph import wait_until
 from nh_tracking.ros.planner_node import LATCHED
 from test_ros import WallClockPair, unique_namespace
@@ -62,7 +61,7 @@ def test_lifecycle_transitions_through_the_standard_services(graph):
     reference = node.create_publisher(Path, "reference_path", LATCHED)
     assert transition(Transition.TRANSITION_CONFIGURE)
     assert state() == State.PRIMARY_STATE_INACTIVE
-    msg = reference_message(pair.reference, planner.pose_map, 0.0, "path")
+    msg = cv.reference_message(pair.reference, planner.pose_map, 0.0, "path")
     msg.header.stamp = cv.time_msg(0)
     reference.publish(msg)  # latched: every (re)configured planner picks it up
     assert wait_until(lambda: planner.planner.reference is not None, 10.0)

@@ -5,7 +5,7 @@ import pytest
 import nh_tracking as nht
 import nh_tracking.receding_horizon as rh
 from faults import Faulty
-from nh_tracking.experiments import SLEIGH_REFERENCE_START, SLEIGH_START
+from nh_tracking.examples.experiments import SLEIGH_REFERENCE_START, SLEIGH_START
 from nh_tracking.fallback import TrackingLaw
 from nh_tracking.poses import PoseMap, wrap_angle
 from systems import ALL_SYSTEMS, random_state
@@ -79,6 +79,7 @@ def test_missed_deadline_falls_back_then_keeps_the_shifted_plan():
     planner.set_reference(ref)
     first = planner.plan(0.0, *SLEIGH_START)
     assert first.status == "fallback" and "tracking law" in first.message
+    assert not first.plan.success and first.plan.route == "kanayama"
     second = planner.plan(0.1, *SLEIGH_START)
     assert second.status == "shifted" and second.plan.t[0] == pytest.approx(0.1)
     assert np.allclose(second.plan.q[0], first.plan.trajectory().sample(0.1)[0][0], atol=1e-9)
@@ -130,7 +131,8 @@ def test_nan_from_the_dynamics_gives_a_finite_stop_plan():
     planner = rh.RecedingHorizonPlanner(knife, rh.PlannerSettings(steps=10, horizon=1.0))
     planner.set_reference(ref)
     out = planner.plan(0.0, [-1.0, 0.0, 0.0], [0.2, 0.0])
-    assert out.status == "fallback" and out.message.startswith("stopping")
+    assert out.status == rh.PlanStatus.STOP and out.message.startswith("stopping")
+    assert not out.plan.success  # a stop plan is no solution, and says so
     assert np.all(np.isfinite(out.plan.q)) and np.all(out.plan.v == 0) and np.all(out.plan.u == 0)
     again = planner.plan(0.1, [-1.0, 0.0, 0.0], [0.2, 0.0])  # still failing: shifted stop plan
     assert again.status == "shifted" and np.all(np.isfinite(again.plan.u))

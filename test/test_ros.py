@@ -15,11 +15,11 @@ from std_srvs.srv import Trigger
 from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint, MultiDOFJointTrajectory
 
 from faults import Faulty
-from nh_tracking.experiments import SLEIGH_REFERENCE_START
+from nh_tracking.examples.experiments import SLEIGH_REFERENCE_START
 from nh_tracking.metrics import cross_track_error
 from nh_tracking.ros import PlannerNode, SimulatorNode
 from nh_tracking.ros import conversions as cv
-from nh_tracking.ros.demo import START, ClosedLoop, reference_message, sleigh_reference
+from nh_tracking.examples.demo import START, ClosedLoop, sleigh_reference
 from nh_tracking.ros.graph import parameters, wait_until
 
 pytestmark = pytest.mark.timeout(180)
@@ -77,7 +77,7 @@ class WallClockPair:
 
     def send_reference(self):
         """The reference with a zero stamp: it starts when received."""
-        msg = reference_message(self.reference, self.planner.pose_map, 0.0, "path")
+        msg = cv.reference_message(self.reference, self.planner.pose_map, 0.0, "path")
         msg.header.stamp = cv.time_msg(0)
         for ps in msg.poses:
             ps.pose.position.x += float(self.offset[0])
@@ -128,7 +128,7 @@ def test_services_answer_before_and_after_a_reference(graph):
 
 
 def _bad_messages(pair):
-    good = reference_message(pair.reference, pair.planner.pose_map, 0.0, "path")
+    good = cv.reference_message(pair.reference, pair.planner.pose_map, 0.0, "path")
     good.header.stamp = cv.time_msg(0)
 
     def path(edit):
@@ -153,7 +153,7 @@ def _bad_messages(pair):
     def long_quaternion(m):
         m.poses[3].pose.orientation.w = 2.0
 
-    trajectory = reference_message(pair.reference, pair.planner.pose_map, 0.0, "trajectory")
+    trajectory = cv.reference_message(pair.reference, pair.planner.pose_map, 0.0, "trajectory")
     mismatched = MultiDOFJointTrajectory(header=trajectory.header,
                                          joint_names=trajectory.joint_names,
                                          points=list(trajectory.points[:10]))
@@ -382,7 +382,7 @@ def test_a_user_model_drives_the_planner_and_simulator_by_its_module_path(graph)
     probe.create_subscription(Odometry, "odom", odom.append, 100)
     pub = probe.create_publisher(Path, "reference_path", 10)
     assert wait_until(lambda: pub.get_subscription_count() > 0, 10.0)
-    msg = reference_message(reference, planner.pose_map, 0.0, "path")
+    msg = cv.reference_message(reference, planner.pose_map, 0.0, "path")
     msg.header.stamp = cv.time_msg(0)  # starts on receipt, as the robot sets off
     pub.publish(msg)
     assert wait_until(lambda: len(sequences) > 20, 30.0)

@@ -13,7 +13,7 @@ from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint, MultiDOFJ
 
 from nh_tracking.metrics import cross_track_error
 from nh_tracking.ros import conversions as cv
-from nh_tracking.ros.demo import START, ClosedLoop, reference_message, sleigh_reference
+from nh_tracking.examples.demo import START, ClosedLoop, sleigh_reference
 from nh_tracking.ros.graph import wait_until
 from test_ros import WallClockPair
 
@@ -28,8 +28,8 @@ class Fuzzer:
     def __init__(self, pair, seed=0):
         self.rng = np.random.default_rng(seed)
         self.pair = pair
-        self.path = reference_message(pair.reference, pair.planner.pose_map, 0.0, "path")
-        self.trajectory = reference_message(pair.reference, pair.planner.pose_map, 0.0,
+        self.path = cv.reference_message(pair.reference, pair.planner.pose_map, 0.0, "path")
+        self.trajectory = cv.reference_message(pair.reference, pair.planner.pose_map, 0.0,
                                             "trajectory")
 
     def bad(self):

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 import nh_tracking as nht
-from nh_tracking.experiments import particle_problem, replay, sleigh_problem
+from nh_tracking.examples.experiments import particle_problem, replay, sleigh_problem
 from systems import inclined_knife_edge
 
 

@@ -20,6 +20,9 @@ from trajectory_msgs.msg import (JointTrajectory, JointTrajectoryPoint,
                                  MultiDOFJointTrajectory, MultiDOFJointTrajectoryPoint)
 from visualization_msgs.msg import Marker, MarkerArray
 
+from nh_tracking.poses import PoseMap
+from nh_tracking.trajectory import Trajectory
+
 QUATERNION_TOLERANCE = 1e-3  # |q| may differ from 1 by this much (float32 round trips)
 MAX_POSITION = 1e6  # m: finite but absurd values would overflow the numerics downstream
 MAX_RATE = 1e3  # m/s, rad/s, and control effort per unit
@@ -246,6 +249,18 @@ def plan_markers(frame: str, stamp: int, plan_poses: np.ndarray,
         line_strip(frame, stamp, "planned_path", plan_poses, (0.1, 0.8, 0.2, 1.0)),
         line_strip(frame, stamp, "reference", reference_poses, (0.6, 0.6, 0.6, 0.8), 0.02),
     ])
+
+
+def reference_message(reference: Trajectory, pose_map: PoseMap, start: float, kind: str,
+                      frame: str = "odom"):
+    """The reference as nav_msgs/Path (poses only) or MultiDOFJointTrajectory (poses and
+    body twists), starting at ``start`` seconds on the clock."""
+    start_ns = int(round(start * 1e9))
+    poses = np.array([pose_map.pose(q) for q in reference.q])
+    if kind == "path":
+        return path_msg(frame, [start_ns + int(round(t * 1e9)) for t in reference.t], poses)
+    twists = np.array([pose_map.body_twist(q, v) for q, v in zip(reference.q, reference.v)])
+    return multidof_msg(frame, start_ns, reference.t, poses, twists)
 
 
 def diagnostic_status(name: str, hardware_id: str, level: bytes, message: str,

@@ -19,35 +19,17 @@ from nav_msgs.msg import Odometry, Path
 from rcl_interfaces.msg import SetParametersResult
 from rclpy.event_handler import SubscriptionEventCallbacks
 from rclpy.lifecycle import LifecycleNode, LifecycleState, TransitionCallbackReturn
-from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from trajectory_msgs.msg import JointTrajectory, MultiDOFJointTrajectory
 from visualization_msgs.msg import MarkerArray
 
+from nh_tracking.health import session_health
 from nh_tracking.receding_horizon import PlannerSettings, PlanOutcome
 from nh_tracking.ros import conversions as cv
-from nh_tracking.ros.parameters import ParameterSpec, declare_all, declare_model, plain
+from nh_tracking.ros.parameters import declare_all, declare_model
+from nh_tracking.ros.planner_interface import LATCHED, PARAMETERS, REFERENCE_QOS, SETTINGS
 from nh_tracking.ros.planner_services import PlannerServices
 from nh_tracking.ros.safety import SafeNode, guarded
-from nh_tracking.session import PlanResult, SessionSettings, TrackingSession
-
-LATCHED = QoSProfile(depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL,
-                     reliability=ReliabilityPolicy.RELIABLE)
-# A reference is a latched kind of message: a transient-local subscription picks up the one a
-# publisher still offers when this node (re)starts. Such a subscription cannot match a volatile
-# publisher (DDS durability: offered must be at least requested), so a volatile one listens too;
-# a sample both deliver is recognised by its publication stamp and sequence number.
-REFERENCE_QOS = (LATCHED, QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE))
-
-SETTINGS = ParameterSpec.of(PlannerSettings)
-SESSION = ParameterSpec.of(SessionSettings)
-NODE = (
-    plain("frame_id", "odom", "fixed frame of references and odometry", read_only=True),
-    plain("cmd_vel_stamped", False, "publish TwistStamped on cmd_vel", read_only=True),
-    plain("autostart", True, "configure and activate at start-up (false: wait for a "
-          "lifecycle manager)", read_only=True),
-)
-PARAMETERS = SETTINGS + SESSION + NODE
-
+from nh_tracking.session import PlanResult, TrackingSession
 
 class PlannerNode(SafeNode, LifecycleNode):
     """``nh_tracking_planner``: topics, services and parameters in the README's table."""
@@ -295,34 +277,13 @@ class PlannerNode(SafeNode, LifecycleNode):
         session = self.session
         if session is None:
             return
-        outcome, stale = session.outcome, session.stale
-        problem = self.take_problem()
-        st = session.planner.stats
-        level, message = DiagnosticStatus.OK, "planning"
-        if not session.active:
-            level, message = DiagnosticStatus.WARN, "inactive: not commanding"
-        elif session.planner.reference is None or session.state is None:
-            level, message = DiagnosticStatus.WARN, "waiting for reference and odometry"
-        elif stale:
-            level, message = DiagnosticStatus.STALE, "odometry is stale: not commanding"
-        elif outcome is not None and outcome.status != "optimal":
-            level, message = DiagnosticStatus.WARN, f"{outcome.status}: {outcome.message}"
-        if problem and level == DiagnosticStatus.OK:
-            level, message = DiagnosticStatus.WARN, problem
-        times = np.array(st.solve_times[-200:]) if st.solve_times else np.zeros(1)
-        values = {
-            "status": outcome.status if outcome else "none", "plans": st.plans,
-            "optimal": st.optimal, "shifted": st.shifted, "fallbacks": st.fallbacks,
-            "deadline_misses": st.deadline_misses, "rejected_inputs": self.rejected_inputs,
-            "errors": self.errors, "last_problem": problem,
-            "reconfiguring": session.reconfiguring,
-            "solve_time_last_ms": f"{(outcome.solve_time if outcome else 0.0) * 1e3:.2f}",
-            "solve_time_p50_ms": f"{np.percentile(times, 50) * 1e3:.2f}",
-            "solve_time_p99_ms": f"{np.percentile(times, 99) * 1e3:.2f}",
-        }
+        health = session_health(session, self.take_problem(), {
+            "rejected_inputs": self.rejected_inputs, "errors": self.errors})
+        level = {"ok": DiagnosticStatus.OK, "warn": DiagnosticStatus.WARN,
+                 "stale": DiagnosticStatus.STALE}[health.level]
         array = DiagnosticArray(status=[cv.diagnostic_status(
-            f"{self.get_name()}: planning", self.get_fully_qualified_name(), level, message,
-            values)])
+            f"{self.get_name()}: planning", self.get_fully_qualified_name(), level,
+            health.message, health.values)])
         array.header.stamp = cv.time_msg(self._now_ns())
         self.pub_diag.publish(array)
 

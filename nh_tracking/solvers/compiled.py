@@ -34,12 +34,7 @@ def compiled_library(solver: ca.Function) -> Path | None:
         LOG.warning("no C compiler found: using the interpreted NLP")
         return None
     with tempfile.TemporaryDirectory() as tmp:
-        cwd = os.getcwd()
-        try:
-            os.chdir(tmp)
-            source = Path(tmp) / solver.generate_dependencies("nlp.c")
-        finally:
-            os.chdir(cwd)
+        source = Path(_generate(solver, tmp))
         code = source.read_bytes()
         digest = hashlib.sha256(code + " ".join(FLAGS).encode()).hexdigest()[:24]
         library = cache_dir() / f"nlp-{digest}.so"
@@ -57,3 +52,13 @@ def compiled_library(solver: ca.Function) -> Path | None:
             return None
         partial.replace(library)  # atomic: concurrent builders never load a partial file
         return library
+
+
+def _generate(solver: ca.Function, directory: str) -> str:
+    """C source of the NLP's functions in ``directory``: what ``generate_dependencies`` writes,
+    without changing the process's working directory (it only writes to the current one)."""
+    generator = ca.CodeGenerator("nlp.c")
+    generator.add(solver.oracle())
+    for name in solver.get_function():
+        generator.add(solver.get_function(name))
+    return generator.generate(directory + os.sep)

@@ -16,16 +16,14 @@ import time
 from dataclasses import dataclass, field
 from typing import ClassVar
 
-import casadi as ca
 import numpy as np
 from scipy.integrate import solve_ivp
 from scipy.optimize import root
 
 from nh_tracking.numeric import NumericFunction
-from nh_tracking.problem import (Solution, TrackingProblem, terminal_cost, terminal_error,
-                                 tracking_lagrangian)
+from nh_tracking.problem import Solution, TrackingProblem, terminal_cost, terminal_error
 from nh_tracking.solvers.base import Guess, Method, Structure
-from nh_tracking.solvers.cache import PerSystemCache
+from nh_tracking.solvers.hamiltonian import pontryagin_flow
 from nh_tracking.solvers.variational import Variational
 from nh_tracking.system import NonholonomicSystem
 
@@ -40,51 +38,6 @@ class _Diverged(Exception):
 
 class _OutOfTime(Exception):
     pass
-
-
-@dataclass
-class PontryaginFlow:
-    """Compiled state-costate flow of one system, z = (q, v, lambda, mu), with the running
-    cost J as a quadrature and the sensitivity Phi = dz/dz(t_a) from the variational
-    equations Phi' = (d zdot/dz) Phi, so shooting gets exact Jacobians."""
-
-    system: NonholonomicSystem
-    rhs: ca.Function  # (z, q_r, v_r, eps) -> (zdot, running cost, d zdot/dz)
-    control: ca.Function  # (z, eps) -> u*
-    dim: int  # len(z) = 2 (n + k)
-
-
-_CACHE: PerSystemCache[PontryaginFlow] = PerSystemCache()
-
-
-def pontryagin_flow(system: NonholonomicSystem) -> PontryaginFlow:
-    return _CACHE.get(system, "flow", lambda: _build(system))
-
-
-def _build(system: NonholonomicSystem) -> PontryaginFlow:
-    n, k = system.n, system.k
-    q, v = ca.SX.sym("q", n), ca.SX.sym("v", k)
-    lam, mu = ca.SX.sym("lambda", n), ca.SX.sym("mu", k)
-    u = ca.SX.sym("u", k)
-    qr, vr, eps = ca.SX.sym("q_r", n), ca.SX.sym("v_r", k), ca.SX.sym("eps")
-    running = tracking_lagrangian(system)(q, v, u, qr, vr, eps)
-    qdot, vdot = system.dynamics_fn(q, v, u)
-    hamiltonian = running + lam.T @ qdot + mu.T @ vdot
-    # H is quadratic in u: one Newton step from u = 0 is its exact minimiser.
-    grad0 = ca.substitute(ca.gradient(hamiltonian, u), u, ca.DM.zeros(k))
-    u_star = -ca.solve(ca.hessian(hamiltonian, u)[0], grad0)
-    h_star = ca.substitute(hamiltonian, u, u_star)
-    x, p = ca.vertcat(q, v), ca.vertcat(lam, mu)
-    z = ca.vertcat(x, p)
-    dim = 2 * (n + k)
-    zdot = ca.vertcat(ca.gradient(h_star, p), -ca.gradient(h_star, x))
-    return PontryaginFlow(
-        system=system,
-        rhs=ca.Function("pmp_rhs", [z, qr, vr, eps],
-                        [zdot, ca.substitute(running, u, u_star), ca.jacobian(zdot, z)]),
-        control=ca.Function("pmp_control", [z, eps], [u_star]),
-        dim=dim,
-    )
 
 
 @dataclass

@@ -14,7 +14,7 @@ from nav_msgs.msg import Path as PathMsg
 from trajectory_msgs.msg import MultiDOFJointTrajectory
 
 from nh_tracking import models
-from nh_tracking.experiments import SLEIGH_REFERENCE_START, SLEIGH_START
+from nh_tracking.examples.experiments import SLEIGH_REFERENCE_START, SLEIGH_START
 from nh_tracking.metrics import cross_track_error, percentiles_ms
 from nh_tracking.poses import PoseMap
 from nh_tracking.ros import conversions as cv
@@ -33,18 +33,6 @@ def sleigh_reference(duration: float) -> Trajectory:
     """The uncontrolled sleigh from (0, 1/2, 0; 1/3, 1), sampled every 0.1 s."""
     t = np.linspace(0.0, duration, int(round(duration / 0.1)) + 1)
     return simulate(models.chaplygin_sleigh(), *SLEIGH_REFERENCE_START, t)
-
-
-def reference_message(reference: Trajectory, pose_map: PoseMap, start: float, kind: str,
-                      frame: str = "odom"):
-    """The reference as nav_msgs/Path (poses only) or MultiDOFJointTrajectory (poses and
-    body twists), starting at ``start`` seconds on the clock."""
-    start_ns = int(round(start * 1e9))
-    poses = np.array([pose_map.pose(q) for q in reference.q])
-    if kind == "path":
-        return cv.path_msg(frame, [start_ns + int(round(t * 1e9)) for t in reference.t], poses)
-    twists = np.array([pose_map.body_twist(q, v) for q, v in zip(reference.q, reference.v)])
-    return cv.multidof_msg(frame, start_ns, reference.t, poses, twists)
 
 
 class ClosedLoop:
@@ -84,7 +72,7 @@ class ClosedLoop:
         if not wait_until(lambda: pub.get_subscription_count() > 0, timeout):
             raise RuntimeError(f"planner did not subscribe to {pub.topic_name} in {timeout} s")
         received = self.planner.planner.reference
-        pub.publish(reference_message(reference, self.pose_map, START, kind))
+        pub.publish(cv.reference_message(reference, self.pose_map, START, kind))
         if not wait_until(lambda: self.planner.planner.reference is not received, timeout):
             raise RuntimeError(f"planner did not take the reference in {timeout} s")
 
@@ -112,7 +100,7 @@ class ClosedLoop:
 def run_demo(out: Path, duration: float = 15.0, reference_kind: str = "path",
              time_scale: float = 4.0, log: Callable[[str], None] = print) -> dict:
     """Close the loop for ``duration`` simulated seconds; write demo.png and demo.json."""
-    from nh_tracking.plotting import plot_closed_loop
+    from nh_tracking.examples.plotting import plot_closed_loop
 
     out.mkdir(parents=True, exist_ok=True)
     reference = sleigh_reference(duration + 10.0)

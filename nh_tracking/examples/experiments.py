@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 
 from nh_tracking import models
-from nh_tracking.plotting import plot_energy, plot_tracking
+from nh_tracking.examples.plotting import plot_energy, plot_tracking
 from nh_tracking.problem import TrackingProblem, running_cost_profile
 from nh_tracking.simulate import simulate
 from nh_tracking.solvers import solve

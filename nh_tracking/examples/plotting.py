@@ -1,16 +1,23 @@
-"""PNG figures of trajectories, for people to look at (matplotlib, no display needed)."""
+"""PNG figures of trajectories, for people to look at.
+
+Figures are matplotlib ``Figure`` objects drawn straight to PNG: no pyplot, so importing this
+module neither picks a GUI backend nor changes the one a user's program has chosen.
+"""
 from __future__ import annotations
 
 from pathlib import Path
 
-import matplotlib
+import numpy as np
+from matplotlib.figure import Figure
 
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
+from nh_tracking.system import NonholonomicSystem
+from nh_tracking.trajectory import Trajectory
 
-from nh_tracking.system import NonholonomicSystem  # noqa: E402
-from nh_tracking.trajectory import Trajectory  # noqa: E402
+
+def _subplots(*grid: int, figsize: tuple[float, float]):
+    """(figure, axes) like pyplot.subplots, without pyplot's global state."""
+    fig = Figure(figsize=figsize)
+    return fig, fig.subplots(*grid)
 
 
 def _finish(fig, path: Path, dpi: int = 100) -> Path:
@@ -20,14 +27,13 @@ def _finish(fig, path: Path, dpi: int = 100) -> Path:
             ax.grid(alpha=0.3)
     fig.tight_layout()
     fig.savefig(path, dpi=dpi)
-    plt.close(fig)
     return path
 
 
 def plot_simulation(system: NonholonomicSystem, traj: Trajectory, path: Path) -> Path:
     """Path in the plane of the first two coordinates, quasi-velocities, and energy drift."""
     energy = np.array([system.energy(q, v) for q, v in zip(traj.q, traj.v)])
-    fig, axes = plt.subplots(1, 3, figsize=(15, 4.5))
+    fig, axes = _subplots(1, 3, figsize=(15, 4.5))
     ax = axes[0]
     ax.plot(traj.q[:, 0], traj.q[:, 1], lw=2)
     ax.plot(*traj.q[0, :2], "go", label="start")
@@ -52,7 +58,7 @@ def plot_tracking(problem, solution, running: np.ndarray, path: Path, title: str
     t_fine = np.linspace(problem.grid[0], problem.grid[-1], 400)
     q_ref, _ = problem.reference_at(t_fine)
     names = system.coordinates
-    fig = plt.figure(figsize=(15, 9))
+    fig = Figure(figsize=(15, 9))
     ax = fig.add_subplot(2, 2, 1)
     ax.plot(q_ref[:, 0], q_ref[:, 1], "k--", label="reference")
     ax.plot(solution.q[:, 0], solution.q[:, 1], "o-", ms=3, label=solution.method)
@@ -87,7 +93,7 @@ def plot_energy(system: NonholonomicSystem, solution, fine: Trajectory, path: Pa
     of the same controls (the paper's Fig. 8 comparison)."""
     e_plan = [system.energy(q, v) for q, v in zip(solution.q, solution.v)]
     e_fine = [system.energy(q, v) for q, v in zip(fine.q, fine.v)]
-    fig, ax = plt.subplots(figsize=(8, 4.5))
+    fig, ax = _subplots(figsize=(8, 4.5))
     ax.plot(fine.t, e_fine, "b-", label="fine RK45 integration of the plan's controls")
     ax.plot(solution.t, e_plan, "ro", ms=4, label=f"{solution.method} plan ({len(solution.t)} knots)")
     ax.set(xlabel="t [s]", ylabel="energy", title="controlled energy")
@@ -99,7 +105,7 @@ def plot_closed_loop(reference: Trajectory, t: np.ndarray, xy: np.ndarray, error
                      solve_t: np.ndarray, solve_s: np.ndarray, path: Path) -> Path:
     """The closed loop: reference vs driven path, cross-track error, and solve times (all
     times from the start of the run)."""
-    fig, axes = plt.subplots(1, 3, figsize=(16, 4.8))
+    fig, axes = _subplots(1, 3, figsize=(16, 4.8))
     ax = axes[0]
     shown = reference.t <= t[-1] + 1.0
     ax.plot(reference.q[shown, 0], reference.q[shown, 1], "k--", label="reference")
@@ -118,7 +124,7 @@ def plot_closed_loop(reference: Trajectory, t: np.ndarray, xy: np.ndarray, error
 
 def plot_bench(results: dict, path: Path) -> Path:
     """Cold solve vs do-mpc, warm replanning solve times, scaling in N, ROS latency split."""
-    fig, axes = plt.subplots(1, 4, figsize=(19, 4.5))
+    fig, axes = _subplots(1, 4, figsize=(19, 4.5))
     cold = results.get("cold_solve", {})
     names = [k for k in ("variational_fatrop_compiled", "variational_fatrop",
                          "variational_ipopt", "do_mpc") if cold.get(k)]

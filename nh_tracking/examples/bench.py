@@ -16,7 +16,7 @@ import casadi as ca
 import numpy as np
 
 from nh_tracking import models
-from nh_tracking.experiments import SLEIGH_REFERENCE_START, SLEIGH_START, particle_problem, sleigh_problem
+from nh_tracking.examples.experiments import SLEIGH_REFERENCE_START, SLEIGH_START, particle_problem, sleigh_problem
 from nh_tracking.metrics import cross_track_error, percentiles_ms
 from nh_tracking.problem import TrackingProblem
 from nh_tracking.receding_horizon import PlannerSettings, RecedingHorizonPlanner
@@ -73,8 +73,15 @@ def _dompc_cold(problem: TrackingProblem) -> tuple[float, float, float]:
     with warnings.catch_warnings():  # do-mpc warns about its optional features on import
         warnings.simplefilter("ignore")
         import do_mpc
+    mode = ca.GlobalOptions.getNumpyMode()
     ca.GlobalOptions.setNumpyMode(-1)  # do-mpc relies on casadi's legacy numpy behaviour
+    try:
+        return _dompc_solve(do_mpc, problem)
+    finally:
+        ca.GlobalOptions.setNumpyMode(mode)  # the rest of the process keeps its own
 
+
+def _dompc_solve(do_mpc, problem: TrackingProblem) -> tuple[float, float, float]:
     system, n, k = problem.system, problem.system.n, problem.system.k
     start = time.perf_counter()
     model = do_mpc.model.Model("continuous", "SX")
@@ -190,7 +197,7 @@ def pmp_shooting(log: Callable[[str], None]) -> dict:
 
 def run_bench(out: Path, log: Callable[[str], None] = print, ros: bool = True) -> dict:
     """All sections, in one run; writes bench.json and bench.png."""
-    from nh_tracking.plotting import plot_bench
+    from nh_tracking.examples.plotting import plot_bench
 
     out.mkdir(parents=True, exist_ok=True)
     sections: list[tuple[str, Callable[[], dict]]] = [
@@ -200,7 +207,7 @@ def run_bench(out: Path, log: Callable[[str], None] = print, ros: bool = True) -
         ("pmp_shooting", lambda: pmp_shooting(log)),
     ]
     if ros:
-        from nh_tracking.ros.latency import ros_latency
+        from nh_tracking.examples.latency import ros_latency
         sections.append(("ros_latency", lambda: ros_latency(log)))
     results: dict[str, dict] = {}
     for i, (name, run) in enumerate(sections, 1):

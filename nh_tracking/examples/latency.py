@@ -9,7 +9,7 @@ from nav_msgs.msg import Odometry
 
 from nh_tracking.metrics import percentiles_ms
 from nh_tracking.ros import conversions as cv
-from nh_tracking.ros.demo import ClosedLoop, sleigh_reference
+from nh_tracking.examples.demo import ClosedLoop, sleigh_reference
 from nh_tracking.ros.graph import InProcessGraph, wait_until
 from nh_tracking.ros.runner import responsive_threads
 

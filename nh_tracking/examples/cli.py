@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 
 from nh_tracking import models
-from nh_tracking.plotting import plot_simulation
+from nh_tracking.examples.plotting import plot_simulation
 from nh_tracking.simulate import simulate
 
 
@@ -58,7 +58,7 @@ def cmd_simulate(args: argparse.Namespace) -> int:
 
 def cmd_reproduce(args: argparse.Namespace) -> int:
     """Re-run the paper's experiments (particle cases 1-2, the sleigh literal and wrapped)."""
-    from nh_tracking.experiments import reproduce
+    from nh_tracking.examples.experiments import reproduce
 
     out = Path(args.out)
     metrics = reproduce(out, log=lambda line: print(line, flush=True))
@@ -72,7 +72,7 @@ def cmd_reproduce(args: argparse.Namespace) -> int:
 
 def cmd_demo(args: argparse.Namespace) -> int:
     """Closed loop through ROS: planner + simulator (10 % heavier) on the paper's sleigh."""
-    from nh_tracking.ros.demo import run_demo
+    from nh_tracking.examples.demo import run_demo
 
     summary = run_demo(Path(args.out), duration=args.duration, reference_kind=args.reference,
                        time_scale=args.time_scale, log=lambda line: print(line, flush=True))
@@ -81,7 +81,7 @@ def cmd_demo(args: argparse.Namespace) -> int:
 
 def cmd_bench(args: argparse.Namespace) -> int:
     """Solve times side by side with do-mpc; warm replanning; scaling; PMP; ROS latency."""
-    from nh_tracking.bench import run_bench
+    from nh_tracking.examples.bench import run_bench
 
     run_bench(Path(args.out), log=lambda line: print(line, flush=True), ros=not args.no_ros)
     print(f"wrote {Path(args.out) / 'bench.json'} and {Path(args.out) / 'bench.png'}")

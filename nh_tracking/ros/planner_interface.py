@@ -1,0 +1,27 @@
+"""The planner's contract with the ROS graph beyond topic names: the QoS it offers and
+expects, and its parameters (declared from the settings dataclasses, plus the ROS-only ones)."""
+from __future__ import annotations
+
+from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+
+from nh_tracking.receding_horizon import PlannerSettings
+from nh_tracking.ros.parameters import ParameterSpec, plain
+from nh_tracking.session import SessionSettings
+
+LATCHED = QoSProfile(depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL,
+                     reliability=ReliabilityPolicy.RELIABLE)
+# A reference is a latched kind of message: a transient-local subscription picks up the one a
+# publisher still offers when this node (re)starts. Such a subscription cannot match a volatile
+# publisher (DDS durability: offered must be at least requested), so a volatile one listens too;
+# a sample both deliver is recognised by its publication stamp and sequence number.
+REFERENCE_QOS = (LATCHED, QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE))
+
+SETTINGS = ParameterSpec.of(PlannerSettings)
+SESSION = ParameterSpec.of(SessionSettings)
+NODE = (
+    plain("frame_id", "odom", "fixed frame of references and odometry", read_only=True),
+    plain("cmd_vel_stamped", False, "publish TwistStamped on cmd_vel", read_only=True),
+    plain("autostart", True, "configure and activate at start-up (false: wait for a "
+          "lifecycle manager)", read_only=True),
+)
+PARAMETERS = SETTINGS + SESSION + NODE

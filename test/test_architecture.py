@@ -1,0 +1,80 @@
+"""The package's shape: layers that only import downwards, small modules, the version in one
+place, and new robots, methods and interfaces each as one new file plus one registry line."""
+import ast
+import re
+from pathlib import Path
+
+import nh_tracking
+
+ROOT = Path(__file__).resolve().parents[1]
+PACKAGE = ROOT / "nh_tracking"
+LAYERS = [  # lowest first; a module may import from its own layer and the ones below
+    {"geometry", "system", "models", "simulate", "trajectory", "problem", "numeric", "metrics",
+     "settings"},
+    {"solvers"},
+    {"receding_horizon", "fallback", "poses", "session", "health"},
+    {"ros"},
+    {"examples"},
+]
+MAX_LINES = 300
+ROS = re.compile(r"^(rclpy|rcl_interfaces|\w+_msgs|std_srvs|builtin_interfaces|launch)\b")
+
+
+def _layer(module: str) -> int:
+    first = module.split(".")[1]
+    return next(i for i, names in enumerate(LAYERS) if first in names)
+
+
+def _modules():
+    for path in sorted(PACKAGE.rglob("*.py")):
+        name = ".".join(path.relative_to(ROOT).with_suffix("").parts)
+        if name != "nh_tracking.__init__":  # the top-level API re-exports lower layers
+            yield name.removesuffix(".__init__"), path
+
+
+def _imports(path: Path) -> list[str]:
+    found = []
+    for node in ast.walk(ast.parse(path.read_text())):  # function-level imports count too
+        if isinstance(node, ast.Import):
+            found += [a.name for a in node.names]
+        elif isinstance(node, ast.ImportFrom) and node.module and node.level == 0:
+            found.append(node.module)
+    return found
+
+
+def test_no_module_imports_from_a_layer_above_it():
+    upward = []
+    for module, path in _modules():
+        for imported in _imports(path):
+            if imported.startswith("nh_tracking.") and _layer(imported) > _layer(module):
+                upward.append(f"{module} imports {imported}")
+    assert upward == []
+
+
+def test_only_the_ros_layer_and_examples_import_ros():
+    offenders = [f"{module} imports {imported}" for module, path in _modules()
+                 if _layer(module) < _layer("nh_tracking.ros")
+                 for imported in _imports(path) if ROS.match(imported)]
+    assert offenders == []
+
+
+def test_no_module_is_long():
+    long = {m: n for m, p in _modules() if (n := len(p.read_text().splitlines())) > MAX_LINES}
+    assert long == {}
+
+
+def test_the_version_has_one_source():
+    xml = re.search(r"<version>([^<]+)</version>", (ROOT / "package.xml").read_text()).group(1)
+    assert nh_tracking.__version__ == xml
+    assert re.search(rf"^{re.escape(xml)} \(", (ROOT / "CHANGELOG.rst").read_text(), re.M)
+
+
+def test_registries_are_one_line_each():
+    """A model, a method: a module of its own and one entry in the registry (this is what a
+    user's pull request for a new one would touch)."""
+    from nh_tracking import models, solvers
+
+    for spec in models.MODELS.values():
+        assert spec.factory.__module__ == f"nh_tracking.models.{spec.name}"
+    for name, method in solvers.METHODS.items():
+        assert method.__module__.startswith("nh_tracking.solvers.") and method.name == name
