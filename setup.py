@@ -1,8 +1,24 @@
-"""ament_python package setup: installs the library, the ament index marker, the executables,
-the parameter file and the launch file."""
-import re
+# Copyright 2026 nh_tracking maintainers
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+
+"""ament_python package setup: installs the library, the ament index marker, the executables.
+
+The parameter file and the launch file.
+"""
 from glob import glob
 from pathlib import Path
+import re
 
 from setuptools import find_packages, setup
 

@@ -1,3 +1,17 @@
+# Copyright 2026 nh_tracking maintainers
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+
 """Planner and simulator for one robot: ``ros2 launch nh_tracking tracking.launch.py``.
 
 Arguments: ``params_file`` (default: the installed config/sleigh.yaml), ``namespace`` (one
@@ -12,27 +26,27 @@ from launch_ros.substitutions import FindPackageShare
 
 
 def generate_launch_description() -> LaunchDescription:
-    params_file = LaunchConfiguration("params_file")
-    namespace = LaunchConfiguration("namespace")
-    use_sim_time = LaunchConfiguration("use_sim_time")
-    autostart = LaunchConfiguration("autostart")
+    params_file = LaunchConfiguration('params_file')
+    namespace = LaunchConfiguration('namespace')
+    use_sim_time = LaunchConfiguration('use_sim_time')
+    autostart = LaunchConfiguration('autostart')
     return LaunchDescription([
         DeclareLaunchArgument(
-            "params_file",
+            'params_file',
             default_value=PathJoinSubstitution(
-                [FindPackageShare("nh_tracking"), "config", "sleigh.yaml"]),
-            description="parameter file for both nodes (standard ros__parameters layout)"),
-        DeclareLaunchArgument("namespace", default_value="",
+                [FindPackageShare('nh_tracking'), 'config', 'sleigh.yaml']),
+            description='parameter file for both nodes (standard ros__parameters layout)'),
+        DeclareLaunchArgument('namespace', default_value='',
                               description="namespace of this robot's nodes and topics"),
-        DeclareLaunchArgument("use_sim_time", default_value="false",
-                              description="follow /clock"),
-        DeclareLaunchArgument("autostart", default_value="true",
-                              description="planner configures and activates itself"),
-        Node(package="nh_tracking", executable="planner", name="nh_tracking_planner",
-             namespace=namespace, output="screen",
-             parameters=[params_file, {"use_sim_time": use_sim_time,
-                                       "autostart": autostart}]),
-        Node(package="nh_tracking", executable="sim", name="nh_tracking_sim",
-             namespace=namespace, output="screen",
-             parameters=[params_file, {"use_sim_time": use_sim_time}]),
+        DeclareLaunchArgument('use_sim_time', default_value='false',
+                              description='follow /clock'),
+        DeclareLaunchArgument('autostart', default_value='true',
+                              description='planner configures and activates itself'),
+        Node(package='nh_tracking', executable='planner', name='nh_tracking_planner',
+             namespace=namespace, output='screen',
+             parameters=[params_file, {'use_sim_time': use_sim_time,
+                                       'autostart': autostart}]),
+        Node(package='nh_tracking', executable='sim', name='nh_tracking_sim',
+             namespace=namespace, output='screen',
+             parameters=[params_file, {'use_sim_time': use_sim_time}]),
     ])

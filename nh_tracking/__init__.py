@@ -1,3 +1,17 @@
+# Copyright 2026 nh_tracking maintainers
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+
 """nh_tracking: optimal trajectory tracking for nonholonomic mechanical systems.
 
 Layers, each usable without the ones above it: the geometric core (``NonholonomicSystem``,
@@ -14,9 +28,9 @@ from nh_tracking.solvers import solve
 from nh_tracking.system import NonholonomicSystem
 from nh_tracking.trajectory import Trajectory
 
-__all__ = ["NonholonomicSystem", "Solution", "TrackingProblem", "Trajectory", "models",
-           "simulate", "solve"]
+__all__ = ['NonholonomicSystem', 'Solution', 'TrackingProblem', 'Trajectory', 'models',
+           'simulate', 'solve']
 try:
-    __version__ = version("nh_tracking")  # one source: package.xml, read by setup.py
+    __version__ = version('nh_tracking')  # one source: package.xml, read by setup.py
 except PackageNotFoundError:  # running from a source tree that is not installed
-    __version__ = "unknown"
+    __version__ = 'unknown'

@@ -1,11 +1,26 @@
+# Copyright 2026 nh_tracking maintainers
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+
 """A classical tracking law for when the optimiser cannot deliver: Kanayama on quasi-velocities.
 
 For systems with a heading (a yaw axis), the desired forward speed and yaw rate come from
 Kanayama's law on the body-frame pose error (Kanayama et al., ICRA 1990); for others, from
 the reference velocity plus the pose error projected onto D (which corrects only the part of
-the error lying in D: a fallback that keeps such a system near the reference, no more). Either desired motion is turned
-into quasi-velocities v_d by the pose map, and a computed-torque loop on the quasi-velocities,
-u = -f(q, v, 0) + k_v (v_d - v), makes v follow it.
+the error lying in D: a fallback that keeps such a system near the reference, no more).
+Either desired motion is turned into quasi-velocities v_d by the pose map, and a
+computed-torque loop on the quasi-velocities, u = -f(q, v, 0) + k_v (v_d - v), makes v
+follow it.
 """
 from __future__ import annotations
 
@@ -14,7 +29,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from nh_tracking.poses import PoseMap, wrap_angle
-from nh_tracking.problem import Solution, TrackingProblem, terminal_error
+from nh_tracking.problem import Solution, terminal_error, TrackingProblem
 from nh_tracking.simulate import simulate
 
 
@@ -38,7 +53,7 @@ class TrackingLaw:
         pm, g = self.pose_map, self.gains
         world_r = pm.system.rho(q_r) @ v_r
         rates_r = np.array([world_r[pm.rows[a]] if a in pm.rows else 0.0
-                            for a in ("x", "y", "z", "yaw")])
+                            for a in ('x', 'y', 'z', 'yaw')])
         if not pm.has_yaw:
             error = pm.pose(q_r) - pm.pose(q)
             return pm.velocity_from_world(q, rates_r + g.k_x * error)
@@ -59,26 +74,29 @@ class TrackingLaw:
 
 
 def fallback_plan(problem: TrackingProblem, gains: KanayamaGains = KanayamaGains()) -> Solution:
-    """The tracking law rolled out on the model over the horizon, as a plan."""
+    """Return the tracking law rolled out on the model over the horizon, as a plan."""
     law = TrackingLaw(problem, gains)
     traj = simulate(problem.system, problem.q0, problem.v0, problem.grid, law,
                     rtol=1e-6, atol=1e-8)
     return Solution(
-        t=traj.t, q=traj.q, v=traj.v, u=traj.u, cost=float("nan"), success=False,
+        t=traj.t, q=traj.q, v=traj.v, u=traj.u, cost=float('nan'), success=False,
         iterations=0, solve_time=0.0,
-        terminal_error=terminal_error(problem, traj.q[-1], traj.v[-1]), method="fallback",
-        message="not optimal: the Kanayama tracking law rolled out", route="kanayama",
+        terminal_error=terminal_error(problem, traj.q[-1], traj.v[-1]), method='fallback',
+        message='not optimal: the Kanayama tracking law rolled out', route='kanayama',
     )
 
 
 def stop_plan(problem: TrackingProblem, reason: str) -> Solution:
-    """The last resort when even the tracking law cannot be rolled out (e.g. the dynamics give
-    NaN here): hold the current configuration at rest. Always finite for a finite state."""
+    """Hold the current configuration at rest: the last resort.
+
+    For when even the tracking law cannot be rolled out (e.g. the dynamics give NaN here).
+    Always finite for a finite state.
+    """
     steps, k = problem.steps, problem.system.k
     q = np.tile(problem.q0, (steps + 1, 1))
     return Solution(
         t=problem.grid, q=q, v=np.zeros((steps + 1, k)), u=np.zeros((steps, k)),
-        cost=float("nan"), success=False, iterations=0, solve_time=0.0,
-        terminal_error=terminal_error(problem, q[-1], np.zeros(k)), method="fallback",
-        message=f"not optimal: holding still ({reason})", route="stop",
+        cost=float('nan'), success=False, iterations=0, solve_time=0.0,
+        terminal_error=terminal_error(problem, q[-1], np.zeros(k)), method='fallback',
+        message=f'not optimal: holding still ({reason})', route='stop',
     )

@@ -1,3 +1,17 @@
+# Copyright 2026 nh_tracking maintainers
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+
 """Symbolic geometry of a nonholonomic system (G, V, D) in an adapted basis of D.
 
 Everything here takes CasADi SX expressions in the coordinates ``q`` and returns SX expressions,
@@ -16,7 +30,10 @@ import numpy as np
 
 
 def directional_derivative(expr: ca.SX, q: ca.SX, direction: ca.SX) -> ca.SX:
-    """d expr/dq . direction, for a matrix-valued ``expr`` (shape kept)."""
+    """D expr/dq .
+
+    direction, for a matrix-valued ``expr`` (shape kept).
+    """
     flat = ca.reshape(expr, -1, 1)
     return ca.reshape(ca.jtimes(flat, q, direction), expr.shape[0], expr.shape[1])
 
@@ -127,7 +144,7 @@ def select_best_conditioned(
     sample, so a field that vanishes somewhere scores low. Returns the chosen indices and their
     worst smallest Gram eigenvalue: near 0 means the fields become dependent somewhere sampled.
     """
-    scale = np.sqrt(np.einsum("sii->i", gram) / gram.shape[0])
+    scale = np.sqrt(np.einsum('sii->i', gram) / gram.shape[0])
     scale[scale == 0] = np.inf
     scaled = gram / scale[None, :, None] / scale[None, None, :]
 

@@ -1,5 +1,22 @@
-"""How a tracking session is doing, in words and figures: what a diagnostics front end (the
-ROS planner's /diagnostics) reports. ROS-free, so the figures are computed once, here."""
+# Copyright 2026 nh_tracking maintainers
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+
+"""How a tracking session is doing, in words and figures.
+
+What a diagnostics front end (the ROS planner's /diagnostics) reports. ROS-free, so the figures are
+computed once, here.
+"""
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -20,28 +37,31 @@ class Health:
 
 
 def session_health(session: TrackingSession, problem: str, counts: dict[str, int]) -> Health:
-    """The session's state; ``problem`` is the last input or callback problem ('' if none),
-    ``counts`` the front end's own counters (rejected inputs, errors)."""
+    """Return the session's state.
+
+    ``problem`` is the last input or callback problem ('' if none), ``counts`` the front end's own
+    counters (rejected inputs, errors).
+    """
     outcome, stats = session.outcome, session.planner.stats
-    level, message = "ok", "planning"
+    level, message = 'ok', 'planning'
     if not session.active:
-        level, message = "warn", "inactive: not commanding"
+        level, message = 'warn', 'inactive: not commanding'
     elif session.planner.reference is None or session.state is None:
-        level, message = "warn", "waiting for reference and odometry"
+        level, message = 'warn', 'waiting for reference and odometry'
     elif session.stale:
-        level, message = "stale", "odometry is stale: not commanding"
+        level, message = 'stale', 'odometry is stale: not commanding'
     elif outcome is not None and outcome.status is not PlanStatus.OPTIMAL:
-        level, message = "warn", f"{outcome.status}: {outcome.message}"
-    if problem and level == "ok":
-        level, message = "warn", problem
+        level, message = 'warn', f'{outcome.status}: {outcome.message}'
+    if problem and level == 'ok':
+        level, message = 'warn', problem
     times = np.array(stats.solve_times)[-RECENT:] if stats.solve_times else np.zeros(1)
     values: dict[str, object] = {
-        "status": str(outcome.status) if outcome else "none", "plans": stats.plans,
-        "optimal": stats.optimal, "shifted": stats.shifted, "fallbacks": stats.fallbacks,
-        "deadline_misses": stats.deadline_misses, **counts, "last_problem": problem,
-        "reconfiguring": session.reconfiguring,
-        "solve_time_last_ms": f"{(outcome.solve_time if outcome else 0.0) * 1e3:.2f}",
-        "solve_time_p50_ms": f"{np.percentile(times, 50) * 1e3:.2f}",
-        "solve_time_p99_ms": f"{np.percentile(times, 99) * 1e3:.2f}",
+        'status': str(outcome.status) if outcome else 'none', 'plans': stats.plans,
+        'optimal': stats.optimal, 'shifted': stats.shifted, 'fallbacks': stats.fallbacks,
+        'deadline_misses': stats.deadline_misses, **counts, 'last_problem': problem,
+        'reconfiguring': session.reconfiguring,
+        'solve_time_last_ms': f'{(outcome.solve_time if outcome else 0.0) * 1e3:.2f}',
+        'solve_time_p50_ms': f'{np.percentile(times, 50) * 1e3:.2f}',
+        'solve_time_p99_ms': f'{np.percentile(times, 99) * 1e3:.2f}',
     }
     return Health(level, message, values)

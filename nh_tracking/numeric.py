@@ -1,3 +1,17 @@
+# Copyright 2026 nh_tracking maintainers
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+
 """Fast numeric calls of CasADi Functions from Python hot loops (ODE right-hand sides)."""
 from __future__ import annotations
 
@@ -16,19 +30,19 @@ class NumericFunction:
     def __init__(self, fn: ca.Function) -> None:
         inputs = [ca.SX.sym(fn.name_in(i), fn.sparsity_in(i)) for i in range(fn.n_in())]
         outputs = [ca.densify(o) for o in fn.call(inputs)]
-        dense = ca.Function(fn.name() + "_dense", inputs, outputs)
+        dense = ca.Function(fn.name() + '_dense', inputs, outputs)
         self._buffer, self._trigger = dense.buffer()
         self._args = [np.zeros(dense.nnz_in(i)) for i in range(dense.n_in())]
         self._res = [np.zeros(dense.nnz_out(i)) for i in range(dense.n_out())]
         self._shapes = [dense.size_out(i) for i in range(dense.n_out())]
         for i, a in enumerate(self._args):
-            self._buffer.set_arg(i, memoryview(a))
+            self._buffer.set_arg(i, memoryview(a))  # type: ignore[call-arg, arg-type]
         for i, r in enumerate(self._res):
-            self._buffer.set_res(i, memoryview(r))
+            self._buffer.set_res(i, memoryview(r))  # type: ignore[call-arg, arg-type]
 
     def __call__(self, *args: np.ndarray | float) -> list[np.ndarray]:
         for buf, value in zip(self._args, args):
             buf[:] = np.ravel(value)
         self._trigger()
-        return [r.reshape(shape, order="F") if shape[1] > 1 else r.copy()
+        return [r.reshape(shape, order='F') if shape[1] > 1 else r.copy()
                 for r, shape in zip(self._res, self._shapes)]

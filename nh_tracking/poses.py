@@ -1,3 +1,17 @@
+# Copyright 2026 nh_tracking maintainers
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+
 """Where a configuration sits in the world of ROS messages: poses, body twists, references.
 
 A ROS pose gives (x, y, z, yaw); a system's coordinates map onto some of these axes (the
@@ -14,7 +28,7 @@ import numpy as np
 from scipy.integrate import cumulative_trapezoid
 from scipy.interpolate import CubicSpline
 
-from nh_tracking.system import POSE_AXES, NonholonomicSystem
+from nh_tracking.system import NonholonomicSystem, POSE_AXES
 from nh_tracking.trajectory import Trajectory
 
 AXES = POSE_AXES
@@ -37,11 +51,11 @@ class PoseMap:
         mapping = dict(axes) if axes is not None else system.pose
         if mapping is None:
             raise ValueError(f"{system.name}: which coordinates are the pose's x, y, yaw is not "
-                             "known; give pose={...} to NonholonomicSystem.from_constraints "
-                             "(or axes to PoseMap)")
+                             'known; give pose={...} to NonholonomicSystem.from_constraints '
+                             '(or axes to PoseMap)')
         if not set(mapping.values()) <= set(AXES) or len(set(mapping.values())) != len(mapping):
-            raise ValueError(f"pose axes must be distinct members of {AXES}, got {mapping}")
-        if "x" not in mapping.values():
+            raise ValueError(f'pose axes must be distinct members of {AXES}, got {mapping}')
+        if 'x' not in mapping.values():
             raise ValueError(f"{system.name}: no coordinate maps onto the pose's x axis")
         self.system = system
         self.rows = {axis: system.coordinates.index(c) for c, axis in mapping.items()}
@@ -50,7 +64,7 @@ class PoseMap:
 
     @property
     def has_yaw(self) -> bool:
-        return "yaw" in self.rows
+        return 'yaw' in self.rows
 
     def pose(self, q: np.ndarray) -> np.ndarray:
         """(x, y, z, yaw) of a configuration; absent axes are 0, yaw in (-pi, pi]."""
@@ -59,7 +73,7 @@ class PoseMap:
         return out
 
     def configuration(self, pose: np.ndarray, hidden: np.ndarray | None = None) -> np.ndarray:
-        """q from a pose; hidden coordinates from ``hidden`` (default 0)."""
+        """Q from a pose; hidden coordinates from ``hidden`` (default 0)."""
         q = np.zeros(self.system.n)
         if hidden is not None:
             q[self.hidden] = np.asarray(hidden, dtype=float)[self.hidden]
@@ -70,8 +84,11 @@ class PoseMap:
 
     def dead_reckon(self, pose: np.ndarray, v: np.ndarray, previous_q: np.ndarray | None,
                     previous_v: np.ndarray | None, dt: float) -> np.ndarray:
-        """q from a measured pose, hidden coordinates carried forward from the previous
-        estimate by integrating their rates (trapezoid rule) over dt."""
+        """Q from a measured pose.
+
+        Hidden coordinates carried forward from the previous estimate by integrating their rates
+        (trapezoid rule) over dt.
+        """
         if previous_q is None or not self.hidden:
             return self.configuration(pose, previous_q)
         q = self.configuration(pose, previous_q)
@@ -85,14 +102,14 @@ class PoseMap:
         return np.array([world[AXES.index(a)] for a in AXES if a in self.rows])
 
     def velocity(self, q: np.ndarray, body_twist: np.ndarray) -> np.ndarray:
-        """v from a body-frame twist (vx, vy, vz, wz), projected onto D (least squares)."""
-        yaw = q[self.rows["yaw"]] if self.has_yaw else 0.0
+        """V from a body-frame twist (vx, vy, vz, wz), projected onto D (least squares)."""
+        yaw = q[self.rows['yaw']] if self.has_yaw else 0.0
         c, s = np.cos(yaw), np.sin(yaw)
         vx, vy, vz, wz = body_twist
         return self.velocity_from_world(q, np.array([c * vx - s * vy, s * vx + c * vy, vz, wz]))
 
     def velocity_from_world(self, q: np.ndarray, world: np.ndarray) -> np.ndarray:
-        """v from world-frame rates (xdot, ydot, zdot, yaw rate), projected onto D."""
+        """V from world-frame rates (xdot, ydot, zdot, yaw rate), projected onto D."""
         rho = self.system.rho(q)[self.pose_rows]
         return np.linalg.lstsq(rho, self._pose_rate(q, world), rcond=None)[0]
 
@@ -100,7 +117,7 @@ class PoseMap:
         """Body-frame twist (vx, vy, vz, wz) of the motion (q, v)."""
         qdot = self.system.rho(q) @ v
         world = np.array([qdot[self.rows[a]] if a in self.rows else 0.0 for a in AXES])
-        yaw = q[self.rows["yaw"]] if self.has_yaw else 0.0
+        yaw = q[self.rows['yaw']] if self.has_yaw else 0.0
         c, s = np.cos(yaw), np.sin(yaw)
         return np.array([c * world[0] + s * world[1], -s * world[0] + c * world[1],
                          world[2], world[3]])
@@ -108,7 +125,9 @@ class PoseMap:
     def reference(self, times: np.ndarray, poses: np.ndarray,
                   body_twists: np.ndarray | None = None,
                   hidden0: np.ndarray | None = None) -> Trajectory:
-        """A reference Trajectory from timed poses (N, 4) and optionally body twists (N, 4).
+        """Return a reference Trajectory from timed poses (N, 4) and optionally body twists (N.
+
+        4).
 
         Without twists, velocities are the derivatives of a C2 spline through the poses (yaw
         unwrapped first). Either way they are projected onto D; hidden coordinates are

@@ -1,3 +1,17 @@
+# Copyright 2026 nh_tracking maintainers
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+
 """The optimal tracking problem (paper §3) and what a solver returns.
 
 Cost: 1/2 int (|q - q_r|^2 + |v - v_r|^2 + eps |u|^2) dt, plus omega/2 |q(T) - q_r(T)|^2 when
@@ -5,9 +19,9 @@ Cost: 1/2 int (|q - q_r|^2 + |v - v_r|^2 + eps |u|^2) dt, plus omega/2 |q(T) - q
 """
 from __future__ import annotations
 
-import functools
 from collections.abc import Callable
 from dataclasses import dataclass, field
+import functools
 from typing import Literal
 
 import casadi as ca
@@ -17,7 +31,7 @@ from nh_tracking.system import NonholonomicSystem
 from nh_tracking.trajectory import Trajectory
 
 ReferenceFunction = Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]]
-Terminal = Literal["equality", "cost"]
+Terminal = Literal['equality', 'cost']
 
 
 @dataclass
@@ -39,7 +53,7 @@ class TrackingProblem:
     horizon: float
     steps: int
     epsilon: float = 1.0
-    terminal: Terminal = "equality"
+    terminal: Terminal = 'equality'
     omega: float = 1.0
     wrap_angles: bool = True
     t0: float | None = None
@@ -50,17 +64,17 @@ class TrackingProblem:
         self.q0 = sys.as_configuration(self.q0).copy()
         self.v0 = sys.as_velocity(self.v0).copy()
         if not (np.all(np.isfinite(self.q0)) and np.all(np.isfinite(self.v0))):
-            raise ValueError("initial state (q0, v0) must be finite")
+            raise ValueError('initial state (q0, v0) must be finite')
         if not (np.isfinite(self.horizon) and self.horizon > 0):
-            raise ValueError(f"horizon must be a finite number > 0, got {self.horizon}")
+            raise ValueError(f'horizon must be a finite number > 0, got {self.horizon}')
         if int(self.steps) != self.steps or self.steps < 2:
-            raise ValueError(f"steps must be an integer >= 2, got {self.steps}")
+            raise ValueError(f'steps must be an integer >= 2, got {self.steps}')
         self.steps = int(self.steps)
-        for name in ("epsilon", "omega"):
+        for name in ('epsilon', 'omega'):
             value = getattr(self, name)
             if not (np.isfinite(value) and value > 0):
-                raise ValueError(f"{name} must be a finite number > 0, got {value}")
-        if self.terminal not in ("equality", "cost"):
+                raise ValueError(f'{name} must be a finite number > 0, got {value}')
+        if self.terminal not in ('equality', 'cost'):
             raise ValueError(f"terminal must be 'equality' or 'cost', got {self.terminal!r}")
         if self.t0 is None:
             self.t0 = float(self.reference.t[0]) if isinstance(self.reference, Trajectory) else 0.0
@@ -76,19 +90,26 @@ class TrackingProblem:
         return self.horizon / self.steps
 
     @property
+    def start(self) -> float:
+        """Return t0, where the problem starts on the reference's clock (set by then)."""
+        return 0.0 if self.t0 is None else self.t0
+
+    @property
     def grid(self) -> np.ndarray:
         """The N+1 knot times on the reference's clock."""
-        return self.t0 + self.h * np.arange(self.steps + 1)
+        return self.start + self.h * np.arange(self.steps + 1)
 
     def reference_at(self, times: np.ndarray | float) -> tuple[np.ndarray, np.ndarray]:
-        """Reference (q_r, v_r) at ``times``, angles on q0's branch when wrapping."""
+        """Return Reference (q_r, v_r) at ``times``, angles on q0's branch when wrapping."""
         q, v = self._raw_reference(np.atleast_1d(np.asarray(times, dtype=float)))
         return q + self.angle_shift, v
 
     @functools.cached_property
     def reference_samples(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        """(q_r, v_r) at the N+1 knots and at the N interval midpoints, sampled once: every
-        solver and every read-out needs them, and replanning builds a problem per cycle."""
+        """(q_r, v_r) at the N+1 knots and at the N interval midpoints, sampled once.
+
+        Every solver and every read-out needs them, and replanning builds a problem per cycle.
+        """
         n = self.steps + 1
         q, v = self.reference_at(np.concatenate([self.grid, self.grid[:-1] + 0.5 * self.h]))
         return q[:n], v[:n], q[n:], v[n:]
@@ -109,7 +130,7 @@ class TrackingProblem:
         q = np.asarray(q, dtype=float).reshape(len(times), self.system.n)
         v = np.asarray(v, dtype=float).reshape(len(times), self.system.k)
         if not (np.all(np.isfinite(q)) and np.all(np.isfinite(v))):
-            raise ValueError("reference has non-finite values on the horizon")
+            raise ValueError('reference has non-finite values on the horizon')
         return q, v
 
 
@@ -118,17 +139,17 @@ def tracking_lagrangian(system: NonholonomicSystem) -> ca.Function:
 
     One symbolic definition shared by every solver, so they optimise the same cost.
     """
-    q, qr = ca.SX.sym("q", system.n), ca.SX.sym("q_r", system.n)
-    v, vr = ca.SX.sym("v", system.k), ca.SX.sym("v_r", system.k)
-    u, eps = ca.SX.sym("u", system.k), ca.SX.sym("eps")
+    q, qr = ca.SX.sym('q', system.n), ca.SX.sym('q_r', system.n)
+    v, vr = ca.SX.sym('v', system.k), ca.SX.sym('v_r', system.k)
+    u, eps = ca.SX.sym('u', system.k), ca.SX.sym('eps')
     value = 0.5 * (ca.sumsqr(q - qr) + ca.sumsqr(v - vr) + eps * ca.sumsqr(u))
-    return ca.Function("L", [q, v, u, qr, vr, eps], [value],
-                       ["q", "v", "u", "q_r", "v_r", "eps"], ["L"])
+    return ca.Function('L', [q, v, u, qr, vr, eps], [value],
+                       ['q', 'v', 'u', 'q_r', 'v_r', 'eps'], ['L'])
 
 
 def terminal_cost(problem: TrackingProblem, q_final: np.ndarray) -> float:
-    """omega Phi(gamma(T)) with Phi = 1/2 |q(T) - q_r(T)|^2 (zero for terminal equality)."""
-    if problem.terminal != "cost":
+    """Omega Phi(gamma(T)) with Phi = 1/2 |q(T) - q_r(T)|^2 (zero for terminal equality)."""
+    if problem.terminal != 'cost':
         return 0.0
     q_ref = problem.reference_samples[0][-1]
     return 0.5 * problem.omega * float(np.sum((q_final - q_ref) ** 2))
@@ -155,20 +176,22 @@ class Solution:
     solve_time: float
     terminal_error: float
     method: str
-    message: str = ""
-    route: str = ""
+    message: str = ''
+    route: str = ''
     costates: tuple[np.ndarray, np.ndarray] | None = None
     minima: list[tuple[float, int]] = field(default_factory=list)
     details: dict[str, float] = field(default_factory=dict)
 
     def trajectory(self) -> Trajectory:
-        """The plan as a Trajectory (e.g. to use as a reference or to plot)."""
+        """Return the plan as a Trajectory (e.g. to use as a reference or to plot)."""
         return Trajectory(t=self.t, q=self.q, v=self.v, u=self.u)
 
 
 def running_cost_profile(problem: TrackingProblem, solution: Solution) -> np.ndarray:
-    """h L at each interval's midpoint: the discrete running action of a plan, interval by
-    interval (its sum is the variational method's running cost)."""
+    """H L at each interval's midpoint: the discrete running action of a plan.
+
+    Interval by interval (its sum is the variational method's running cost).
+    """
     lagrangian = tracking_lagrangian(problem.system)
     q_ref, v_ref = problem.reference_samples[2:]
     q_mid = 0.5 * (solution.q[1:] + solution.q[:-1])

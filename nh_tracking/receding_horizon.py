@@ -1,3 +1,17 @@
+# Copyright 2026 nh_tracking maintainers
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+
 """Receding-horizon replanning: warm starts, a deadline, and a plan that is always usable.
 
 Each call tracks the part of the reference from "now" on, from the measured state, warm-started
@@ -8,18 +22,19 @@ previous plan, shifted, stays in force; with no previous plan, a classical track
 """
 from __future__ import annotations
 
-import dataclasses
-import time
 from collections import deque
+import dataclasses
 from dataclasses import dataclass, field
 from enum import Enum
+import time
+from typing import Any
 
 import numpy as np
 
 from nh_tracking.fallback import fallback_plan, stop_plan
-from nh_tracking.problem import Solution, Terminal, TrackingProblem, terminal_error
+from nh_tracking.problem import Solution, Terminal, terminal_error, TrackingProblem
 from nh_tracking.settings import check_fields, setting
-from nh_tracking.solvers import METHODS, Method, Structure, make_method, sample_plan
+from nh_tracking.solvers import make_method, Method, METHODS, sample_plan, Structure
 from nh_tracking.system import NonholonomicSystem
 from nh_tracking.trajectory import Trajectory
 
@@ -29,10 +44,10 @@ HISTORY = 10_000  # recent solves kept for statistics: a long-running node must 
 class PlanStatus(str, Enum):
     """How the plan in force came about (a str, so it prints and compares as its value)."""
 
-    OPTIMAL = "optimal"  # the solver converged in time
-    SHIFTED = "shifted"  # the solve failed or was late: the previous plan, shifted
-    FALLBACK = "fallback"  # no previous plan: the Kanayama tracking law rolled out
-    STOP = "stop"  # even the tracking law failed: hold the configuration at rest
+    OPTIMAL = 'optimal'  # the solver converged in time
+    SHIFTED = 'shifted'  # the solve failed or was late: the previous plan, shifted
+    FALLBACK = 'fallback'  # no previous plan: the Kanayama tracking law rolled out
+    STOP = 'stop'  # even the tracking law failed: hold the configuration at rest
 
     def __str__(self) -> str:
         return self.value
@@ -40,28 +55,30 @@ class PlanStatus(str, Enum):
 
 @dataclass(frozen=True)
 class PlannerSettings:
-    """What a replanning loop solves, and with which method; each field is checked against
-    its own declaration (:mod:`nh_tracking.settings`)."""
+    """What a replanning loop solves, and with which method.
 
-    horizon: float = setting(3.0, "planning horizon", "s", (0.05, 600.0))
-    steps: int = setting(30, "intervals on the horizon", "", (2, 2000))
-    epsilon: float = setting(1.0, "control weight eps", "", (1e-9, 1e9))
-    omega: float = setting(10.0, "terminal cost weight (terminal: cost)", "", (1e-9, 1e9))
-    terminal: Terminal = setting("cost", "terminal condition", choices=("cost", "equality"))
-    method: str = setting("variational", "tracking method", choices=tuple(METHODS))
-    max_solve_time: float = setting(0.25, "deadline of one solve; a later solve is discarded "
-                                    "and the previous plan kept", "s", (1e-6, 3600.0))
-    wrap_angles: bool = setting(True, "compare angles modulo 2 pi")
-    compiled: bool = setting(False, "variational NLP compiled to C (built once per machine "
-                             "and structure, then cached)")
+    Each field is checked against its own declaration (:mod:`nh_tracking.settings`).
+    """
+
+    horizon: float = setting(3.0, 'planning horizon', 's', (0.05, 600.0))
+    steps: int = setting(30, 'intervals on the horizon', '', (2, 2000))
+    epsilon: float = setting(1.0, 'control weight eps', '', (1e-9, 1e9))
+    omega: float = setting(10.0, 'terminal cost weight (terminal: cost)', '', (1e-9, 1e9))
+    terminal: Terminal = setting('cost', 'terminal condition', choices=('cost', 'equality'))
+    method: str = setting('variational', 'tracking method', choices=tuple(METHODS))
+    max_solve_time: float = setting(0.25, 'deadline of one solve; a later solve is discarded '
+                                    'and the previous plan kept', 's', (1e-6, 3600.0))
+    wrap_angles: bool = setting(True, 'compare angles modulo 2 pi')
+    compiled: bool = setting(False, 'variational NLP compiled to C (built once per machine '
+                             'and structure, then cached)')
 
     def __post_init__(self) -> None:
         check_fields(self)
         self.solver()  # an option the method does not take is an error here, not later
 
     def solver(self) -> Method:
-        """The method object these settings describe."""
-        return make_method(self.method, **({"compiled": True} if self.compiled else {}))
+        """Return the method object these settings describe."""
+        return make_method(self.method, **({'compiled': True} if self.compiled else {}))
 
 
 @dataclass
@@ -114,10 +131,10 @@ class RecedingHorizonPlanner:
     def set_reference(self, reference: Trajectory) -> None:
         """Track ``reference`` (times on the planner's clock) from the next plan on."""
         if reference.q.shape[1] != self.system.n or reference.v.shape[1] != self.system.k:
-            raise ValueError(f"reference has the wrong dimensions for {self.system.name}")
+            raise ValueError(f'reference has the wrong dimensions for {self.system.name}')
         self.reference = reference
 
-    def update(self, **changes: object) -> PlannerSettings:
+    def update(self, **changes: Any) -> PlannerSettings:
         """Change settings (validated); the warm start is kept."""
         self.settings = dataclasses.replace(self.settings, **changes)
         self.method = self.settings.solver()
@@ -125,7 +142,7 @@ class RecedingHorizonPlanner:
 
     def problem(self, t: float, q: np.ndarray, v: np.ndarray) -> TrackingProblem:
         if self.reference is None:
-            raise ValueError("no reference to track yet")
+            raise ValueError('no reference to track yet')
         s = self.settings
         return TrackingProblem(self.system, self.reference, q, v, horizon=s.horizon,
                                steps=s.steps, epsilon=s.epsilon, terminal=s.terminal,
@@ -149,27 +166,27 @@ class RecedingHorizonPlanner:
         try:
             sol = self.method.solve(problem, None if guess is None
                                     else sample_plan(problem, guess), s.max_solve_time)
-            error = "" if sol.success else f"solver: {sol.message}"
+            error = '' if sol.success else f'solver: {sol.message}'
         except (ArithmeticError, RuntimeError, ValueError) as exc:  # a numerical failure
-            sol, error = None, f"solver raised {type(exc).__name__}: {exc}"
+            sol, error = None, f'solver raised {type(exc).__name__}: {exc}'
         missed = sol is not None and sol.solve_time > s.max_solve_time
-        if missed:  # a late plan describes a past that has moved on: do not use it
-            error = (f"missed the deadline ({sol.solve_time * 1e3:.1f} ms > "
-                     f"{s.max_solve_time * 1e3:.1f} ms)")
+        if missed and sol is not None:  # a late plan describes a past gone by: unused
+            error = (f'missed the deadline ({sol.solve_time * 1e3:.1f} ms > '
+                     f'{s.max_solve_time * 1e3:.1f} ms)')
         finite = sol is not None and _finite(sol)
         if sol is not None and sol.success and not missed and not finite:
-            error = "solver returned non-finite values"
+            error = 'solver returned non-finite values'
         ok = sol is not None and sol.success and finite and not missed
         self.stats.plans += 1
         self.stats.deadline_misses += int(missed)
         if sol is not None:
             self.stats.solve_times.append(sol.solve_time)
             self.stats.plan_times.append(t)
-        if ok:
+        if ok and sol is not None:
             self.previous = sol
             self.stats.optimal += 1
             return PlanOutcome(sol, PlanStatus.OPTIMAL, sol.solve_time, missed,
-                               f"{s.method}: cost {sol.cost:.4g} in {sol.iterations} iterations",
+                               f'{s.method}: cost {sol.cost:.4g} in {sol.iterations} iterations',
                                reference)
         solve_time = sol.solve_time if sol is not None else 0.0
         if self.previous is not None and self.previous.t[-1] > t:
@@ -177,21 +194,24 @@ class RecedingHorizonPlanner:
             self.previous = shifted
             self.stats.shifted += 1
             return PlanOutcome(shifted, PlanStatus.SHIFTED, solve_time, missed,
-                               f"kept the previous plan, shifted ({error})", reference)
+                               f'kept the previous plan, shifted ({error})', reference)
         try:
-            plan, what = fallback_plan(problem), "tracking law fallback"
+            plan, what = fallback_plan(problem), 'tracking law fallback'
             status = PlanStatus.FALLBACK
             if not _finite(plan):
-                raise ValueError("the tracking law gave non-finite values")
+                raise ValueError('the tracking law gave non-finite values')
         except (ArithmeticError, RuntimeError, ValueError) as exc:
-            plan, what = stop_plan(problem, str(exc)), f"stopping, tracking law failed: {exc}"
+            plan, what = stop_plan(problem, str(exc)), f'stopping, tracking law failed: {exc}'
             status = PlanStatus.STOP
         self.previous = plan  # the plan in force: shifted if the next solve fails too
         self.stats.fallbacks += 1
-        return PlanOutcome(plan, status, solve_time, missed, f"{what} ({error})", reference)
+        return PlanOutcome(plan, status, solve_time, missed, f'{what} ({error})', reference)
 
     def preview(self, t: float, q: np.ndarray, v: np.ndarray) -> Solution:
-        """A plan from (q, v) at t that leaves the replanning loop's state alone (a query)."""
+        """Return a plan from (q.
+
+        V) at t that leaves the replanning loop's state alone (a query).
+        """
         s = self.settings
         problem = self.problem(t, q, v)
         guess = None if self.previous is None else sample_plan(problem, self.previous)
@@ -201,7 +221,7 @@ class RecedingHorizonPlanner:
     def _shifted(problem: TrackingProblem, previous: Solution) -> Solution:
         q, v, u = sample_plan(problem, previous)
         return dataclasses.replace(
-            previous, t=problem.grid, q=q, v=v, u=u, route="shifted", minima=[],
+            previous, t=problem.grid, q=q, v=v, u=u, route='shifted', minima=[],
             terminal_error=terminal_error(problem, q[-1], v[-1]), costates=None)
 
 

@@ -1,3 +1,17 @@
+# Copyright 2026 nh_tracking maintainers
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+
 """A tracking session: reference and odometry in, plans out, on one time base — without ROS.
 
 What a planner front end needs between its messages and the receding-horizon planner: the
@@ -9,12 +23,13 @@ until the new one is ready and is swapped in between two replans.
 """
 from __future__ import annotations
 
-import dataclasses
-import threading
-import time
 from collections import deque
 from collections.abc import Callable, Mapping
+import dataclasses
 from dataclasses import dataclass
+import threading
+import time
+from typing import Any
 
 import numpy as np
 
@@ -32,11 +47,11 @@ Clock = Callable[[], int]  # now, in integer nanoseconds
 class SessionSettings:
     """How a session runs: when it replans, how often it commands, when odometry is stale."""
 
-    replan_period: float = setting(0.1, "time between replans", "s", (1e-3, 60.0))
-    replan_on_odom: bool = setting(False, "also replan on every odometry message")
-    cmd_rate: float = setting(20.0, "velocity command rate", "Hz", (0.1, 1000.0))
-    odom_timeout: float = setting(0.5, "odometry older than this is stale: zero command, no "
-                                  "plans", "s", (1e-3, 3600.0))
+    replan_period: float = setting(0.1, 'time between replans', 's', (1e-3, 60.0))
+    replan_on_odom: bool = setting(False, 'also replan on every odometry message')
+    cmd_rate: float = setting(20.0, 'velocity command rate', 'Hz', (0.1, 1000.0))
+    odom_timeout: float = setting(0.5, 'odometry older than this is stale: zero command, no '
+                                  'plans', 's', (1e-3, 3600.0))
 
     def __post_init__(self) -> None:
         check_fields(self)
@@ -113,10 +128,10 @@ class TrackingSession:
         """Start the solver and builder threads; ``on_plan`` receives every new plan."""
         self._on_plan = on_plan
         self._stop.clear()
-        self._threads = [threading.Thread(target=self._loop, args=(self._wake, self._replan_now),
-                                          name="nh_tracking_solver", daemon=True),
+        self._threads = [threading.Thread(target=self._loop, args=(self._wake, self.replan),
+                                          name='nh_tracking_solver', daemon=True),
                          threading.Thread(target=self._loop, args=(self._rebuild, self._build),
-                                          name="nh_tracking_builder", daemon=True)]
+                                          name='nh_tracking_builder', daemon=True)]
         for thread in self._threads:
             thread.start()
 
@@ -141,8 +156,8 @@ class TrackingSession:
                     try:
                         work()
                     except Exception as exc:  # noqa: BLE001 - the thread must survive
-                        self.log("error", f"{threading.current_thread().name}: "
-                                          f"{type(exc).__name__}: {exc}")
+                        self.log('error', f'{threading.current_thread().name}: '
+                                          f'{type(exc).__name__}: {exc}')
 
     # inputs -----------------------------------------------------------------------------------
     def set_reference(self, stamps_ns: np.ndarray, poses: np.ndarray,
@@ -158,7 +173,7 @@ class TrackingSession:
 
     def set_odometry(self, ns: int, pose: np.ndarray, twist: np.ndarray,
                      received: float) -> None:
-        """The latest measured pose and body twist (hidden coordinates dead-reckoned)."""
+        """Take the latest measured pose and body twist (hidden coordinates dead-reckoned)."""
         with self._lock:
             prev = self._state
         pose_map = self.pose_map
@@ -177,8 +192,10 @@ class TrackingSession:
 
     # reconfiguration --------------------------------------------------------------------------
     def reconfigure(self, physical: Mapping[str, float], settings: PlannerSettings) -> None:
-        """New model parameters and/or settings, built on the builder thread; until they are
-        ready, the current solver keeps planning. The latest request wins."""
+        """Apply new model parameters and/or settings, built on the builder thread.
+
+        Until they are ready, the current solver keeps planning. The latest request wins.
+        """
         with self._lock:
             self._pending = _Build(dict(physical), settings)
         self._rebuild.set()
@@ -210,18 +227,15 @@ class TrackingSession:
         with self._lock:
             if self._pending is build:
                 self._pending = None
-        self.log("info", f"new solver in force after {time.perf_counter() - started:.2f} s "
-                         f"of building: {build.settings}")
+        self.log('info', f'new solver in force after {time.perf_counter() - started:.2f} s '
+                         f'of building: {build.settings}')
 
     # planning ---------------------------------------------------------------------------------
-    def _replan_now(self) -> None:
-        self.replan()
-
     def replan(self) -> PlanResult:
         """Plan from the latest state; the result goes to ``on_plan`` as well."""
         state = self.state
         reason = self._why_not(state)
-        if reason:
+        if reason or state is None:
             return PlanResult(None, state, reason)
         with self._solve_lock:
             planner = self.planner
@@ -232,40 +246,43 @@ class TrackingSession:
         trajectory = outcome.plan.trajectory()
         with self._lock:
             if self.stale:
-                self.log("info", "odometry is fresh again: planning resumed")
+                self.log('info', 'odometry is fresh again: planning resumed')
             self.stale = False
             self.outcome, self.plan_trajectory = outcome, trajectory
-        result = PlanResult(outcome, state, f"{outcome.status}: {outcome.message} "
-                                            f"({outcome.solve_time * 1e3:.1f} ms)")
+        result = PlanResult(outcome, state, f'{outcome.status}: {outcome.message} '
+                                            f'({outcome.solve_time * 1e3:.1f} ms)')
         self._on_plan(result)
         return result
 
     def _why_not(self, state: StateEstimate | None) -> str:
         """Why no plan can be made now ('' if one can)."""
         if not self.active:
-            return "not active"
+            return 'not active'
         if self.planner.reference is None:
-            return "no reference yet"
+            return 'no reference yet'
         if state is None:
-            return "no odometry yet"
+            return 'no odometry yet'
         age = (self.clock() - state.ns) * 1e-9
         if age > self.odom_timeout:
             with self._lock:
                 newly_stale, self.stale = not self.stale, True
             if newly_stale:
-                self.log("warn", f"odometry is {age:.2f} s old: stopped commanding")
-            return f"odometry is stale ({age:.2f} s old); not planning"
-        return ""
+                self.log('warn', f'odometry is {age:.2f} s old: stopped commanding')
+            return f'odometry is stale ({age:.2f} s old); not planning'
+        return ''
 
     def preview(self, pose: np.ndarray | None) -> tuple[Solution | None, str]:
-        """A plan from ``pose`` at rest now, or from the latest state when ``pose`` is None,
-        leaving the replanning loop alone; (None, reason) when there is none to give."""
+        """Return a plan from ``pose`` at rest now.
+
+        Or from the latest state when ``pose`` is None, leaving the replanning loop alone; (None,
+        reason) when there is none to give.
+        """
         state = self.state
         if self.planner.reference is None:
-            return None, "no reference to track yet"
+            return None, 'no reference to track yet'
         if pose is None:
             if state is None:
-                return None, "empty start and no odometry yet"
+                return None, 'empty start and no odometry yet'
             t, q, v = self.seconds(state.ns), state.q, state.v
         else:
             q = self.pose_map.configuration(pose, None if state is None else state.q)
@@ -273,12 +290,14 @@ class TrackingSession:
         with self._solve_lock:
             solution = self.planner.preview(t, q, v)
         if not solution.success:
-            return None, f"solver failed ({solution.message})"
-        return solution, ""
+            return None, f'solver failed ({solution.message})'
+        return solution, ''
 
     def command(self, now_ns: int) -> np.ndarray | None:
-        """The plan's body twist now (zero when stale or outside the plan); None before the
-        first plan."""
+        """Return the plan's body twist now (zero when stale or outside the plan).
+
+        None before the first plan.
+        """
         with self._lock:
             trajectory, stale = self.plan_trajectory, self.stale
         if trajectory is None:
@@ -289,6 +308,6 @@ class TrackingSession:
         q, v = trajectory.sample(t)
         return self.pose_map.body_twist(q[0], v[0])
 
-    def settings_with(self, **changes: object) -> PlannerSettings:
-        """The current settings with ``changes`` (validated: ValueError/TypeError)."""
+    def settings_with(self, **changes: Any) -> PlannerSettings:
+        """Return the current settings with ``changes`` (validated: ValueError/TypeError)."""
         return dataclasses.replace(self.planner.settings, **changes)

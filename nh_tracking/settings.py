@@ -1,3 +1,17 @@
+# Copyright 2026 nh_tracking maintainers
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+
 """Settings as data: each field of a settings dataclass carries its meaning, unit and limits.
 
 One declaration gives the check (:func:`check`), the ROS parameter descriptors and ``--help``
@@ -8,8 +22,8 @@ machine-readable.
 from __future__ import annotations
 
 import dataclasses
-import math
 from dataclasses import dataclass, field
+import math
 from typing import Any
 
 
@@ -18,38 +32,40 @@ class Setting:
     """What a settings field means: its description, unit, numeric bounds or choices."""
 
     description: str
-    unit: str = ""
+    unit: str = ''
     bounds: tuple[float, float] | None = None
     choices: tuple[str, ...] = ()
 
 
-def setting(default: Any, description: str, unit: str = "",
+def setting(default: Any, description: str, unit: str = '',
             bounds: tuple[float, float] | None = None, choices: tuple[str, ...] = ()) -> Any:
-    """A dataclass field with its :class:`Setting` as metadata."""
-    return field(default=default, metadata={"setting": Setting(description, unit, bounds,
+    """Return a dataclass field with its :class:`Setting` as metadata."""
+    return field(default=default, metadata={'setting': Setting(description, unit, bounds,
                                                                choices)})
 
 
 def described(cls: type) -> list[tuple[str, Any, Setting]]:
     """(name, default, setting) of each described field of a settings dataclass."""
-    return [(f.name, f.default, f.metadata["setting"]) for f in dataclasses.fields(cls)
-            if "setting" in f.metadata]
+    return [(f.name, f.default, f.metadata['setting']) for f in dataclasses.fields(cls)
+            if 'setting' in f.metadata]
 
 
 def check(value: Any, name: str, default: Any, meta: Setting) -> Any:
-    """``value`` as the type of ``default`` within ``meta``'s limits, or ValueError naming
-    the field (an integer is accepted for a floating-point field)."""
+    """``value`` as the type of ``default`` within ``meta``'s limits.
+
+    Or ValueError naming the field (an integer is accepted for a floating-point field).
+    """
     kind = type(default)
     if kind is float and isinstance(value, int) and not isinstance(value, bool):
         value = float(value)
     if not isinstance(value, kind) or (kind is int and isinstance(value, bool)):
-        raise ValueError(f"{name} must be {_type_name(kind)}, got {value!r}")
+        raise ValueError(f'{name} must be {_type_name(kind)}, got {value!r}')
     if meta.bounds is not None and not (math.isfinite(value)
                                         and meta.bounds[0] <= value <= meta.bounds[1]):
-        raise ValueError(f"{name} must be in [{meta.bounds[0]:g}, {meta.bounds[1]:g}], "
-                         f"got {value!r}")
+        raise ValueError(f'{name} must be in [{meta.bounds[0]:g}, {meta.bounds[1]:g}], '
+                         f'got {value!r}')
     if meta.choices and value not in meta.choices:
-        raise ValueError(f"{name} must be one of {list(meta.choices)}, got {value!r}")
+        raise ValueError(f'{name} must be one of {list(meta.choices)}, got {value!r}')
     return value
 
 
@@ -66,16 +82,16 @@ def check_fields(obj: Any) -> None:
 
 
 def _type_name(kind: type) -> str:
-    return {bool: "true or false", int: "an integer", float: "a number", str: "a string",
-            list: "a list of numbers"}.get(kind, kind.__name__)
+    return {bool: 'true or false', int: 'an integer', float: 'a number', str: 'a string',
+            list: 'a list of numbers'}.get(kind, kind.__name__)
 
 
 def markdown_table(rows: list[tuple[str, Any, Setting]]) -> str:
-    """A README table: name, default, unit, range or choices, meaning."""
-    lines = ["| parameter | default | unit | range | meaning |", "|---|---|---|---|---|"]
+    """Return a README table: name, default, unit, range or choices, meaning."""
+    lines = ['| parameter | default | unit | range | meaning |', '|---|---|---|---|---|']
     for name, default, meta in rows:
-        limits = (f"{meta.bounds[0]:g} – {meta.bounds[1]:g}" if meta.bounds else
-                  " \\| ".join(meta.choices))
+        limits = (f'{meta.bounds[0]:g} – {meta.bounds[1]:g}' if meta.bounds else
+                  ' \\| '.join(meta.choices))
         shown = str(default).lower() if isinstance(default, bool) else default
-        lines.append(f"| `{name}` | `{shown}` | {meta.unit} | {limits} | {meta.description} |")
-    return "\n".join(lines)
+        lines.append(f'| `{name}` | `{shown}` | {meta.unit} | {limits} | {meta.description} |')
+    return '\n'.join(lines)

@@ -1,3 +1,17 @@
+# Copyright 2026 nh_tracking maintainers
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+
 """Nonholonomic mechanical systems (G, V, D) in an adapted basis, built from Lagrangian data.
 
 The user (or a built-in model) gives the metric G(q), the Pfaffian constraints mu(q) with
@@ -17,12 +31,13 @@ from typing import Any
 
 import casadi as ca
 import numpy as np
+from numpy.typing import ArrayLike
 
 from nh_tracking import geometry
 
 SymbolicMap = Callable[[ca.SX], Any]
 
-POSE_AXES = ("x", "y", "z", "yaw")  # of a ROS pose: position and heading
+POSE_AXES = ('x', 'y', 'z', 'yaw')  # of a ROS pose: position and heading
 _SAMPLES = 64  # configurations at which data is checked and a default basis is chosen
 
 
@@ -58,16 +73,16 @@ class NonholonomicSystem:
         self.k = rho.shape[1]
         self.m = constraints.shape[0]
         self.angle_mask = np.array([c in self.angles for c in self.coordinates])
-        self.control_names = tuple(controls or (f"u{a + 1}" for a in range(self.k)))
-        self.velocity_names = tuple(velocities or (f"v{a + 1}" for a in range(self.k)))
+        self.control_names = tuple(controls or (f'u{a + 1}' for a in range(self.k)))
+        self.velocity_names = tuple(velocities or (f'v{a + 1}' for a in range(self.k)))
         self.parameters = dict(parameters or {})
         self.basis_condition = basis_condition
         self.pose = _pose_axes(name, self.coordinates, pose)
         if len(self.control_names) != self.k or len(self.velocity_names) != self.k:
-            raise ValueError(f"{name}: need {self.k} control and velocity names")
+            raise ValueError(f'{name}: need {self.k} control and velocity names')
 
-        v = ca.SX.sym("v", self.k)
-        u = ca.SX.sym("u", self.k)
+        v = ca.SX.sym('v', self.k)
+        u = ca.SX.sym('u', self.k)
         g_d = geometry.metric_on_distribution(metric, rho)
         gamma = geometry.christoffel(metric, rho, q)
         qdot = rho @ v
@@ -77,18 +92,18 @@ class NonholonomicSystem:
             + u
         )
         x = ca.vertcat(q, v)
-        self.rho_fn = ca.Function("rho", [q], [rho], ["q"], ["rho"])
-        self.metric_fn = ca.Function("metric", [q], [metric], ["q"], ["G"])
-        self.constraints_fn = ca.Function("constraints", [q], [constraints], ["q"], ["mu"])
-        self.potential_fn = ca.Function("potential", [q], [potential], ["q"], ["V"])
-        self.metric_D_fn = ca.Function("metric_D", [q], [g_d], ["q"], ["G_D"])
-        self.christoffel_fn = ca.Function("christoffel", [q], [gamma], ["q"], ["Gamma"])
+        self.rho_fn = ca.Function('rho', [q], [rho], ['q'], ['rho'])
+        self.metric_fn = ca.Function('metric', [q], [metric], ['q'], ['G'])
+        self.constraints_fn = ca.Function('constraints', [q], [constraints], ['q'], ['mu'])
+        self.potential_fn = ca.Function('potential', [q], [potential], ['q'], ['V'])
+        self.metric_D_fn = ca.Function('metric_D', [q], [g_d], ['q'], ['G_D'])
+        self.christoffel_fn = ca.Function('christoffel', [q], [gamma], ['q'], ['Gamma'])
         self.dynamics_fn = ca.Function(
-            "dynamics", [q, v, u], [qdot, vdot], ["q", "v", "u"], ["qdot", "vdot"]
+            'dynamics', [q, v, u], [qdot, vdot], ['q', 'v', 'u'], ['qdot', 'vdot']
         )
-        self.ode_fn = ca.Function("ode", [x, u], [ca.vertcat(qdot, vdot)], ["x", "u"], ["xdot"])
+        self.ode_fn = ca.Function('ode', [x, u], [ca.vertcat(qdot, vdot)], ['x', 'u'], ['xdot'])
         self.energy_fn = ca.Function(
-            "energy", [q, v], [0.5 * v.T @ g_d @ v + potential], ["q", "v"], ["E"]
+            'energy', [q, v], [0.5 * v.T @ g_d @ v + potential], ['q', 'v'], ['E']
         )
 
     @classmethod
@@ -103,7 +118,7 @@ class NonholonomicSystem:
         angles: Sequence[str] = (),
         controls: Sequence[str] | None = None,
         velocities: Sequence[str] | None = None,
-        name: str = "custom",
+        name: str = 'custom',
         parameters: dict[str, float] | None = None,
         pose: Mapping[str, str] | None = None,
     ) -> NonholonomicSystem:
@@ -123,22 +138,22 @@ class NonholonomicSystem:
         coordinates = tuple(coordinates)
         n = len(coordinates)
         if n == 0 or len(set(coordinates)) != n:
-            raise ValueError(f"coordinates must be unique names, got {coordinates}")
+            raise ValueError(f'coordinates must be unique names, got {coordinates}')
         unknown = set(angles) - set(coordinates)
         if unknown:
-            raise ValueError(f"angles {sorted(unknown)} are not coordinates {coordinates}")
-        q = ca.SX.sym("q", n)
-        g = _as_sx(metric(q), (n, n), "metric")
-        mu = _as_sx(constraints(q), None, "constraints") if constraints else ca.SX(0, n)
+            raise ValueError(f'angles {sorted(unknown)} are not coordinates {coordinates}')
+        q = ca.SX.sym('q', n)
+        g = _as_sx(metric(q), (n, n), 'metric')
+        mu = _as_sx(constraints(q), None, 'constraints') if constraints else ca.SX(0, n)
         if mu.shape[1] != n or mu.shape[0] >= n:
-            raise ValueError(f"constraints must be (m, {n}) with m < {n}, got {mu.shape}")
-        pot = _as_sx(potential(q), (1, 1), "potential") if potential else ca.SX(0)
+            raise ValueError(f'constraints must be (m, {n}) with m < {n}, got {mu.shape}')
+        pot = _as_sx(potential(q), (1, 1), 'potential') if potential else ca.SX(0)
         samples = _sample_configurations(coordinates, angles)
-        _check_metric(ca.Function("G", [q], [g]), samples)
+        _check_metric(ca.Function('G', [q], [g]), samples)
         k = n - mu.shape[0]
         if basis is not None:
-            rho = _as_sx(basis(q), (n, k), "basis")
-            condition = _check_basis(ca.Function("check", [q], [rho, mu, g]), samples)
+            rho = _as_sx(basis(q), (n, k), 'basis')
+            condition = _check_basis(ca.Function('check', [q], [rho, mu, g]), samples)
         else:
             rho, condition = _orthonormal_basis(q, g, mu, k, samples)
         return cls(
@@ -148,73 +163,75 @@ class NonholonomicSystem:
         )
 
     # numpy interface -------------------------------------------------------------------------
-    def rho(self, q: Sequence[float]) -> np.ndarray:
+    def rho(self, q: ArrayLike) -> np.ndarray:
         """(n, k) adapted basis at q: column A holds the components rho^i_A of e_A."""
         return np.array(self.rho_fn(self.as_configuration(q)))
 
-    def metric(self, q: Sequence[float]) -> np.ndarray:
+    def metric(self, q: ArrayLike) -> np.ndarray:
         """(n, n) kinetic-energy metric G(q)."""
         return np.array(self.metric_fn(self.as_configuration(q)))
 
-    def constraints(self, q: Sequence[float]) -> np.ndarray:
+    def constraints(self, q: ArrayLike) -> np.ndarray:
         """(m, n) Pfaffian constraint matrix mu(q)."""
         return np.array(self.constraints_fn(self.as_configuration(q))).reshape(self.m, self.n)
 
-    def metric_D(self, q: Sequence[float]) -> np.ndarray:
+    def metric_D(self, q: ArrayLike) -> np.ndarray:
         """(k, k) metric on D in the basis, G_D = rho^T G rho."""
         return np.array(self.metric_D_fn(self.as_configuration(q)))
 
-    def christoffel(self, q: Sequence[float]) -> np.ndarray:
+    def christoffel(self, q: ArrayLike) -> np.ndarray:
         """Christoffel symbols as an array Gamma[C, A, B] (nabla_{e_A} e_B = Gamma^C_AB e_C)."""
-        return np.array(self.christoffel_fn(self.as_configuration(q))).reshape(self.k, self.k, self.k)
+        gamma = np.array(self.christoffel_fn(self.as_configuration(q)))
+        return gamma.reshape(self.k, self.k, self.k)
 
     def dynamics(
-        self, q: Sequence[float], v: Sequence[float], u: Sequence[float] | None = None
+        self, q: ArrayLike, v: ArrayLike, u: ArrayLike | None = None
     ) -> tuple[np.ndarray, np.ndarray]:
         """(qdot, vdot) of the controlled nonholonomic equations; u = None means no control."""
-        qdot, vdot = self.dynamics_fn(self.as_configuration(q), self.as_velocity(v), self.as_control(u))
+        qdot, vdot = self.dynamics_fn(self.as_configuration(q), self.as_velocity(v),
+                                      self.as_control(u))
         return np.array(qdot).ravel(), np.array(vdot).ravel()
 
-    def energy(self, q: Sequence[float], v: Sequence[float]) -> float:
+    def energy(self, q: ArrayLike, v: ArrayLike) -> float:
         """Kinetic plus potential energy, 1/2 v^T G_D v + V(q)."""
         return float(self.energy_fn(self.as_configuration(q), self.as_velocity(v)))
 
-    def generalized_force(self, q: Sequence[float], u: Sequence[float]) -> np.ndarray:
-        """The force in full coordinates, G rho u, that the control u stands for."""
+    def generalized_force(self, q: ArrayLike, u: ArrayLike) -> np.ndarray:
+        """Return the force in full coordinates, G rho u, that the control u stands for."""
         return self.metric(q) @ self.rho(q) @ self.as_control(u)
 
-    def velocity_coordinates(self, q: Sequence[float], qdot: Sequence[float]) -> np.ndarray:
-        """v with rho v = P qdot: the quasi-velocities of qdot's G-orthogonal projection on D."""
+    def velocity_coordinates(self, q: ArrayLike, qdot: ArrayLike) -> np.ndarray:
+        """V with rho v = P qdot: the quasi-velocities of qdot's G-orthogonal projection on D."""
         rho, g = self.rho(q), self.metric(q)
-        return np.linalg.solve(rho.T @ g @ rho, rho.T @ g @ _vector(qdot, self.n, "qdot"))
+        return np.linalg.solve(rho.T @ g @ rho, rho.T @ g @ _vector(qdot, self.n, 'qdot'))
 
     def __repr__(self) -> str:
         return (
-            f"NonholonomicSystem({self.name!r}, q={self.coordinates}, n={self.n}, k={self.k}, "
-            f"parameters={self.parameters})"
+            f'NonholonomicSystem({self.name!r}, q={self.coordinates}, n={self.n}, k={self.k}, '
+            f'parameters={self.parameters})'
         )
 
-    def as_configuration(self, q: Sequence[float]) -> np.ndarray:
-        return _vector(q, self.n, "q")
+    def as_configuration(self, q: ArrayLike) -> np.ndarray:
+        return _vector(q, self.n, 'q')
 
-    def as_velocity(self, v: Sequence[float]) -> np.ndarray:
-        return _vector(v, self.k, "v")
+    def as_velocity(self, v: ArrayLike) -> np.ndarray:
+        return _vector(v, self.k, 'v')
 
-    def as_control(self, u: Sequence[float] | None) -> np.ndarray:
-        return np.zeros(self.k) if u is None else _vector(u, self.k, "u")
+    def as_control(self, u: ArrayLike | None) -> np.ndarray:
+        return np.zeros(self.k) if u is None else _vector(u, self.k, 'u')
 
 
-def _vector(x: Sequence[float], size: int, what: str) -> np.ndarray:
+def _vector(x: ArrayLike, size: int, what: str) -> np.ndarray:
     arr = np.asarray(x, dtype=float).reshape(-1)
     if arr.size != size:
-        raise ValueError(f"{what} must have {size} entries, got {arr.size}")
+        raise ValueError(f'{what} must have {size} entries, got {arr.size}')
     return arr
 
 
 def _as_sx(value: Any, shape: tuple[int, int] | None, what: str) -> ca.SX:
     sx = value if isinstance(value, ca.SX) else ca.SX(value)
     if shape is not None and sx.shape != shape:
-        raise ValueError(f"{what}(q) must have shape {shape}, got {sx.shape}")
+        raise ValueError(f'{what}(q) must have shape {shape}, got {sx.shape}')
     return sx
 
 
@@ -232,7 +249,7 @@ def _check_metric(metric_fn: ca.Function, samples: np.ndarray) -> None:
     for q in samples:
         g = np.array(metric_fn(q))
         if not np.allclose(g, g.T) or np.linalg.eigvalsh(0.5 * (g + g.T))[0] <= 0:
-            raise ValueError(f"metric(q) is not symmetric positive definite at q = {q}")
+            raise ValueError(f'metric(q) is not symmetric positive definite at q = {q}')
 
 
 def _check_basis(fn: ca.Function, samples: np.ndarray) -> float:
@@ -241,14 +258,14 @@ def _check_basis(fn: ca.Function, samples: np.ndarray) -> float:
     for q in samples:
         rho, mu, g = (np.array(a) for a in fn(q))
         if mu.size and np.abs(mu @ rho).max() > 1e-9 * max(1.0, np.abs(mu).max()):
-            raise ValueError(f"basis(q) is not in the constraint distribution at q = {q}")
+            raise ValueError(f'basis(q) is not in the constraint distribution at q = {q}')
         gram = rho.T @ g @ rho
         d = np.sqrt(np.diag(gram))
         if d.min() <= 0:
-            raise ValueError(f"basis(q) has a zero field at q = {q}")
+            raise ValueError(f'basis(q) has a zero field at q = {q}')
         worst = min(worst, np.linalg.eigvalsh(gram / np.outer(d, d))[0])
     if worst < 1e-9:
-        raise ValueError("basis(q) loses rank at a sampled configuration")
+        raise ValueError('basis(q) loses rank at a sampled configuration')
     return float(worst)
 
 
@@ -258,13 +275,13 @@ def _orthonormal_basis(
     candidates = (geometry.constraint_kernel_candidates(mu)
                   + geometry.projected_coordinate_fields(g, mu))
     w = ca.horzcat(*candidates)
-    gram_fn = ca.Function("gram", [q], [w.T @ g @ w])
+    gram_fn = ca.Function('gram', [q], [w.T @ g @ w])
     gram = np.stack([np.array(gram_fn(s)) for s in samples])
     chosen, condition = geometry.select_best_conditioned(gram, k)
     if condition < 1e-6:
         raise ValueError(
-            "no smooth basis of D found from the constraints at the sampled configurations; "
-            "pass basis= explicitly"
+            'no smooth basis of D found from the constraints at the sampled configurations; '
+            'pass basis= explicitly'
         )
     return geometry.gram_schmidt(g, [candidates[i] for i in chosen]), condition
 
@@ -275,10 +292,10 @@ def _pose_axes(name: str, coordinates: tuple[str, ...],
         return None
     pose = dict(pose)
     if not set(pose) <= set(coordinates):
-        raise ValueError(f"{name}: pose names {sorted(set(pose) - set(coordinates))}, which "
-                         f"are not coordinates {coordinates}")
+        raise ValueError(f'{name}: pose names {sorted(set(pose) - set(coordinates))}, which '
+                         f'are not coordinates {coordinates}')
     axes = list(pose.values())
     if not set(axes) <= set(POSE_AXES) or len(set(axes)) != len(axes):
-        raise ValueError(f"{name}: pose axes must be distinct members of {POSE_AXES}, "
-                         f"got {pose}")
+        raise ValueError(f'{name}: pose axes must be distinct members of {POSE_AXES}, '
+                         f'got {pose}')
     return pose

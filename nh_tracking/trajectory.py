@@ -1,8 +1,22 @@
+# Copyright 2026 nh_tracking maintainers
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+
 """Timed trajectories on D: what ``simulate`` returns and what a reference is."""
 from __future__ import annotations
 
 import bisect
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 from scipy.interpolate import CubicSpline
@@ -20,6 +34,7 @@ class Trajectory:
     q: np.ndarray
     v: np.ndarray
     u: np.ndarray
+    _coefficients: np.ndarray = field(init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:
         t = np.asarray(self.t, dtype=float).reshape(-1)
@@ -27,17 +42,17 @@ class Trajectory:
         v = np.atleast_2d(np.asarray(self.v, dtype=float))
         u = np.asarray(self.u, dtype=float).reshape(max(len(t) - 1, 0), v.shape[1])
         if len(t) < 2 or np.any(np.diff(t) <= 0):
-            raise ValueError("trajectory times must be strictly increasing, at least two")
+            raise ValueError('trajectory times must be strictly increasing, at least two')
         if q.shape[0] != len(t) or v.shape[0] != len(t):
-            raise ValueError(f"q {q.shape} and v {v.shape} must have {len(t)} rows like t")
-        for name, arr in (("t", t), ("q", q), ("v", v), ("u", u)):
+            raise ValueError(f'q {q.shape} and v {v.shape} must have {len(t)} rows like t')
+        for name, arr in (('t', t), ('q', q), ('v', v), ('u', u)):
             if not np.all(np.isfinite(arr)):
-                raise ValueError(f"trajectory {name} has non-finite values")
-        for name, arr in (("t", t), ("q", q), ("v", v), ("u", u)):
+                raise ValueError(f'trajectory {name} has non-finite values')
+        for name, arr in (('t', t), ('q', q), ('v', v), ('u', u)):
             arr.flags.writeable = False
             object.__setattr__(self, name, arr)
         spline = CubicSpline(t, np.hstack([q, v]), axis=0)
-        object.__setattr__(self, "_coefficients", spline.c)  # (4, N, n + k), local powers
+        object.__setattr__(self, '_coefficients', spline.c)  # (4, N, n + k), local powers
 
     def at(self, time: float) -> tuple[np.ndarray, np.ndarray]:
         """(q, v) at one time: the scalar fast path of :meth:`sample` for ODE right-hand sides."""
@@ -56,7 +71,7 @@ class Trajectory:
     def sample(self, times: np.ndarray | float) -> tuple[np.ndarray, np.ndarray]:
         """(q, v) at ``times`` (arrays (len, n), (len, k)), held constant outside [t0, tN]."""
         times = np.clip(np.atleast_1d(np.asarray(times, dtype=float)), self.t[0], self.t[-1])
-        i = np.clip(np.searchsorted(self.t, times, side="right") - 1, 0, len(self.t) - 2)
+        i = np.clip(np.searchsorted(self.t, times, side='right') - 1, 0, len(self.t) - 2)
         c, dt = self._coefficients[:, i], (times - self.t[i])[:, None]
         value = ((c[0] * dt + c[1]) * dt + c[2]) * dt + c[3]
         n = self.q.shape[1]

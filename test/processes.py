@@ -1,14 +1,31 @@
-"""The installed executables as separate processes, the way users deploy them: each test on a
-ROS_DOMAIN_ID of its own, this process talking to them over DDS through its own Context."""
+# Copyright 2026 nh_tracking maintainers
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+
+"""The installed executables as separate processes, the way users deploy them.
+
+Each test on a ROS_DOMAIN_ID of its own, this process talking to them over DDS through its own
+Context.
+"""
 from __future__ import annotations
 
 import os
+from pathlib import Path
 import signal
 import subprocess
 import sys
 import threading
 import time
-from pathlib import Path
 
 from nh_tracking.ros.graph import InProcessGraph
 
@@ -17,9 +34,9 @@ _domains = iter(range(30 + os.getpid() % 50, 232))
 
 
 def domain_env() -> dict[str, str]:
-    """An environment on a fresh domain: tests never hear each other's nodes."""
+    """Return an environment on a fresh domain: tests never hear each other's nodes."""
     return dict(os.environ, ROS_DOMAIN_ID=str(next(_domains)),
-                ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST", PYTHONUNBUFFERED="1")
+                ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST', PYTHONUNBUFFERED='1')
 
 
 class Process:
@@ -39,7 +56,7 @@ class Process:
 
     @property
     def output(self) -> str:
-        return "".join(self.lines)
+        return ''.join(self.lines)
 
     def wait_for(self, text: str, timeout: float = 60.0) -> bool:
         deadline = time.monotonic() + timeout
@@ -59,7 +76,7 @@ class Process:
         return self.finish(timeout)
 
     def kill(self) -> None:
-        """kill -9: no chance to clean up, as in a crash."""
+        """Kill -9: no chance to clean up, as in a crash."""
         self.proc.kill()
         self.finish()
 
@@ -74,11 +91,13 @@ class Process:
 
 
 def starts_and_stops(process: Process, ready: str) -> str:
-    """Started (its ready line logged), and Ctrl-C ends it with code 0 and no traceback; its
-    output."""
+    """Check it started (its ready line logged).
+
+    And Ctrl-C ends it with code 0 and no traceback; its output.
+    """
     assert process.wait_for(ready), process.output
     assert process.interrupt() == 0, process.output
-    assert "Traceback" not in process.output, process.output
+    assert 'Traceback' not in process.output, process.output
     return process.output
 
 
@@ -91,8 +110,8 @@ def run(executable: str, args: list[str], env: dict[str, str], timeout: float = 
 class Peer:
     """This test's own ROS participant on the processes' domain, spun on a thread."""
 
-    def __init__(self, env: dict[str, str], name: str = "test_peer") -> None:
-        self.graph = InProcessGraph(domain_id=int(env["ROS_DOMAIN_ID"]))
+    def __init__(self, env: dict[str, str], name: str = 'test_peer') -> None:
+        self.graph = InProcessGraph(domain_id=int(env['ROS_DOMAIN_ID']))
         self.node = self.graph.plain_node(name)
 
     def close(self) -> None:

@@ -1,3 +1,17 @@
+# Copyright 2026 nh_tracking maintainers
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+
 """Test systems that no issue names, and the independent Lagrange–d'Alembert reference."""
 from __future__ import annotations
 
@@ -14,17 +28,20 @@ def inclined_knife_edge(m: float = 1.3, J: float = 0.4, alpha: float = 0.35,
     Built from its Lagrangian data alone: no basis given, so from_constraints chooses one.
     """
     return nht.NonholonomicSystem.from_constraints(
-        ["x", "y", "phi"],
+        ['x', 'y', 'phi'],
         metric=lambda q: ca.diag(ca.vertcat(m, m, J)),
         constraints=lambda q: ca.horzcat(ca.sin(q[2]), -ca.cos(q[2]), 0),
         potential=lambda q: -m * g * ca.sin(alpha) * q[0],
-        angles=["phi"], pose={"x": "x", "y": "y", "phi": "yaw"}, name="inclined_knife_edge",
+        angles=['phi'], pose={'x': 'x', 'y': 'y', 'phi': 'yaw'}, name='inclined_knife_edge',
     )
 
 
 def coupled_system() -> nht.NonholonomicSystem:
-    """A made-up system with a configuration-dependent, non-diagonal metric, two constraints
-    that depend on q, and a potential: nothing in it is special, so nothing can cancel by luck."""
+    """Build a made-up system with a configuration-dependent, non-diagonal metric.
+
+    Two constraints that depend on q, and a potential: nothing in it is special, so nothing can
+    cancel by luck.
+    """
 
     def metric(q: ca.SX) -> ca.SX:
         a = ca.blockcat([
@@ -42,21 +59,21 @@ def coupled_system() -> nht.NonholonomicSystem:
         )
 
     return nht.NonholonomicSystem.from_constraints(
-        ["a", "b", "c", "d"], metric, constraints,
+        ['a', 'b', 'c', 'd'], metric, constraints,
         potential=lambda q: 0.5 * q[0] ** 2 + ca.cos(q[1]) + 0.3 * q[2] * q[3],
-        name="coupled",
+        name='coupled',
     )
 
 
 def lagrange_dalembert_acceleration(system: nht.NonholonomicSystem, q: np.ndarray,
                                     qdot: np.ndarray, force: np.ndarray) -> np.ndarray:
-    """qddot of the Lagrange–d'Alembert equations with multipliers, in full coordinates.
+    """Qddot of the Lagrange–d'Alembert equations with multipliers, in full coordinates.
 
     d/dt(G qdot) - 1/2 d/dq(qdot^T G qdot) + dV/dq = force + mu^T lambda,  mu qdot = 0.
     Uses only the system's data G, mu, V (no basis, no connection): an independent derivation.
     """
     n = system.n
-    qs, qds = ca.SX.sym("q", n), ca.SX.sym("qd", n)
+    qs, qds = ca.SX.sym('q', n), ca.SX.sym('qd', n)
     g = system.metric_fn(qs)
     mu = system.constraints_fn(qs)
     v_pot = system.potential_fn(qs)
@@ -64,7 +81,7 @@ def lagrange_dalembert_acceleration(system: nht.NonholonomicSystem, q: np.ndarra
     rhs = (-ca.jacobian(momentum, qs) @ qds + 0.5 * ca.gradient(qds.T @ g @ qds, qs)
            - ca.gradient(v_pot, qs))
     drift = ca.jacobian(mu @ qds, qs) @ qds
-    fn = ca.Function("lda", [qs, qds], [g, mu, rhs, drift])
+    fn = ca.Function('lda', [qs, qds], [g, mu, rhs, drift])
     g_n, mu_n, rhs_n, drift_n = (np.array(x) for x in fn(q, qdot))
     m = mu_n.shape[0]
     kkt = np.block([[g_n, -mu_n.T], [mu_n, np.zeros((m, m))]])
@@ -75,10 +92,10 @@ def lagrange_dalembert_acceleration(system: nht.NonholonomicSystem, q: np.ndarra
 def basis_acceleration(system: nht.NonholonomicSystem, q: np.ndarray, v: np.ndarray,
                        vdot: np.ndarray) -> np.ndarray:
     """d/dt (rho(q) v) = (d rho/dq . qdot) v + rho vdot, with qdot = rho v."""
-    qs = ca.SX.sym("q", system.n)
+    qs = ca.SX.sym('q', system.n)
     vs = ca.DM(v)
     rho_v = system.rho_fn(qs) @ vs
-    jac = np.array(ca.Function("j", [qs], [ca.jacobian(rho_v, qs)])(q))
+    jac = np.array(ca.Function('j', [qs], [ca.jacobian(rho_v, qs)])(q))
     rho = system.rho(q)
     return jac @ (rho @ v) + rho @ vdot
 
@@ -91,11 +108,11 @@ def random_state(system: nht.NonholonomicSystem, rng: np.random.Generator
 
 
 ALL_SYSTEMS = {
-    "chaplygin_sleigh": nht.models.chaplygin_sleigh,
-    "chaplygin_sleigh_heavy": lambda: nht.models.chaplygin_sleigh(m=3.5, J=0.7, a=-0.6),
-    "nonholonomic_particle": nht.models.nonholonomic_particle,
-    "unicycle": lambda: nht.models.unicycle(m=2.0, J=0.3),
-    "rolling_disk": nht.models.rolling_disk,
-    "inclined_knife_edge": inclined_knife_edge,
-    "coupled": coupled_system,
+    'chaplygin_sleigh': nht.models.chaplygin_sleigh,
+    'chaplygin_sleigh_heavy': lambda: nht.models.chaplygin_sleigh(m=3.5, J=0.7, a=-0.6),
+    'nonholonomic_particle': nht.models.nonholonomic_particle,
+    'unicycle': lambda: nht.models.unicycle(m=2.0, J=0.3),
+    'rolling_disk': nht.models.rolling_disk,
+    'inclined_knife_edge': inclined_knife_edge,
+    'coupled': coupled_system,
 }

@@ -1,14 +1,31 @@
-"""Property-based tests of every message conversion: random and malformed messages give a
-valid value or a typed rejection with a reason — never another exception, never NaN out."""
+# Copyright 2026 nh_tracking maintainers
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+
+"""Property-based tests of every message conversion.
+
+Random and malformed messages give a valid value or a typed rejection with a reason — never another
+exception, never NaN out.
+"""
 import math
 
-import numpy as np
-import pytest
 from builtin_interfaces.msg import Duration, Time
 from geometry_msgs.msg import Point, Pose, PoseStamped, Quaternion, Transform, Twist, Vector3
-from hypothesis import HealthCheck, given, settings
+from hypothesis import given, HealthCheck, settings
 from hypothesis import strategies as st
 from nav_msgs.msg import Odometry, Path
+import numpy as np
+import pytest
 from std_msgs.msg import Header
 from trajectory_msgs.msg import (JointTrajectory, JointTrajectoryPoint, MultiDOFJointTrajectory,
                                  MultiDOFJointTrajectoryPoint)
@@ -25,7 +42,7 @@ POSE_MAP = PoseMap(SLEIGH)
 wild = st.floats(allow_nan=True, allow_infinity=True, width=64)
 tame = st.floats(min_value=-50.0, max_value=50.0, allow_nan=False)
 value = st.one_of(tame, tame, tame, wild)  # mostly plausible, sometimes anything
-frames = st.sampled_from(["odom", "/odom", "map", "", "base_link"])
+frames = st.sampled_from(['odom', '/odom', 'map', '', 'base_link'])
 stamps = st.builds(Time, sec=st.integers(0, 2_000_000), nanosec=st.integers(0, 999_999_999))
 durations = st.builds(Duration, sec=st.integers(0, 1000), nanosec=st.integers(0, 999_999_999))
 
@@ -50,19 +67,19 @@ def twists(draw):
                  angular=Vector3(x=draw(value), y=draw(value), z=draw(value)))
 
 
-BAD_NUMBERS = st.sampled_from([float("nan"), float("inf"), -float("inf"), 1e300, -1e9])
+BAD_NUMBERS = st.sampled_from([float('nan'), float('inf'), -float('inf'), 1e300, -1e9])
 
 
 @st.composite
 def paths(draw):
-    """A valid timed path, then 0-2 mutations that make it malformed (or not)."""
+    """Draw a valid timed path, then 0-2 mutations that make it malformed (or not)."""
     count = draw(st.integers(1, 12))
     t0 = draw(st.integers(0, 1000))
     steps = draw(st.lists(st.integers(1, 2_000_000_000), min_size=count, max_size=count))
     ns = t0 * 10**9 + np.cumsum(steps)
-    msg = Path(header=Header(frame_id=draw(st.sampled_from(["odom", "/odom"])),
+    msg = Path(header=Header(frame_id=draw(st.sampled_from(['odom', '/odom'])),
                              stamp=Time(sec=t0) if draw(st.booleans()) else Time()),
-               poses=[PoseStamped(header=Header(frame_id=draw(st.sampled_from(["", "odom"])),
+               poses=[PoseStamped(header=Header(frame_id=draw(st.sampled_from(['', 'odom'])),
                                                 stamp=cv.time_msg(int(t))),
                                   pose=cv.pose_msg(np.array([draw(tame), draw(tame), 0.0,
                                                              draw(tame)])))
@@ -71,18 +88,18 @@ def paths(draw):
         if not msg.poses:
             break
         i = draw(st.integers(0, count - 1))
-        kind = draw(st.sampled_from(["nan", "quaternion", "frame", "pose_frame", "stamp",
-                                     "empty"]))
-        if kind == "nan":
-            setattr(msg.poses[i].pose.position, draw(st.sampled_from("xyz")), draw(BAD_NUMBERS))
-        elif kind == "quaternion":
+        kind = draw(st.sampled_from(['nan', 'quaternion', 'frame', 'pose_frame', 'stamp',
+                                     'empty']))
+        if kind == 'nan':
+            setattr(msg.poses[i].pose.position, draw(st.sampled_from('xyz')), draw(BAD_NUMBERS))
+        elif kind == 'quaternion':
             msg.poses[i].pose.orientation = Quaternion(x=draw(value), y=draw(value),
                                                        z=draw(value), w=draw(value))
-        elif kind == "frame":
+        elif kind == 'frame':
             msg.header.frame_id = draw(frames)
-        elif kind == "pose_frame":
+        elif kind == 'pose_frame':
             msg.poses[i].header.frame_id = draw(frames)
-        elif kind == "stamp":
+        elif kind == 'stamp':
             msg.poses[i].header.stamp = draw(stamps)
         else:
             msg.poses = []
@@ -91,7 +108,7 @@ def paths(draw):
 
 @st.composite
 def multidof(draw):
-    """A valid one-joint trajectory, then 0-2 mutations."""
+    """Draw a valid one-joint trajectory, then 0-2 mutations."""
     count = draw(st.integers(1, 10))
     points = [MultiDOFJointTrajectoryPoint(
         transforms=[Transform(translation=Vector3(x=draw(tame), y=draw(tame), z=0.0),
@@ -100,23 +117,23 @@ def multidof(draw):
                           angular=Vector3(z=draw(tame)))],
         time_from_start=Duration(sec=i, nanosec=draw(st.integers(0, 999_999_999))))
         for i in range(count)]
-    msg = MultiDOFJointTrajectory(header=Header(frame_id="odom", stamp=draw(stamps)),
-                                  joint_names=["base_link"], points=points)
+    msg = MultiDOFJointTrajectory(header=Header(frame_id='odom', stamp=draw(stamps)),
+                                  joint_names=['base_link'], points=points)
     for _ in range(draw(st.integers(0, 2))):
         pt = msg.points[draw(st.integers(0, count - 1))]
-        kind = draw(st.sampled_from(["nan", "quaternion", "lengths", "names", "time", "frame"]))
+        kind = draw(st.sampled_from(['nan', 'quaternion', 'lengths', 'names', 'time', 'frame']))
         if len(pt.transforms) != 1:
             break
-        if kind == "nan":
+        if kind == 'nan':
             pt.velocities[0].linear.x = draw(BAD_NUMBERS)
-        elif kind == "quaternion":
+        elif kind == 'quaternion':
             pt.transforms[0].rotation = Quaternion(x=draw(value), y=draw(value), z=draw(value),
                                                    w=draw(value))
-        elif kind == "lengths":
+        elif kind == 'lengths':
             pt.transforms = list(pt.transforms) * draw(st.sampled_from([0, 2]))
-        elif kind == "names":
-            msg.joint_names = draw(st.lists(st.just("j"), max_size=3))
-        elif kind == "time":
+        elif kind == 'names':
+            msg.joint_names = draw(st.lists(st.just('j'), max_size=3))
+        elif kind == 'time':
             pt.time_from_start = draw(durations)
         else:
             msg.header.frame_id = draw(frames)
@@ -124,24 +141,26 @@ def multidof(draw):
 
 
 def test_strategies_exercise_both_outcomes():
-    """Guard against vacuous properties: the generators must give accepted and rejected
-    messages alike."""
-    outcomes = {"path": set(), "trajectory": set()}
+    """Guard against vacuous properties.
+
+    The generators must give accepted and rejected messages alike.
+    """
+    outcomes = {'path': set(), 'trajectory': set()}
 
     @settings(max_examples=200, deadline=None, suppress_health_check=list(HealthCheck))
     @given(paths(), multidof())
     def sample(path, trajectory):
-        for key, convert, msg in (("path", cv.path_to_arrays, path),
-                                  ("trajectory", cv.multidof_to_arrays, trajectory)):
+        for key, convert, msg in (('path', cv.path_to_arrays, path),
+                                  ('trajectory', cv.multidof_to_arrays, trajectory)):
             try:
-                convert(msg, "odom", 1)
-                outcomes[key].add("accepted")
+                convert(msg, 'odom', 1)
+                outcomes[key].add('accepted')
             except cv.InputRejected:
-                outcomes[key].add("rejected")
+                outcomes[key].add('rejected')
 
     sample()
-    assert outcomes == {"path": {"accepted", "rejected"},
-                        "trajectory": {"accepted", "rejected"}}
+    assert outcomes == {'path': {'accepted', 'rejected'},
+                        'trajectory': {'accepted', 'rejected'}}
 
 
 def _all_finite(*arrays) -> bool:
@@ -152,7 +171,7 @@ def _all_finite(*arrays) -> bool:
 @given(paths())
 def test_path_conversion_is_valid_or_rejected(msg):
     try:
-        times, poses_ = cv.path_to_arrays(msg, "odom", receipt_ns=5_000_000_000)
+        times, poses_ = cv.path_to_arrays(msg, 'odom', receipt_ns=5_000_000_000)
     except cv.InputRejected as exc:
         assert str(exc)
         return
@@ -166,7 +185,7 @@ def test_path_conversion_is_valid_or_rejected(msg):
 @given(multidof())
 def test_multidof_conversion_is_valid_or_rejected(msg):
     try:
-        times, poses_, body = cv.multidof_to_arrays(msg, "odom", receipt_ns=1)
+        times, poses_, body = cv.multidof_to_arrays(msg, 'odom', receipt_ns=1)
     except cv.InputRejected as exc:
         assert str(exc)
         return
@@ -181,7 +200,7 @@ def test_odometry_conversion_is_valid_or_rejected(frame, stamp, pose, twist):
     msg = Odometry(header=Header(frame_id=frame, stamp=stamp))
     msg.pose.pose, msg.twist.twist = pose, twist
     try:
-        ns, pose_arr, body = cv.odom_to_arrays(msg, "odom")
+        ns, pose_arr, body = cv.odom_to_arrays(msg, 'odom')
     except cv.InputRejected as exc:
         assert str(exc)
         return
@@ -190,7 +209,7 @@ def test_odometry_conversion_is_valid_or_rejected(frame, stamp, pose, twist):
 
 
 @SETTINGS
-@given(st.lists(st.sampled_from(["torque", "force", "left"]), max_size=3),
+@given(st.lists(st.sampled_from(['torque', 'force', 'left']), max_size=3),
        st.lists(st.tuples(durations, st.lists(value, max_size=3)), max_size=8), stamps)
 def test_control_sequence_conversion_is_valid_or_rejected(names, points, stamp):
     msg = JointTrajectory(header=Header(stamp=stamp), joint_names=names, points=[
@@ -220,11 +239,11 @@ def test_twist_conversion_is_valid_or_rejected(twist):
 def test_outgoing_messages_round_trip(x, y, yaw):
     """What the nodes publish reads back as what they meant (within float precision)."""
     pose = np.array([x, y, 0.0, yaw])
-    back = cv.pose_array(cv.pose_msg(pose), "pose")
+    back = cv.pose_array(cv.pose_msg(pose), 'pose')
     assert np.allclose(back[:3], pose[:3])
     assert abs(math.remainder(back[3] - yaw, 2 * math.pi)) < 1e-9
-    seq = cv.control_sequence_msg("odom", 10**9, np.array([0.0, 0.1]), ["torque", "force"],
+    seq = cv.control_sequence_msg('odom', 10**9, np.array([0.0, 0.1]), ['torque', 'force'],
                                   np.array([[x, y], [y, x]]) * 1e-3)
-    start, offsets, efforts = cv.controls_to_arrays(seq, ["torque", "force"])
+    start, offsets, efforts = cv.controls_to_arrays(seq, ['torque', 'force'])
     assert start == 10**9 and np.allclose(efforts, np.array([[x, y], [y, x]]) * 1e-3)
     assert offsets == pytest.approx([0.0, 0.1])

@@ -1,24 +1,40 @@
-"""Deployment as users run it: the installed ``planner`` and ``sim`` as separate processes over
-DDS, on the wall clock and on the simulator's clock, a latched reference from a third
-participant, a planner killed and restarted, start-up parameters from the command line and the
-installed parameter file."""
+# Copyright 2026 nh_tracking maintainers
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+
+"""Deployment as users run it.
+
+The installed ``planner`` and ``sim`` as separate processes over DDS, on the wall clock and on the
+simulator's clock, a latched reference from a third participant, a planner killed and restarted,
+start-up parameters from the command line and the installed parameter file.
+"""
 import math
+from pathlib import Path
 import threading
 import time
-from pathlib import Path
 
-import numpy as np
-import pytest
-import yaml
 from nav_msgs.msg import Odometry
 from nav_msgs.msg import Path as PathMsg
+import numpy as np
+import pytest
 from trajectory_msgs.msg import JointTrajectory
+import yaml
 
 from nh_tracking.metrics import cross_track_error
 from nh_tracking.ros import conversions as cv
 from nh_tracking.ros.graph import wait_until
 from nh_tracking.ros.planner_node import LATCHED
-from processes import Peer, Process, domain_env, run, starts_and_stops
+from processes import domain_env, Peer, Process, run, starts_and_stops
 
 pytestmark = pytest.mark.timeout(300)
 ROOT = Path(__file__).resolve().parents[1]
@@ -26,13 +42,16 @@ RADIUS, SPEED = 2.0, 0.5  # m, m/s
 
 
 def circle(start_ns: int, duration: float = 300.0, dt: float = 0.1) -> tuple[PathMsg, np.ndarray]:
-    """A counter-clockwise circle about the origin, stamped on the wall clock from start_ns."""
+    """Return a counter-clockwise circle about the origin.
+
+    Stamped on the wall clock from start_ns.
+    """
     t = np.arange(0.0, duration, dt)
     angle = SPEED / RADIUS * t
     poses = np.stack([RADIUS * np.cos(angle), RADIUS * np.sin(angle), 0 * t,
                       angle + math.pi / 2], axis=1)
     stamps = [start_ns + int(round(s * 1e9)) for s in t]
-    return cv.path_msg("odom", stamps, poses), poses[:, :2]
+    return cv.path_msg('odom', stamps, poses), poses[:, :2]
 
 
 class Robot:
@@ -42,8 +61,8 @@ class Robot:
         self._lock = threading.Lock()
         self.odom: list[tuple[float, float, float]] = []
         self.sequences: list[float] = []  # time.monotonic() of receipt
-        peer.node.create_subscription(Odometry, "odom", self._on_odom, 100)
-        peer.node.create_subscription(JointTrajectory, "control_sequence",
+        peer.node.create_subscription(Odometry, 'odom', self._on_odom, 100)
+        peer.node.create_subscription(JointTrajectory, 'control_sequence',
                                       lambda m: self.sequences.append(time.monotonic()), 10)
 
     def _on_odom(self, msg: Odometry) -> None:
@@ -61,38 +80,38 @@ class Robot:
 
 
 CLOCKS = {  # (simulator, planner) arguments: the wall clock, or the simulator's /clock at 2x
-    "wall clock": ([], []),
-    "sim time": (["-p", "publish_clock:=true", "-p", "time_scale:=2.0"],
-                 ["--ros-args", "-p", "use_sim_time:=true"]),
+    'wall clock': ([], []),
+    'sim time': (['-p', 'publish_clock:=true', '-p', 'time_scale:=2.0'],
+                 ['--ros-args', '-p', 'use_sim_time:=true']),
 }
 
 
-@pytest.mark.parametrize("clock", CLOCKS)
+@pytest.mark.parametrize('clock', CLOCKS)
 def test_planner_and_sim_processes_track_a_latched_circle_and_survive_a_planner_kill(clock):
     env = domain_env()
     sim_args, planner_args = CLOCKS[clock]
-    start = ["--ros-args", "-p", f"initial_state:=[{RADIUS + 0.3}, 0.0, {math.pi / 2}, 0.0, 0.0]"]
-    sim = Process("sim", start + sim_args, env)
-    planner = Process("planner", planner_args, env)
+    start = ['--ros-args', '-p', f'initial_state:=[{RADIUS + 0.3}, 0.0, {math.pi / 2}, 0.0, 0.0]']
+    sim = Process('sim', start + sim_args, env)
+    planner = Process('planner', planner_args, env)
     peer = Peer(env)
     try:
         robot = Robot(peer)
-        assert sim.wait_for("simulating") and planner.wait_for("planning for"), \
+        assert sim.wait_for('simulating') and planner.wait_for('planning for'), \
             sim.output + planner.output
-        reference = peer.node.create_publisher(PathMsg, "reference_path", LATCHED)
+        reference = peer.node.create_publisher(PathMsg, 'reference_path', LATCHED)
         assert wait_until(lambda: len(robot.odom) > 0, 20.0)
         begin = int(robot.odom[-1][0] * 1e9) + 1_000_000_000  # on the robot's clock
         msg, path = circle(begin)
         reference.publish(msg)  # once, latched: never sent again
-        assert planner.wait_for("new reference", 20.0), planner.output
+        assert planner.wait_for('new reference', 20.0), planner.output
         # 1. tracking on the wall clock, two processes
         assert wait_until(lambda: len(robot.odom) and robot.odom[-1][0] > begin * 1e-9 + 18, 60)
         track = robot.track()
         t = track[:, 0] - begin * 1e-9
         settled = cross_track_error(track[t >= 15.0, 1:], path)
         gaps = np.diff(track[:, 0])
-        print(f"\n{clock}: cross-track error after 15 s max {settled.max():.4f} m; odometry "
-              f"gap max {gaps.max() * 1e3:.1f} ms over {len(track)} messages")
+        print(f'\n{clock}: cross-track error after 15 s max {settled.max():.4f} m; odometry '
+              f'gap max {gaps.max() * 1e3:.1f} ms over {len(track)} messages')
         assert settled.size > 50 and settled.max() < 0.05
         # 2. kill -9 the planner mid-run; restart it; it finds the latched reference itself
         planner.kill()
@@ -101,8 +120,8 @@ def test_planner_and_sim_processes_track_a_latched_circle_and_survive_a_planner_
         drifted = robot.error_now(path)
         restarted = time.monotonic()
         before = len(robot.sequences)
-        planner = Process("planner", planner_args, env)
-        assert planner.wait_for("new reference", 60.0), planner.output
+        planner = Process('planner', planner_args, env)
+        assert planner.wait_for('new reference', 60.0), planner.output
         assert wait_until(lambda: len(robot.sequences) > before, 30.0)
         first_plan = robot.sequences[before] - restarted
         assert wait_until(lambda: robot.error_now(path) < 0.05, 60.0), robot.error_now(path)
@@ -112,58 +131,58 @@ def test_planner_and_sim_processes_track_a_latched_circle_and_survive_a_planner_
         since_kill = track[at_kill:]
         error = cross_track_error(since_kill[:, 1:], path)
         final = error[since_kill[:, 0] >= since_kill[-1, 0] - 2.0].max()
-        print(f"restart: error {drifted:.3f} m one second after kill -9, worst {error.max():.3f}"
-              f" m; first control sequence {first_plan:.2f} s after the restart, error under "
-              f"0.05 m {recovered:.2f} s after it, {final:.4f} m in the last 2 s; odometry gap "
-              f"max {np.diff(since_kill[:, 0]).max() * 1e3:.1f} ms since the kill")
+        print(f'restart: error {drifted:.3f} m one second after kill -9, worst {error.max():.3f}'
+              f' m; first control sequence {first_plan:.2f} s after the restart, error under '
+              f'0.05 m {recovered:.2f} s after it, {final:.4f} m in the last 2 s; odometry gap '
+              f'max {np.diff(since_kill[:, 0]).max() * 1e3:.1f} ms since the kill')
         assert final < 0.05
         gaps = np.diff(robot.track()[:, 0])
         assert gaps.max() < 0.2, gaps.max()
-        assert "failed" not in sim.output and "Traceback" not in sim.output, sim.output
+        assert 'failed' not in sim.output and 'Traceback' not in sim.output, sim.output
     finally:
         peer.close()
         codes = planner.interrupt(), sim.interrupt()
     assert codes == (0, 0), planner.output + sim.output
-    assert "Traceback" not in planner.output, planner.output
+    assert 'Traceback' not in planner.output, planner.output
 
 
 def test_start_up_parameters_run_or_exit_2_with_one_line(tmp_path):
-    params = yaml.safe_load((ROOT / "config" / "sleigh.yaml").read_text())
-    params["/**/nh_tracking_planner"]["ros__parameters"].update(horizon=2, steps=20)
-    params["/**/nh_tracking_sim"]["ros__parameters"].update(
+    params = yaml.safe_load((ROOT / 'config' / 'sleigh.yaml').read_text())
+    params['/**/nh_tracking_planner']['ros__parameters'].update(horizon=2, steps=20)
+    params['/**/nh_tracking_sim']['ros__parameters'].update(
         J=4.4, initial_state=[1, 2, 0, 0, 0])
-    edited = tmp_path / "robot.yaml"
+    edited = tmp_path / 'robot.yaml'
     edited.write_text(yaml.safe_dump(params))
     running = {  # started together, each on its own domain
-        "horizon:=3": (Process("planner", ["--ros-args", "-p", "horizon:=3"], domain_env()),
-                       "planning for", "horizon=3.0"),
-        "J:=4": (Process("sim", ["--ros-args", "-p", "J:=4"], domain_env()),
-                 "simulating", "'J': 4.0"),
-        "installed file": (Process("planner", ["--ros-args", "--params-file",
-                                               str(ROOT / "config" / "sleigh.yaml")],
-                                   domain_env()), "planning for", "horizon=3.0, steps=30"),
-        "edited file, planner": (Process("planner", ["--ros-args", "--params-file",
+        'horizon:=3': (Process('planner', ['--ros-args', '-p', 'horizon:=3'], domain_env()),
+                       'planning for', 'horizon=3.0'),
+        'J:=4': (Process('sim', ['--ros-args', '-p', 'J:=4'], domain_env()),
+                 'simulating', "'J': 4.0"),
+        'installed file': (Process('planner', ['--ros-args', '--params-file',
+                                               str(ROOT / 'config' / 'sleigh.yaml')],
+                                   domain_env()), 'planning for', 'horizon=3.0, steps=30'),
+        'edited file, planner': (Process('planner', ['--ros-args', '--params-file',
                                                      str(edited)], domain_env()),
-                                 "planning for", "horizon=2.0, steps=20"),
-        "edited file, sim": (Process("sim", ["--ros-args", "--params-file", str(edited)],
+                                 'planning for', 'horizon=2.0, steps=20'),
+        'edited file, sim': (Process('sim', ['--ros-args', '--params-file', str(edited)],
                                      domain_env()),
-                             "simulating", "'J': 4.4, 'a': 0.2} from [1.0, 2.0, 0.0, 0.0, 0.0]"),
+                             'simulating', "'J': 4.4, 'a': 0.2} from [1.0, 2.0, 0.0, 0.0, 0.0]"),
     }
     for case, (process, ready, shown) in running.items():
         assert shown in starts_and_stops(process, ready), case
-    refused = [("planner", "horizon:=-1.0", "parameter horizon must be in [0.05, 600]"),
-               ("planner", "steps:=1", "parameter steps must be in [2, 2000]"),
-               ("planner", "method:=magic", "parameter method must be one of"),
-               ("planner", "horizon:=fast", "parameter horizon must be a number"),
-               ("sim", "rate:=0.0", "parameter rate must be in [1, 2000]"),
-               ("sim", "initial_state:=[1.0]", "initial_state needs 5 finite numbers")]
+    refused = [('planner', 'horizon:=-1.0', 'parameter horizon must be in [0.05, 600]'),
+               ('planner', 'steps:=1', 'parameter steps must be in [2, 2000]'),
+               ('planner', 'method:=magic', 'parameter method must be one of'),
+               ('planner', 'horizon:=fast', 'parameter horizon must be a number'),
+               ('sim', 'rate:=0.0', 'parameter rate must be in [1, 2000]'),
+               ('sim', 'initial_state:=[1.0]', 'initial_state needs 5 finite numbers')]
     for exe, setting, reason in refused:
-        done = run(exe, ["--ros-args", "-p", setting], domain_env())
+        done = run(exe, ['--ros-args', '-p', setting], domain_env())
         lines = done.stderr.strip().splitlines()
         assert done.returncode == 2, (setting, done.stdout, done.stderr)
         assert len(lines) == 1 and reason in lines[0], (setting, done.stderr)
-        assert "Traceback" not in done.stdout + done.stderr
-    for exe, node in (("planner", "nh_tracking_planner"), ("sim", "nh_tracking_sim")):
-        done = run(exe, ["--help"], domain_env())
-        assert done.returncode == 0 and done.stdout.startswith(f"usage: {exe}")
-        assert node in done.stdout and "--params-file" in done.stdout
+        assert 'Traceback' not in done.stdout + done.stderr
+    for exe, node in (('planner', 'nh_tracking_planner'), ('sim', 'nh_tracking_sim')):
+        done = run(exe, ['--help'], domain_env())
+        assert done.returncode == 0 and done.stdout.startswith(f'usage: {exe}')
+        assert node in done.stdout and '--params-file' in done.stdout

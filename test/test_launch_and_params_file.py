@@ -1,10 +1,26 @@
-"""The installed parameter file and launch file, checked without the launch tooling (not
-installable here): the launch file is run against stand-ins of the launch API that record
-what it asks for."""
+# Copyright 2026 nh_tracking maintainers
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+
+"""The installed parameter file and launch file.
+
+Checked without the launch tooling (not installable here): the launch file is run against stand-ins
+of the launch API that record what it asks for.
+"""
 import importlib.util
+from pathlib import Path
 import sys
 import types
-from pathlib import Path
 
 import yaml
 
@@ -12,24 +28,24 @@ from nh_tracking.ros import planner_node, simulator_node
 from nh_tracking.ros.parameters import MODEL, model_specs
 
 ROOT = Path(__file__).resolve().parents[1]
-SECTIONS = {"/**/nh_tracking_planner": planner_node.PARAMETERS,
-            "/**/nh_tracking_sim": simulator_node.PARAMETERS}
+SECTIONS = {'/**/nh_tracking_planner': planner_node.PARAMETERS,
+            '/**/nh_tracking_sim': simulator_node.PARAMETERS}
 
 
 def _console_scripts() -> set[str]:
-    setup = (ROOT / "setup.py").read_text()
-    return {line.split("=")[0].strip(" '\"") for line in setup.splitlines()
-            if "= nh_tracking" in line}
+    setup = (ROOT / 'setup.py').read_text()
+    return {line.split('=')[0].strip(" '\"") for line in setup.splitlines()
+            if '= nh_tracking' in line}
 
 
 def test_parameter_file_lists_every_parameter_with_its_default():
-    params = yaml.safe_load((ROOT / "config" / "sleigh.yaml").read_text())
+    params = yaml.safe_load((ROOT / 'config' / 'sleigh.yaml').read_text())
     assert set(params) == set(SECTIONS)
     for section, specs in SECTIONS.items():
-        values = params[section]["ros__parameters"]
-        expected = {s.name: s.default for s in (MODEL, *specs, *model_specs(values["model"]))}
-        if section.endswith("sim"):
-            expected["initial_state"] = [0.0] * 5
+        values = params[section]['ros__parameters']
+        expected = {s.name: s.default for s in (MODEL, *specs, *model_specs(values['model']))}
+        if section.endswith('sim'):
+            expected['initial_state'] = [0.0] * 5
         assert values == expected, section
 
 
@@ -44,58 +60,60 @@ class _Recorder:
 
 
 def _stub_launch_api(monkeypatch) -> None:
-    names = {"launch": ["LaunchDescription"], "launch.actions": ["DeclareLaunchArgument"],
-             "launch.substitutions": ["LaunchConfiguration", "PathJoinSubstitution"],
-             "launch_ros.actions": ["Node"], "launch_ros.substitutions": ["FindPackageShare"]}
+    names = {'launch': ['LaunchDescription'], 'launch.actions': ['DeclareLaunchArgument'],
+             'launch.substitutions': ['LaunchConfiguration', 'PathJoinSubstitution'],
+             'launch_ros.actions': ['Node'], 'launch_ros.substitutions': ['FindPackageShare']}
     for module, classes in names.items():
         stub = types.ModuleType(module)
         for cls in classes:
             setattr(stub, cls, type(cls, (_Recorder,), {}))
         monkeypatch.setitem(sys.modules, module, stub)
-    monkeypatch.setitem(sys.modules, "launch_ros", types.ModuleType("launch_ros"))
+    monkeypatch.setitem(sys.modules, 'launch_ros', types.ModuleType('launch_ros'))
 
 
 def test_launch_file_starts_installed_executables_with_declared_parameters(monkeypatch):
     _stub_launch_api(monkeypatch)
     _Recorder.made = []
-    spec = importlib.util.spec_from_file_location("tracking_launch",
-                                                  ROOT / "launch" / "tracking.launch.py")
+    spec = importlib.util.spec_from_file_location('tracking_launch',
+                                                  ROOT / 'launch' / 'tracking.launch.py')
     module = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(module)
     description = module.generate_launch_description()
     actions = description.args[0]
     arguments = {a.args[0]: a.kwargs for a in actions
-                 if type(a).__name__ == "DeclareLaunchArgument"}
-    assert {"params_file", "namespace", "use_sim_time", "autostart"} <= set(arguments)
-    default_file = arguments["params_file"]["default_value"].args[0]
-    assert default_file[0].args == ("nh_tracking",) and default_file[1:] == ["config",
-                                                                            "sleigh.yaml"]
-    assert (ROOT / "config" / "sleigh.yaml").exists()
-    nodes = [a.kwargs for a in actions if type(a).__name__ == "Node"]
-    assert {n["executable"] for n in nodes} == {"planner", "sim"} <= _console_scripts()
-    declared = {"planner": {s.name for s in planner_node.PARAMETERS},
-                "sim": {s.name for s in simulator_node.PARAMETERS}}
+                 if type(a).__name__ == 'DeclareLaunchArgument'}
+    assert {'params_file', 'namespace', 'use_sim_time', 'autostart'} <= set(arguments)
+    default_file = arguments['params_file']['default_value'].args[0]
+    assert default_file[0].args == ('nh_tracking',)
+    assert default_file[1:] == ['config', 'sleigh.yaml']
+    assert (ROOT / 'config' / 'sleigh.yaml').exists()
+    nodes = [a.kwargs for a in actions if type(a).__name__ == 'Node']
+    assert {n['executable'] for n in nodes} == {'planner', 'sim'} <= _console_scripts()
+    declared = {'planner': {s.name for s in planner_node.PARAMETERS},
+                'sim': {s.name for s in simulator_node.PARAMETERS}}
     for node in nodes:
-        assert node["package"] == "nh_tracking"
-        assert node["name"] == {"planner": "nh_tracking_planner",
-                                "sim": "nh_tracking_sim"}[node["executable"]]
-        overrides = [p for p in node["parameters"] if isinstance(p, dict)]
+        assert node['package'] == 'nh_tracking'
+        assert node['name'] == {'planner': 'nh_tracking_planner',
+                                'sim': 'nh_tracking_sim'}[node['executable']]
+        overrides = [p for p in node['parameters'] if isinstance(p, dict)]
         for name in (k for p in overrides for k in p):
-            assert name in declared[node["executable"]] | {"use_sim_time"}, name
-        launch_args = {p.args[0] for p in node["parameters"]
-                       if type(p).__name__ == "LaunchConfiguration"}
+            assert name in declared[node['executable']] | {'use_sim_time'}, name
+        launch_args = {p.args[0] for p in node['parameters']
+                       if type(p).__name__ == 'LaunchConfiguration'}
         used = {v.args[0] for p in overrides for v in p.values()} | launch_args
         assert used <= set(arguments), used - set(arguments)
     # installed where `ros2 launch nh_tracking tracking.launch.py` looks
-    setup = (ROOT / "setup.py").read_text()
+    setup = (ROOT / 'setup.py').read_text()
     assert "glob('launch/*.launch.py')" in setup and "glob('config/*.yaml')" in setup
 
 
 def test_readme_parameter_tables_are_the_declared_ones():
-    """The README's tables are generated from the same declarations as the ROS descriptors,
-    the checks and --help: regenerate them when a setting changes."""
+    """The README's tables are generated from the same declarations as the ROS descriptors.
+
+    The checks and --help: regenerate them when a setting changes.
+    """
     from nh_tracking.ros.parameters import parameter_table
 
-    readme = (ROOT / "README.md").read_text()
+    readme = (ROOT / 'README.md').read_text()
     for specs in (planner_node.PARAMETERS, simulator_node.PARAMETERS):
         assert parameter_table(specs) in readme

@@ -1,22 +1,39 @@
-"""The planner's lifecycle, reconfiguration while commanding, and services that never hold up
-cmd_vel — in process, real nodes and the real solver, one Context per test."""
+# Copyright 2026 nh_tracking maintainers
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+
+"""The planner's lifecycle, reconfiguration while commanding.
+
+And services that never hold up cmd_vel — in process, real nodes and the real solver, one Context
+per test.
+"""
 import time
 
-import numpy as np
-import pytest
 from geometry_msgs.msg import Twist
 from lifecycle_msgs.msg import State, Transition
 from lifecycle_msgs.srv import ChangeState, GetState
 from nav_msgs.msg import Odometry, Path
 from nav_msgs.srv import GetPlan
+import numpy as np
+import pytest
 from rclpy.parameter import Parameter
 from trajectory_msgs.msg import JointTrajectory
 
-from nh_tracking.ros import SimulatorNode
 from nh_tracking.ros import conversions as cv
+from nh_tracking.ros import SimulatorNode
 from nh_tracking.ros.graph import wait_until
 from nh_tracking.ros.planner_node import LATCHED
-from test_ros import WallClockPair, unique_namespace
+from test_ros import unique_namespace, WallClockPair
 
 pytestmark = pytest.mark.timeout(240)
 
@@ -37,14 +54,14 @@ class Stream:
 
     def max_gap(self, since: float) -> float:
         times = [t for t in self.times if t >= since]
-        return max(np.diff(times)) if len(times) > 1 else float("inf")
+        return max(np.diff(times)) if len(times) > 1 else float('inf')
 
 
 def test_lifecycle_transitions_through_the_standard_services(graph):
-    pair = WallClockPair(graph, planner_params={"autostart": False})
+    pair = WallClockPair(graph, planner_params={'autostart': False})
     ns, planner, node = pair.ns, pair.planner, pair.node
-    get_state = node.create_client(GetState, f"{ns}/nh_tracking_planner/get_state")
-    change = node.create_client(ChangeState, f"{ns}/nh_tracking_planner/change_state")
+    get_state = node.create_client(GetState, f'{ns}/nh_tracking_planner/get_state')
+    change = node.create_client(ChangeState, f'{ns}/nh_tracking_planner/change_state')
     assert get_state.wait_for_service(10.0) and change.wait_for_service(10.0)
 
     def state() -> int:
@@ -58,48 +75,51 @@ def test_lifecycle_transitions_through_the_standard_services(graph):
         return future.result().success
 
     assert state() == State.PRIMARY_STATE_UNCONFIGURED and planner.session is None
-    reference = node.create_publisher(Path, "reference_path", LATCHED)
+    reference = node.create_publisher(Path, 'reference_path', LATCHED)
     assert transition(Transition.TRANSITION_CONFIGURE)
     assert state() == State.PRIMARY_STATE_INACTIVE
-    msg = cv.reference_message(pair.reference, planner.pose_map, 0.0, "path")
+    msg = cv.reference_message(pair.reference, planner.pose_map, 0.0, 'path')
     msg.header.stamp = cv.time_msg(0)
     reference.publish(msg)  # latched: every (re)configured planner picks it up
     assert wait_until(lambda: planner.planner.reference is not None, 10.0)
     wait_until(lambda: False, 1.0)
-    assert pair.published["control_sequence"] == [] and pair.published["cmd_vel"] == []
+    assert pair.published['control_sequence'] == [] and pair.published['cmd_vel'] == []
 
     assert transition(Transition.TRANSITION_ACTIVATE)
     assert state() == State.PRIMARY_STATE_ACTIVE
-    assert wait_until(lambda: len(pair.published["control_sequence"]) >= 3, 20.0)
-    assert wait_until(lambda: any(abs(m.linear.x) > 0.1 for m in pair.published["cmd_vel"]), 10)
+    assert wait_until(lambda: len(pair.published['control_sequence']) >= 3, 20.0)
+    assert wait_until(lambda: any(abs(m.linear.x) > 0.1 for m in pair.published['cmd_vel']), 10)
 
     assert transition(Transition.TRANSITION_DEACTIVATE)
     assert state() == State.PRIMARY_STATE_INACTIVE
-    assert wait_until(lambda: pair.published["cmd_vel"][-1].linear.x == 0.0, 5.0)
+    assert wait_until(lambda: pair.published['cmd_vel'][-1].linear.x == 0.0, 5.0)
     wait_until(lambda: False, 0.3)  # anything in flight arrives
-    sequences, commands = (len(pair.published[k]) for k in ("control_sequence", "cmd_vel"))
+    sequences, commands = (len(pair.published[k]) for k in ('control_sequence', 'cmd_vel'))
     wait_until(lambda: False, 1.0)
-    assert len(pair.published["control_sequence"]) == sequences
-    assert len(pair.published["cmd_vel"]) == commands  # nothing commands the robot
+    assert len(pair.published['control_sequence']) == sequences
+    assert len(pair.published['cmd_vel']) == commands  # nothing commands the robot
 
     assert transition(Transition.TRANSITION_CLEANUP)
     assert state() == State.PRIMARY_STATE_UNCONFIGURED and planner.session is None
     assert transition(Transition.TRANSITION_CONFIGURE)
     assert transition(Transition.TRANSITION_ACTIVATE)
-    assert wait_until(lambda: len(pair.published["control_sequence"]) > sequences + 3, 20.0)
+    assert wait_until(lambda: len(pair.published['control_sequence']) > sequences + 3, 20.0)
     assert planner.errors == 0
 
 
 def test_reconfiguring_never_stops_the_plan_in_force(graph, tmp_path, monkeypatch):
-    """compiled=true on an empty cache (C compilation, seconds) and a method change (a new
-    NLP): both built in the background while cmd_vel and control_sequence keep flowing."""
-    monkeypatch.setenv("NH_TRACKING_CACHE", str(tmp_path))
+    """compiled=true on an empty cache (C compilation.
+
+    Seconds) and a method change (a new NLP): both built in the background while cmd_vel and
+    control_sequence keep flowing.
+    """
+    monkeypatch.setenv('NH_TRACKING_CACHE', str(tmp_path))
     pair = WallClockPair(graph)
-    cmd = Stream(pair.node, Twist, "cmd_vel")
-    sequences = Stream(pair.node, JointTrajectory, "control_sequence")
+    cmd = Stream(pair.node, Twist, 'cmd_vel')
+    sequences = Stream(pair.node, JointTrajectory, 'control_sequence')
     pair.send_reference()
     planner = pair.planner
-    for change in ({"compiled": True}, {"method": "multiple_shooting", "compiled": False}):
+    for change in ({'compiled': True}, {'method': 'multiple_shooting', 'compiled': False}):
         since = time.monotonic()
         result = planner.set_parameters_atomically([Parameter(k, value=v)
                                                     for k, v in change.items()])
@@ -110,18 +130,18 @@ def test_reconfiguring_never_stops_the_plan_in_force(graph, tmp_path, monkeypatc
         count = sequences.count()
         assert wait_until(lambda: sequences.count() > count + 3, 10.0)
         gaps = cmd.max_gap(since), sequences.max_gap(since)
-        print(f"\n{change}: new solver after {took:.2f} s; longest gap meanwhile: "
-              f"cmd_vel {gaps[0] * 1e3:.0f} ms, control_sequence {gaps[1] * 1e3:.0f} ms")
+        print(f'\n{change}: new solver after {took:.2f} s; longest gap meanwhile: '
+              f'cmd_vel {gaps[0] * 1e3:.0f} ms, control_sequence {gaps[1] * 1e3:.0f} ms')
         assert max(gaps) < 0.5, (change, gaps)  # 20 Hz and 10 Hz streams never stopped
-    assert planner.planner.settings.method == "multiple_shooting" and planner.errors == 0
+    assert planner.planner.settings.method == 'multiple_shooting' and planner.errors == 0
     assert planner.planner.stats.fallbacks == 0
 
 
 def test_service_calls_do_not_hold_up_cmd_vel(graph):
-    pair = WallClockPair(graph, planner_params={"cmd_rate": 50.0})
-    cmd = Stream(pair.node, Twist, "cmd_vel")
+    pair = WallClockPair(graph, planner_params={'cmd_rate': 50.0})
+    cmd = Stream(pair.node, Twist, 'cmd_vel')
     pair.send_reference()
-    client = pair.node.create_client(GetPlan, f"{pair.ns}/plan")
+    client = pair.node.create_client(GetPlan, f'{pair.ns}/plan')
     assert client.wait_for_service(10.0)
     since = time.monotonic()
     futures = [client.call_async(GetPlan.Request()) for _ in range(30)]
@@ -129,25 +149,28 @@ def test_service_calls_do_not_hold_up_cmd_vel(graph):
     busy = time.monotonic() - since
     assert all(len(f.result().plan.poses) == 31 for f in futures)
     gap = cmd.max_gap(since)
-    print(f"\n30 plan requests answered in {busy:.2f} s; longest cmd_vel gap {gap * 1e3:.0f} ms")
+    print(f'\n30 plan requests answered in {busy:.2f} s; longest cmd_vel gap {gap * 1e3:.0f} ms')
     assert gap < 0.25  # at 50 Hz: the executor kept publishing through every solve
 
 
 def test_simulator_keeps_every_step_on_the_wall_clock_with_nanosecond_pieces(graph):
-    """Wall-clock stamps near 1.8e18 ns: a control sequence starting 1 ns after a step's start
-    makes a 1 ns piece, which seconds-as-float would collapse to nothing."""
+    """Wall-clock stamps near 1.8e18 ns.
+
+    A control sequence starting 1 ns after a step's start makes a 1 ns piece, which
+    seconds-as-float would collapse to nothing.
+    """
     ns = unique_namespace()
     sim = graph.add(SimulatorNode, namespace=ns)
-    probe = graph.plain_node("probe", ns)
-    odom = Stream(probe, Odometry, "odom")
-    pub = probe.create_publisher(JointTrajectory, "control_sequence", 10)
+    probe = graph.plain_node('probe', ns)
+    odom = Stream(probe, Odometry, 'odom')
+    pub = probe.create_publisher(JointTrajectory, 'control_sequence', 10)
     assert wait_until(lambda: pub.get_subscription_count() > 0 and odom.count() > 0, 10.0)
     names = sim.system.control_names
     start = odom.count()
     deadline = time.monotonic() + 2.0
     while time.monotonic() < deadline:
         last = cv.stamp_ns(odom.messages[-1].header.stamp)  # the next step starts here
-        pub.publish(cv.control_sequence_msg("odom", last + 1, np.arange(0.0, 1.0, 0.1), names,
+        pub.publish(cv.control_sequence_msg('odom', last + 1, np.arange(0.0, 1.0, 0.1), names,
                                             np.full((10, 2), 0.1)))
         time.sleep(0.01)
     steps = odom.count() - start
@@ -159,12 +182,12 @@ def test_simulator_keeps_every_step_on_the_wall_clock_with_nanosecond_pieces(gra
 
 def test_integers_are_accepted_for_floating_point_parameters_at_run_time(graph):
     pair = WallClockPair(graph)
-    results = pair.planner.set_parameters([Parameter("horizon", value=2),
-                                           Parameter("J", value=5)])
+    results = pair.planner.set_parameters([Parameter('horizon', value=2),
+                                           Parameter('J', value=5)])
     assert all(r.successful for r in results), [r.reason for r in results]
-    assert pair.planner.get_parameter("horizon").value == 2.0
-    assert pair.planner.get_parameter("J").type_ == Parameter.Type.DOUBLE
+    assert pair.planner.get_parameter('horizon').value == 2.0
+    assert pair.planner.get_parameter('J').type_ == Parameter.Type.DOUBLE
     assert wait_until(lambda: pair.planner.planner.settings.horizon == 2.0
-                      and pair.planner.system.parameters["J"] == 5.0, 20.0)
-    assert pair.sim.set_parameters([Parameter("control_timeout", value=1)])[0].successful
+                      and pair.planner.live.system.parameters['J'] == 5.0, 20.0)
+    assert pair.sim.set_parameters([Parameter('control_timeout', value=1)])[0].successful
     assert pair.sim.control_timeout == 1.0

@@ -1,3 +1,17 @@
+# Copyright 2026 nh_tracking maintainers
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+
 """Built-in models reproduce the paper's printed (and errata-checked) equations."""
 import casadi as ca
 import numpy as np
@@ -6,10 +20,13 @@ import pytest
 import nh_tracking as nht
 
 
-@pytest.mark.parametrize("m, J, a", [(1.0, 4.0, 0.2), (2.5, 0.3, 0.9), (0.7, 1.1, -0.4)])
+@pytest.mark.parametrize('m, J, a', [(1.0, 4.0, 0.2), (2.5, 0.3, 0.9), (0.7, 1.1, -0.4)])
 def test_sleigh_matches_eps_chaplygin(m, J, a):
-    """EPSChaplygin + admissibility (with docs/theory.md C12): v1' = -eta v1 v2 + u1,
-    v2' = eta v1^2 + u2, x1' = cos th v2/sqrt m, x2' = sin th v2/sqrt m, th' = v1/sqrt(I)."""
+    """Return EPSChaplygin and the admissibility equations (docs/theory.md C12).
+
+    v1' = -eta v1 v2 + u1, v2' = eta v1^2 + u2, x1' = cos th v2/sqrt m,
+    x2' = sin th v2/sqrt m, th' = v1/sqrt(I).
+    """
     sleigh = nht.models.chaplygin_sleigh(m=m, J=J, a=a)
     inertia = J + m * a**2
     eta = a * np.sqrt(m) / inertia
@@ -56,19 +73,19 @@ def test_unicycle_velocities_are_the_body_twist():
 
 
 def test_models_by_name_with_parameters():
-    sleigh = nht.models.create("chaplygin_sleigh", m=2.0, J=1.0)
-    assert sleigh.parameters == {"m": 2.0, "J": 1.0, "a": 0.2}
-    assert nht.models.model_parameters("rolling_disk") == {
-        "m": 1.0, "R": 0.5, "I_spin": 0.1, "I_turn": 0.05}
-    with pytest.raises(ValueError, match="unknown model"):
-        nht.models.create("hovercraft")
-    with pytest.raises(ValueError, match="takes"):
-        nht.models.create("unicycle", mass=2.0)
-    for bad in (0.0, -1.0, float("nan"), float("inf"), "1"):
-        with pytest.raises(ValueError, match="model parameter m must be a number in"):
-            nht.models.create("unicycle", m=bad)
+    sleigh = nht.models.create('chaplygin_sleigh', m=2.0, J=1.0)
+    assert sleigh.parameters == {'m': 2.0, 'J': 1.0, 'a': 0.2}
+    assert nht.models.model_parameters('rolling_disk') == {
+        'm': 1.0, 'R': 0.5, 'I_spin': 0.1, 'I_turn': 0.05}
+    with pytest.raises(ValueError, match='unknown model'):
+        nht.models.create('hovercraft')
+    with pytest.raises(ValueError, match='takes'):
+        nht.models.create('unicycle', mass=2.0)
+    for bad in (0.0, -1.0, float('nan'), float('inf'), '1'):
+        with pytest.raises(ValueError, match='model parameter m must be a number in'):
+            nht.models.create('unicycle', m=bad)
         if not isinstance(bad, str):  # the factory alone checks too
-            with pytest.raises(ValueError, match="must be a finite number > 0"):
+            with pytest.raises(ValueError, match='must be a finite number > 0'):
                 nht.models.unicycle(m=bad)
 
 
@@ -76,44 +93,46 @@ def test_every_model_spec_matches_its_factory_and_declares_its_pose():
     for name, spec in nht.models.MODELS.items():
         system = spec.create()
         assert system.name == name and system.parameters == spec.defaults
-        assert system.pose is not None and "x" in system.pose.values()
+        assert system.pose is not None and 'x' in system.pose.values()
         assert all(p.unit and p.description for p in spec.parameters)
         q0, v0 = spec.start
         assert len(q0) == system.n and len(v0) == system.k
 
 
 def test_user_models_load_by_module_path_and_by_factory():
-    """The car-like robot of test/user_robots.py, by ``package.module:attribute``: as a
-    ModelSpec, and as a bare factory whose keyword defaults become its parameters."""
-    car = nht.models.spec("user_robots:CAR")
-    assert [p.name for p in car.parameters] == ["m", "J", "I_steer", "L"]
-    system = nht.models.create("user_robots:CAR", L=0.8)
-    assert system.parameters["L"] == 0.8 and system.pose["theta"] == "yaw"
-    bare = nht.models.spec("user_robots:car_like")
+    """The car-like robot of test/user_robots.py, by ``package.module:attribute``.
+
+    As a ModelSpec, and as a bare factory whose keyword defaults become its parameters.
+    """
+    car = nht.models.spec('user_robots:CAR')
+    assert [p.name for p in car.parameters] == ['m', 'J', 'I_steer', 'L']
+    system = nht.models.create('user_robots:CAR', L=0.8)
+    assert system.parameters['L'] == 0.8 and system.pose['theta'] == 'yaw'
+    bare = nht.models.spec('user_robots:car_like')
     assert bare.defaults == car.defaults and bare.create().n == 4
     with pytest.raises(ValueError, match="cannot load model 'user_robots:nothing'"):
-        nht.models.spec("user_robots:nothing")
+        nht.models.spec('user_robots:nothing')
     with pytest.raises(ValueError, match="cannot load model 'no_such_module:X'"):
-        nht.models.spec("no_such_module:X")
-    with pytest.raises(ValueError, match="neither a ModelSpec nor a factory"):
-        nht.models.spec("user_robots:NOT_A_MODEL")
+        nht.models.spec('no_such_module:X')
+    with pytest.raises(ValueError, match='neither a ModelSpec nor a factory'):
+        nht.models.spec('user_robots:NOT_A_MODEL')
 
 
 def test_a_system_without_pose_axes_says_how_to_give_them():
     from nh_tracking.poses import PoseMap
 
     plain = nht.NonholonomicSystem.from_constraints(
-        ["a", "b"], lambda q: ca.SX.eye(2), name="plain")
-    with pytest.raises(ValueError, match="give pose=.* to NonholonomicSystem.from_constraints"):
+        ['a', 'b'], lambda q: ca.SX.eye(2), name='plain')
+    with pytest.raises(ValueError, match='give pose=.* to NonholonomicSystem.from_constraints'):
         PoseMap(plain)
     with pytest.raises(ValueError, match="pose names \\['c'\\]"):
-        nht.NonholonomicSystem.from_constraints(["a", "b"], lambda q: ca.SX.eye(2),
-                                                pose={"c": "x"})
+        nht.NonholonomicSystem.from_constraints(['a', 'b'], lambda q: ca.SX.eye(2),
+                                                pose={'c': 'x'})
 
 
 def test_numpy_interface_rejects_wrong_sizes():
     sleigh = nht.models.chaplygin_sleigh()
-    with pytest.raises(ValueError, match="q must have 3 entries"):
+    with pytest.raises(ValueError, match='q must have 3 entries'):
         sleigh.dynamics([0, 0], [0, 0])
-    with pytest.raises(ValueError, match="u must have 2 entries"):
+    with pytest.raises(ValueError, match='u must have 2 entries'):
         sleigh.dynamics([0, 0, 0], [0, 0], [1, 2, 3])

@@ -1,18 +1,32 @@
+# Copyright 2026 nh_tracking maintainers
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+
 """Replanning without ROS: poses and twists, the closed loop, deadlines and fallbacks."""
 import numpy as np
 import pytest
 
-import nh_tracking as nht
-import nh_tracking.receding_horizon as rh
 from faults import Faulty
+import nh_tracking as nht
 from nh_tracking.examples.experiments import SLEIGH_REFERENCE_START, SLEIGH_START
 from nh_tracking.fallback import TrackingLaw
 from nh_tracking.poses import PoseMap, wrap_angle
+import nh_tracking.receding_horizon as rh
 from systems import ALL_SYSTEMS, random_state
 
 
-@pytest.mark.parametrize("name", ["chaplygin_sleigh", "nonholonomic_particle", "unicycle",
-                                  "rolling_disk", "inclined_knife_edge"])
+@pytest.mark.parametrize('name', ['chaplygin_sleigh', 'nonholonomic_particle', 'unicycle',
+                                  'rolling_disk', 'inclined_knife_edge'])
 def test_pose_and_twist_round_trips(name):
     system = ALL_SYSTEMS[name]()
     pm = PoseMap(system)  # every one declares its pose axes; the knife edge's heading is phi
@@ -78,14 +92,14 @@ def test_missed_deadline_falls_back_then_keeps_the_shifted_plan():
     planner = rh.RecedingHorizonPlanner(model, rh.PlannerSettings(max_solve_time=1e-5))
     planner.set_reference(ref)
     first = planner.plan(0.0, *SLEIGH_START)
-    assert first.status == "fallback" and "tracking law" in first.message
-    assert not first.plan.success and first.plan.route == "kanayama"
+    assert first.status == 'fallback' and 'tracking law' in first.message
+    assert not first.plan.success and first.plan.route == 'kanayama'
     second = planner.plan(0.1, *SLEIGH_START)
-    assert second.status == "shifted" and second.plan.t[0] == pytest.approx(0.1)
+    assert second.status == 'shifted' and second.plan.t[0] == pytest.approx(0.1)
     assert np.allclose(second.plan.q[0], first.plan.trajectory().sample(0.1)[0][0], atol=1e-9)
     planner.update(max_solve_time=1.0)  # settings change keeps the warm start
     third = planner.plan(0.2, *SLEIGH_START)
-    assert third.status == "optimal" and planner.stats.fallbacks == 1
+    assert third.status == 'optimal' and planner.stats.fallbacks == 1
 
 
 def test_solver_exception_is_contained():
@@ -93,9 +107,9 @@ def test_solver_exception_is_contained():
     ref = nht.simulate(model, [0, 0, 0], [1.0, 0.2], np.linspace(0, 10, 101))
     planner = rh.RecedingHorizonPlanner(model)
     planner.set_reference(ref)
-    planner.method = Faulty("raise")
+    planner.method = Faulty('raise')
     out = planner.plan(0.0, [0.2, 0.1, 0.0], [0.0, 0.0])
-    assert out.status == "fallback" and "injected solver fault" in out.message
+    assert out.status == 'fallback' and 'injected solver fault' in out.message
     assert np.all(np.isfinite(out.plan.u))
 
 
@@ -109,30 +123,33 @@ def test_fallback_law_tracks_a_unicycle():
     assert np.linalg.norm(tr.q[-1, :2] - q_ref[-1, :2]) < 1e-3
 
 
-@pytest.mark.parametrize("bad", [dict(horizon=-1.0), dict(steps=1), dict(epsilon=0.0),
-                                 dict(method="magic"), dict(terminal="free"),
-                                 dict(max_solve_time=float("nan"))])
+@pytest.mark.parametrize('bad', [{'horizon': -1.0}, {'steps': 1}, {'epsilon': 0.0},
+                                 {'method': 'magic'}, {'terminal': 'free'},
+                                 {'max_solve_time': float('nan')}])
 def test_bad_settings_are_refused(bad):
-    with pytest.raises(ValueError, match="invalid PlannerSettings"):
+    with pytest.raises(ValueError, match='invalid PlannerSettings'):
         rh.PlannerSettings(**bad)
 
 
 def test_nan_from_the_dynamics_gives_a_finite_stop_plan():
-    """A knife edge whose potential is NaN for x < 0 (sqrt): from x = -1 the solver and the
-    tracking law both meet NaN; the planner still returns a finite plan (stop) and says so."""
+    """A knife edge whose potential is NaN for x < 0 (sqrt).
+
+    From x = -1 the solver and the tracking law both meet NaN; the planner still returns a finite
+    plan (stop) and says so.
+    """
     import casadi as ca
 
     knife = nht.NonholonomicSystem.from_constraints(
-        ["x", "y", "theta"], lambda q: ca.SX.eye(3),
+        ['x', 'y', 'theta'], lambda q: ca.SX.eye(3),
         lambda q: ca.horzcat(ca.sin(q[2]), -ca.cos(q[2]), 0),
-        potential=lambda q: -ca.sqrt(q[0]), angles=["theta"], name="nan_knife")
+        potential=lambda q: -ca.sqrt(q[0]), angles=['theta'], name='nan_knife')
     ref = nht.Trajectory(t=[0.0, 10.0], q=[[1.0, 0.0, 0.0], [2.0, 0.0, 0.0]],
                          v=[[0.1, 0.0], [0.1, 0.0]], u=[[0.0, 0.0]])
     planner = rh.RecedingHorizonPlanner(knife, rh.PlannerSettings(steps=10, horizon=1.0))
     planner.set_reference(ref)
     out = planner.plan(0.0, [-1.0, 0.0, 0.0], [0.2, 0.0])
-    assert out.status == rh.PlanStatus.STOP and out.message.startswith("stopping")
+    assert out.status == rh.PlanStatus.STOP and out.message.startswith('stopping')
     assert not out.plan.success  # a stop plan is no solution, and says so
     assert np.all(np.isfinite(out.plan.q)) and np.all(out.plan.v == 0) and np.all(out.plan.u == 0)
     again = planner.plan(0.1, [-1.0, 0.0, 0.0], [0.2, 0.0])  # still failing: shifted stop plan
-    assert again.status == "shifted" and np.all(np.isfinite(again.plan.u))
+    assert again.status == 'shifted' and np.all(np.isfinite(again.plan.u))

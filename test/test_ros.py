@@ -1,13 +1,27 @@
+# Copyright 2026 nh_tracking maintainers
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+
 """The ROS layer, end to end: real nodes, the real solver, one Context per test, no launch."""
 import math
 import uuid
 
-import numpy as np
-import pytest
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from geometry_msgs.msg import PoseStamped, Twist
 from nav_msgs.msg import Odometry, Path
 from nav_msgs.srv import GetPlan
+import numpy as np
+import pytest
 from rcl_interfaces.msg import Log
 from rclpy.parameter import Parameter
 from std_msgs.msg import Header
@@ -15,21 +29,21 @@ from std_srvs.srv import Trigger
 from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint, MultiDOFJointTrajectory
 
 from faults import Faulty
+from nh_tracking.examples.demo import ClosedLoop, sleigh_reference, START
 from nh_tracking.examples.experiments import SLEIGH_REFERENCE_START
 from nh_tracking.metrics import cross_track_error
-from nh_tracking.ros import PlannerNode, SimulatorNode
 from nh_tracking.ros import conversions as cv
-from nh_tracking.examples.demo import START, ClosedLoop, sleigh_reference
+from nh_tracking.ros import PlannerNode, SimulatorNode
 from nh_tracking.ros.graph import parameters, wait_until
 
 pytestmark = pytest.mark.timeout(180)
 
 
 def unique_namespace() -> str:
-    return f"/t{uuid.uuid4().hex[:8]}"
+    return f'/t{uuid.uuid4().hex[:8]}'
 
 
-@pytest.mark.parametrize("kind", ["path", "trajectory"])
+@pytest.mark.parametrize('kind', ['path', 'trajectory'])
 def test_closed_loop_tracks_through_ros_with_inertia_mismatch(graph, kind):
     """Robot 10 % heavier than the planner thinks; cross-track error < 0.05 m after 12 s."""
     loop = ClosedLoop(graph, namespace=unique_namespace())
@@ -54,40 +68,43 @@ class WallClockPair:
                              parameter_overrides=parameters(initial_state=start, rate=50.0))
         self.planner = graph.add(PlannerNode, namespace=self.ns,
                                  parameter_overrides=parameters(**(planner_params or {})))
-        self.node = graph.plain_node("probe", self.ns)
+        self.node = graph.plain_node('probe', self.ns)
         self.reference = sleigh_reference(60.0)
         self.offset = np.array(offset)
-        self.published = {"path": [], "control_sequence": [], "cmd_vel": []}
-        self.node.create_subscription(Path, "planned_path",
-                                      lambda m: self.published["path"].append(m), 10)
-        self.node.create_subscription(JointTrajectory, "control_sequence",
-                                      lambda m: self.published["control_sequence"].append(m), 10)
-        self.node.create_subscription(Twist, "cmd_vel",
-                                      lambda m: self.published["cmd_vel"].append(m), 10)
+        self.published = {'path': [], 'control_sequence': [], 'cmd_vel': []}
+        self.node.create_subscription(Path, 'planned_path',
+                                      lambda m: self.published['path'].append(m), 10)
+        self.node.create_subscription(JointTrajectory, 'control_sequence',
+                                      lambda m: self.published['control_sequence'].append(m), 10)
+        self.node.create_subscription(Twist, 'cmd_vel',
+                                      lambda m: self.published['cmd_vel'].append(m), 10)
         self.odom = []
-        self.node.create_subscription(Odometry, "odom", lambda m: self.odom.append(m), 10)
+        self.node.create_subscription(Odometry, 'odom', lambda m: self.odom.append(m), 10)
 
     def publisher(self, msg_type, topic):
-        """A publisher matched to every subscriber of ``topic`` (the probe listens to odom and
-        control_sequence itself, so one match alone would not mean the node under test)."""
+        """Return a publisher matched to every subscriber of ``topic``.
+
+        The probe listens to odom and control_sequence itself, so one match alone would not
+        mean the node under test.
+        """
         pub = self.node.create_publisher(msg_type, topic, 10)
-        expected = 2 if topic in ("odom", "control_sequence") else 1
+        expected = 2 if topic in ('odom', 'control_sequence') else 1
         assert wait_until(lambda: pub.get_subscription_count() >= expected, 10.0)
         return pub
 
     def send_reference(self):
-        """The reference with a zero stamp: it starts when received."""
-        msg = cv.reference_message(self.reference, self.planner.pose_map, 0.0, "path")
+        """Send the reference with a zero stamp: it starts when received."""
+        msg = cv.reference_message(self.reference, self.planner.pose_map, 0.0, 'path')
         msg.header.stamp = cv.time_msg(0)
         for ps in msg.poses:
             ps.pose.position.x += float(self.offset[0])
             ps.pose.position.y += float(self.offset[1])
-        self.publisher(Path, "reference_path").publish(msg)
+        self.publisher(Path, 'reference_path').publish(msg)
         assert wait_until(lambda: self.planner.planner.reference is not None, 10.0)
         assert wait_until(lambda: self.planner.planner.stats.optimal >= 3, 20.0)
 
     def call(self, srv_type, name, request, timeout=20.0):
-        client = self.node.create_client(srv_type, f"{self.ns}/{name}")
+        client = self.node.create_client(srv_type, f'{self.ns}/{name}')
         assert client.wait_for_service(timeout_sec=10.0)
         future = client.call_async(request)
         assert wait_until(future.done, timeout)
@@ -96,44 +113,44 @@ class WallClockPair:
 
 def _finite_outputs(pair) -> bool:
     paths = all(math.isfinite(p.pose.position.x) and math.isfinite(p.pose.position.y)
-                for m in pair.published["path"] for p in m.poses)
-    efforts = all(math.isfinite(e) for m in pair.published["control_sequence"]
+                for m in pair.published['path'] for p in m.poses)
+    efforts = all(math.isfinite(e) for m in pair.published['control_sequence']
                   for pt in m.points for e in pt.effort)
     twists = all(math.isfinite(m.linear.x) and math.isfinite(m.angular.z)
-                 for m in pair.published["cmd_vel"])
+                 for m in pair.published['cmd_vel'])
     return paths and efforts and twists
 
 
 def test_services_answer_before_and_after_a_reference(graph):
     pair = WallClockPair(graph)
-    early = pair.call(Trigger, "replan", Trigger.Request())
-    assert not early.success and "no reference" in early.message
-    empty = pair.call(GetPlan, "plan", GetPlan.Request())
+    early = pair.call(Trigger, 'replan', Trigger.Request())
+    assert not early.success and 'no reference' in early.message
+    empty = pair.call(GetPlan, 'plan', GetPlan.Request())
     assert len(empty.plan.poses) == 0
     pair.send_reference()
-    done = pair.call(Trigger, "replan", Trigger.Request())
-    assert done.success and done.message.startswith("optimal")
-    from_odom = pair.call(GetPlan, "plan", GetPlan.Request())
+    done = pair.call(Trigger, 'replan', Trigger.Request())
+    assert done.success and done.message.startswith('optimal')
+    from_odom = pair.call(GetPlan, 'plan', GetPlan.Request())
     assert len(from_odom.plan.poses) == 31
     xy = np.array([[p.pose.position.x, p.pose.position.y] for p in from_odom.plan.poses])
     assert np.all(np.isfinite(xy)) and cross_track_error(xy, pair.reference.q[:, :2]).max() < 0.1
     request = GetPlan.Request()
     request.start = PoseStamped()
-    request.start.header.frame_id = "odom"
+    request.start.header.frame_id = 'odom'
     request.start.pose = cv.pose_msg(np.array([1.0, 1.5, 0.0, 0.5]))
-    from_start = pair.call(GetPlan, "plan", request)
+    from_start = pair.call(GetPlan, 'plan', request)
     first = from_start.plan.poses[0].pose.position
     assert (first.x, first.y) == pytest.approx((1.0, 1.5), abs=1e-9)
     assert all(np.isfinite([p.pose.position.x for p in from_start.plan.poses]))
 
 
 def _bad_messages(pair):
-    good = cv.reference_message(pair.reference, pair.planner.pose_map, 0.0, "path")
+    good = cv.reference_message(pair.reference, pair.planner.pose_map, 0.0, 'path')
     good.header.stamp = cv.time_msg(0)
 
     def path(edit):
-        """A fresh copy of the first 20 poses (no shared sub-messages), then ``edit``."""
-        msg = Path(header=Header(frame_id="odom", stamp=cv.time_msg(0)), poses=[
+        """Return a fresh copy of the first 20 poses (no shared sub-messages), then ``edit``."""
+        msg = Path(header=Header(frame_id='odom', stamp=cv.time_msg(0)), poses=[
             PoseStamped(header=Header(frame_id=p.header.frame_id, stamp=p.header.stamp),
                         pose=cv.pose_msg(np.array([p.pose.position.x, p.pose.position.y, 0.0,
                                                    cv.yaw_of(p.pose.orientation)])))
@@ -142,18 +159,18 @@ def _bad_messages(pair):
         return msg
 
     def nan_pose(m):
-        m.poses[5].pose.position.x = float("nan")
+        m.poses[5].pose.position.x = float('nan')
 
     def repeat_stamp(m):
         m.poses[7].header.stamp = m.poses[6].header.stamp
 
     def other_frame(m):
-        m.header.frame_id = "map"
+        m.header.frame_id = 'map'
 
     def long_quaternion(m):
         m.poses[3].pose.orientation.w = 2.0
 
-    trajectory = cv.reference_message(pair.reference, pair.planner.pose_map, 0.0, "trajectory")
+    trajectory = cv.reference_message(pair.reference, pair.planner.pose_map, 0.0, 'trajectory')
     mismatched = MultiDOFJointTrajectory(header=trajectory.header,
                                          joint_names=trajectory.joint_names,
                                          points=list(trajectory.points[:10]))
@@ -161,32 +178,32 @@ def _bad_messages(pair):
     infinite = MultiDOFJointTrajectory(header=trajectory.header,
                                        joint_names=trajectory.joint_names,
                                        points=list(trajectory.points[10:20]))
-    infinite.points[2].velocities[0].linear.x = float("inf")
+    infinite.points[2].velocities[0].linear.x = float('inf')
     odom = Odometry()
-    odom.header.frame_id = "odom"
-    odom.pose.pose.position.y = float("nan")
+    odom.header.frame_id = 'odom'
+    odom.pose.pose.position.y = float('nan')
     odom.pose.pose.orientation.w = 1.0
     wrong_frame_odom = Odometry()
-    wrong_frame_odom.header.frame_id = "map"
+    wrong_frame_odom.header.frame_id = 'map'
     wrong_frame_odom.pose.pose.orientation.w = 1.0
     return [
-        (Path, "reference_path", Path(header=Header(frame_id="odom")), "path is empty"),
-        (Path, "reference_path", path(nan_pose), "NaN"),
-        (Path, "reference_path", path(repeat_stamp), "not strictly increasing"),
-        (Path, "reference_path", path(other_frame), "frame 'map'"),
-        (Path, "reference_path", path(long_quaternion), "not unit"),
-        (MultiDOFJointTrajectory, "reference_trajectory", mismatched, "2 transforms"),
-        (MultiDOFJointTrajectory, "reference_trajectory", infinite, "NaN or Inf"),
-        (Odometry, "odom", odom, "NaN"),
-        (Odometry, "odom", wrong_frame_odom, "frame 'map'"),
+        (Path, 'reference_path', Path(header=Header(frame_id='odom')), 'path is empty'),
+        (Path, 'reference_path', path(nan_pose), 'NaN'),
+        (Path, 'reference_path', path(repeat_stamp), 'not strictly increasing'),
+        (Path, 'reference_path', path(other_frame), "frame 'map'"),
+        (Path, 'reference_path', path(long_quaternion), 'not unit'),
+        (MultiDOFJointTrajectory, 'reference_trajectory', mismatched, '2 transforms'),
+        (MultiDOFJointTrajectory, 'reference_trajectory', infinite, 'NaN or Inf'),
+        (Odometry, 'odom', odom, 'NaN'),
+        (Odometry, 'odom', wrong_frame_odom, "frame 'map'"),
     ]
 
 
 def test_malformed_input_is_rejected_and_the_last_good_plan_stays(graph):
     pair = WallClockPair(graph)
     logs, diagnostics = [], []
-    pair.node.create_subscription(Log, "/rosout", logs.append, 100)
-    pair.node.create_subscription(DiagnosticArray, "/diagnostics", diagnostics.append, 100)
+    pair.node.create_subscription(Log, '/rosout', logs.append, 100)
+    pair.node.create_subscription(DiagnosticArray, '/diagnostics', diagnostics.append, 100)
     pair.send_reference()
     reference = pair.planner.planner.reference
     for msg_type, topic, msg, reason in _bad_messages(pair):
@@ -205,10 +222,10 @@ def test_malformed_input_is_rejected_and_the_last_good_plan_stays(graph):
     assert pair.planner.rejected_inputs == len(_bad_messages(pair))
     assert pair.planner.errors == 0 and _finite_outputs(pair)
     # the simulator rejects a control sequence for joints it does not have, and keeps going
-    bad = JointTrajectory(joint_names=["left", "right"],
+    bad = JointTrajectory(joint_names=['left', 'right'],
                           points=[JointTrajectoryPoint(effort=[1.0, 2.0])])
     count = len(pair.odom)
-    pair.publisher(JointTrajectory, "control_sequence").publish(bad)
+    pair.publisher(JointTrajectory, 'control_sequence').publish(bad)
     assert wait_until(lambda: pair.sim.rejected_inputs == 1, 10.0)
     assert wait_until(lambda: len(pair.odom) > count + 10, 10.0)
 
@@ -217,26 +234,26 @@ def test_parameter_changes_take_effect_and_bad_ones_are_refused(graph):
     pair = WallClockPair(graph)
     pair.send_reference()
     planner = pair.planner
-    result = planner.set_parameters([Parameter("horizon", value=2.0)])[0]
+    result = planner.set_parameters([Parameter('horizon', value=2.0)])[0]
     assert result.successful
-    pair.published["control_sequence"].clear()
+    pair.published['control_sequence'].clear()
 
     def last_offset():
-        msgs = pair.published["control_sequence"]
+        msgs = pair.published['control_sequence']
         return cv.duration_seconds(msgs[-1].points[-1].time_from_start) if msgs else None
 
     assert wait_until(lambda: last_offset() == pytest.approx(2.0 - 2.0 / 30), 10.0)
     assert planner.planner.previous is not None  # warm start kept across the change
-    for name, value in [("horizon", -1.0), ("steps", 1), ("max_solve_time", 0.0),
-                        ("method", "magic"), ("terminal", "free"), ("model", "unicycle"),
-                        ("J", -4.0)]:
+    for name, value in [('horizon', -1.0), ('steps', 1), ('max_solve_time', 0.0),
+                        ('method', 'magic'), ('terminal', 'free'), ('model', 'unicycle'),
+                        ('J', -4.0)]:
         outcome = planner.set_parameters([Parameter(name, value=value)])[0]
         assert not outcome.successful, name
         assert outcome.reason, name
-    assert planner.get_parameter("horizon").value == 2.0
-    assert planner.set_parameters([Parameter("J", value=4.4)])[0].successful
+    assert planner.get_parameter('horizon').value == 2.0
+    assert planner.set_parameters([Parameter('J', value=4.4)])[0].successful
     # rebuilt in the background, then swapped in
-    assert wait_until(lambda: planner.planner.system.parameters["J"] == 4.4, 20.0)
+    assert wait_until(lambda: planner.planner.system.parameters['J'] == 4.4, 20.0)
     assert wait_until(lambda: planner.planner.stats.optimal >= 3, 10.0)
 
 
@@ -260,19 +277,22 @@ def test_two_pairs_in_namespaces_do_not_cross_talk(graph):
 def _unicycle_sim(graph, **overrides):
     ns = unique_namespace()
     sim = graph.add(SimulatorNode, namespace=ns, parameter_overrides=parameters(
-        model="unicycle", initial_state=[0.0, 0.0, 0.0, 0.0, 0.0], rate=100.0, **overrides))
-    probe = graph.plain_node("probe", ns)
+        model='unicycle', initial_state=[0.0, 0.0, 0.0, 0.0, 0.0], rate=100.0, **overrides))
+    probe = graph.plain_node('probe', ns)
     return sim, probe
 
 
 def test_simulator_holds_controls_until_the_timeout_then_coasts(graph):
-    """u = (1, 0) for 10 s is sent once; it applies from its stamp until control_timeout
-    (0.3 s) after receipt, then the unicycle coasts (no drift terms in its dynamics)."""
+    """U = (1, 0) for 10 s is sent once.
+
+    It applies from its stamp until control_timeout (0.3 s) after receipt, then the unicycle coasts
+    (no drift terms in its dynamics).
+    """
     sim, probe = _unicycle_sim(graph, control_timeout=0.3)
-    pub = probe.create_publisher(JointTrajectory, "control_sequence", 10)
+    pub = probe.create_publisher(JointTrajectory, 'control_sequence', 10)
     assert wait_until(lambda: pub.get_subscription_count() > 0, 10.0)
     now = sim.get_clock().now().nanoseconds
-    pub.publish(cv.control_sequence_msg("odom", now, np.arange(0.0, 10.0, 0.1),
+    pub.publish(cv.control_sequence_msg('odom', now, np.arange(0.0, 10.0, 0.1),
                                         sim.system.control_names, np.tile([1.0, 0.0], (100, 1))))
     assert wait_until(lambda: sim.state[1][0] > 0.05, 5.0)
     wait_until(lambda: False, 1.0)
@@ -288,10 +308,10 @@ def test_simulator_holds_controls_until_the_timeout_then_coasts(graph):
 def test_simulator_velocity_mode_follows_cmd_vel_and_initialpose_resets(graph):
     from geometry_msgs.msg import PoseWithCovarianceStamped
 
-    sim, probe = _unicycle_sim(graph, mode="velocity", control_timeout=5.0)
+    sim, probe = _unicycle_sim(graph, mode='velocity', control_timeout=5.0)
     odoms = []
-    probe.create_subscription(Odometry, "odom", odoms.append, 100)
-    pub = probe.create_publisher(Twist, "cmd_vel", 10)
+    probe.create_subscription(Odometry, 'odom', odoms.append, 100)
+    pub = probe.create_publisher(Twist, 'cmd_vel', 10)
     assert wait_until(lambda: pub.get_subscription_count() > 0, 10.0)
     pub.publish(cv.twist_msg(np.array([0.5, 0.3, 0.0, 0.4])))  # lateral slip is projected out
     assert wait_until(lambda: sim.state[0][0] > 0.2, 10.0)
@@ -300,9 +320,9 @@ def test_simulator_velocity_mode_follows_cmd_vel_and_initialpose_resets(graph):
     assert wait_until(lambda: odoms and odoms[-1].twist.twist.linear.x == pytest.approx(0.5), 5.0)
     assert abs(odoms[-1].twist.twist.linear.y) < 1e-9
     reset = PoseWithCovarianceStamped()
-    reset.header.frame_id = "odom"
+    reset.header.frame_id = 'odom'
     reset.pose.pose = cv.pose_msg(np.array([3.0, -2.0, 0.0, 1.0]))
-    pose_pub = probe.create_publisher(PoseWithCovarianceStamped, "initialpose", 10)
+    pose_pub = probe.create_publisher(PoseWithCovarianceStamped, 'initialpose', 10)
     assert wait_until(lambda: pose_pub.get_subscription_count() > 0, 10.0)
     pub.publish(cv.twist_msg(np.zeros(4)))
     assert wait_until(lambda: abs(sim.state[1][0]) < 1e-9, 5.0)
@@ -312,35 +332,35 @@ def test_simulator_velocity_mode_follows_cmd_vel_and_initialpose_resets(graph):
 
 
 def test_stale_odometry_stops_commanding_and_fresh_odometry_resumes(graph):
-    pair = WallClockPair(graph, planner_params={"odom_timeout": 0.3, "cmd_rate": 50.0})
+    pair = WallClockPair(graph, planner_params={'odom_timeout': 0.3, 'cmd_rate': 50.0})
     statuses = []
-    pair.node.create_subscription(DiagnosticArray, "/diagnostics",
+    pair.node.create_subscription(DiagnosticArray, '/diagnostics',
                                   lambda m: statuses.extend(m.status), 100)
     pair.send_reference()
-    assert wait_until(lambda: any(abs(m.linear.x) > 0.1 for m in pair.published["cmd_vel"]), 10)
+    assert wait_until(lambda: any(abs(m.linear.x) > 0.1 for m in pair.published['cmd_vel']), 10)
     graph.executor.remove_node(pair.sim)  # the robot's odometry stops
-    assert wait_until(lambda: pair.planner.stale, 5.0)
-    sequences = len(pair.published["control_sequence"])
-    pair.published["cmd_vel"].clear()
-    assert wait_until(lambda: len(pair.published["cmd_vel"]) > 20, 5.0)
-    assert all(m.linear.x == 0.0 and m.angular.z == 0.0 for m in pair.published["cmd_vel"])
-    assert len(pair.published["control_sequence"]) == sequences  # no new plan while stale
+    assert wait_until(lambda: pair.planner.live.stale, 5.0)
+    sequences = len(pair.published['control_sequence'])
+    pair.published['cmd_vel'].clear()
+    assert wait_until(lambda: len(pair.published['cmd_vel']) > 20, 5.0)
+    assert all(m.linear.x == 0.0 and m.angular.z == 0.0 for m in pair.published['cmd_vel'])
+    assert len(pair.published['control_sequence']) == sequences  # no new plan while stale
     assert wait_until(lambda: any(s.level == DiagnosticStatus.STALE for s in statuses), 5.0)
     graph.executor.add_node(pair.sim)  # odometry is back
-    assert wait_until(lambda: not pair.planner.stale, 5.0)
-    assert wait_until(lambda: len(pair.published["control_sequence"]) > sequences + 3, 5.0)
-    assert wait_until(lambda: abs(pair.published["cmd_vel"][-1].linear.x) > 0.1, 5.0)
+    assert wait_until(lambda: not pair.planner.live.stale, 5.0)
+    assert wait_until(lambda: len(pair.published['control_sequence']) > sequences + 3, 5.0)
+    assert wait_until(lambda: abs(pair.published['cmd_vel'][-1].linear.x) > 0.1, 5.0)
 
 
 def test_solver_faults_fall_back_with_a_warning_and_never_publish_nan(graph):
     pair = WallClockPair(graph)
     statuses = []
-    pair.node.create_subscription(DiagnosticArray, "/diagnostics",
+    pair.node.create_subscription(DiagnosticArray, '/diagnostics',
                                   lambda m: statuses.extend(m.status), 100)
     pair.send_reference()
     planner = pair.planner.planner
     real = planner.method
-    for fault, reason in (("raise", "injected solver fault"), ("nan", "non-finite values")):
+    for fault, reason in (('raise', 'injected solver fault'), ('nan', 'non-finite values')):
         stats = planner.stats
         before = stats.shifted + stats.fallbacks
         planner.method = Faulty(fault, real)
@@ -351,42 +371,45 @@ def test_solver_faults_fall_back_with_a_warning_and_never_publish_nan(graph):
     # a solver that cannot meet its deadline: late plans are discarded, the old one shifted
     stats = pair.planner.planner.stats
     before = stats.shifted + stats.fallbacks
-    assert pair.planner.set_parameters([Parameter("max_solve_time", value=0.001)])[0].successful
+    assert pair.planner.set_parameters([Parameter('max_solve_time', value=0.001)])[0].successful
     assert wait_until(lambda: stats.shifted + stats.fallbacks > before + 3, 10.0)
-    assert wait_until(lambda: any(s.level == DiagnosticStatus.WARN and "deadline" in s.message
+    assert wait_until(lambda: any(s.level == DiagnosticStatus.WARN and 'deadline' in s.message
                                   for s in statuses), 5.0)
-    assert pair.planner.set_parameters([Parameter("max_solve_time", value=0.25)])[0].successful
+    assert pair.planner.set_parameters([Parameter('max_solve_time', value=0.25)])[0].successful
     optimal = pair.planner.planner.stats.optimal
     assert wait_until(lambda: pair.planner.planner.stats.optimal > optimal + 3, 10.0)
     assert pair.planner.errors == 0 and _finite_outputs(pair)
 
 
 def test_a_user_model_drives_the_planner_and_simulator_by_its_module_path(graph):
-    """The car-like robot of test/user_robots.py — not in the package — named in the ``model``
-    parameter of both nodes: declared parameters come from its spec, the control sequence
-    has its two joints, and the loop tracks a straight reference generated by its dynamics."""
+    """Drive a user's car-like robot, named in the ``model`` parameter of both nodes.
+
+    It is test/user_robots.py, not in the package: the declared parameters come from its
+    spec, the control sequence has its two joints, and the loop tracks a straight reference
+    generated by its dynamics.
+    """
     import nh_tracking as nht
 
     ns = unique_namespace()
-    car = nht.models.create("user_robots:CAR")
+    car = nht.models.create('user_robots:CAR')
     start = [0.0, 0.0, 0.0, 0.0, 1.0, 0.0]
     reference = nht.simulate(car, start[:4], start[4:], np.linspace(0.0, 60.0, 601))
     sim = graph.add(SimulatorNode, namespace=ns, parameter_overrides=parameters(
-        model="user_robots:CAR", initial_state=start))
+        model='user_robots:CAR', initial_state=start))
     planner = graph.add(PlannerNode, namespace=ns, parameter_overrides=parameters(
-        model="user_robots:CAR", L=0.5))
-    assert planner.get_parameter("I_steer").value == 0.05  # declared from the user's spec
-    probe = graph.plain_node("probe", ns)
+        model='user_robots:CAR', L=0.5))
+    assert planner.get_parameter('I_steer').value == 0.05  # declared from the user's spec
+    probe = graph.plain_node('probe', ns)
     sequences, odom = [], []
-    probe.create_subscription(JointTrajectory, "control_sequence", sequences.append, 10)
-    probe.create_subscription(Odometry, "odom", odom.append, 100)
-    pub = probe.create_publisher(Path, "reference_path", 10)
+    probe.create_subscription(JointTrajectory, 'control_sequence', sequences.append, 10)
+    probe.create_subscription(Odometry, 'odom', odom.append, 100)
+    pub = probe.create_publisher(Path, 'reference_path', 10)
     assert wait_until(lambda: pub.get_subscription_count() > 0, 10.0)
-    msg = cv.reference_message(reference, planner.pose_map, 0.0, "path")
+    msg = cv.reference_message(reference, planner.pose_map, 0.0, 'path')
     msg.header.stamp = cv.time_msg(0)  # starts on receipt, as the robot sets off
     pub.publish(msg)
     assert wait_until(lambda: len(sequences) > 20, 30.0)
-    assert sequences[-1].joint_names == ["drive", "steer"]
+    assert sequences[-1].joint_names == ['drive', 'steer']
     xy = np.array([[m.pose.pose.position.x, m.pose.pose.position.y] for m in odom[-50:]])
     assert xy[-1, 0] > 1.0  # it drove
     assert cross_track_error(xy, reference.q[:, :2]).max() < 0.05

@@ -1,19 +1,35 @@
-"""Reliability through ROS: fuzzed topics, an odometry flood, concurrent service calls, and a
-soak with reference swaps and parameter changes — nothing crashes, nothing invalid is out."""
+# Copyright 2026 nh_tracking maintainers
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+
+"""Reliability through ROS: fuzzed topics, an odometry flood, concurrent service calls.
+
+And a soak with reference swaps and parameter changes — nothing crashes, nothing invalid is out.
+"""
 import time
 
-import numpy as np
-import pytest
 from geometry_msgs.msg import PoseWithCovarianceStamped, Twist
 from nav_msgs.msg import Odometry, Path
 from nav_msgs.srv import GetPlan
+import numpy as np
+import pytest
 from rclpy.parameter import Parameter
 from rclpy.qos import QoSProfile
 from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint, MultiDOFJointTrajectory
 
+from nh_tracking.examples.demo import ClosedLoop, sleigh_reference, START
 from nh_tracking.metrics import cross_track_error
 from nh_tracking.ros import conversions as cv
-from nh_tracking.examples.demo import START, ClosedLoop, sleigh_reference
 from nh_tracking.ros.graph import wait_until
 from test_ros import WallClockPair
 
@@ -23,14 +39,14 @@ pytestmark = pytest.mark.timeout(300)
 class Fuzzer:
     """Malformed messages for every input topic, from valid ones with one field broken."""
 
-    BAD = (float("nan"), float("inf"), -float("inf"), 1e300)
+    BAD = (float('nan'), float('inf'), -float('inf'), 1e300)
 
     def __init__(self, pair, seed=0):
         self.rng = np.random.default_rng(seed)
         self.pair = pair
-        self.path = cv.reference_message(pair.reference, pair.planner.pose_map, 0.0, "path")
+        self.path = cv.reference_message(pair.reference, pair.planner.pose_map, 0.0, 'path')
         self.trajectory = cv.reference_message(pair.reference, pair.planner.pose_map, 0.0,
-                                            "trajectory")
+                                               'trajectory')
 
     def bad(self):
         return float(self.rng.choice(self.BAD))
@@ -56,20 +72,20 @@ class Fuzzer:
                                       joint_names=list(self.trajectory.joint_names),
                                       points=list(self.trajectory.points[:10]))
         if self.rng.integers(2):
-            msg.joint_names = ["a", "b"]
+            msg.joint_names = ['a', 'b']
         else:
             msg.points = [type(msg.points[0])(transforms=[], velocities=[])] + msg.points[1:]
         return msg
 
     def odom(self):
         msg = Odometry()
-        msg.header.frame_id = "odom" if self.rng.integers(2) else "elsewhere"
+        msg.header.frame_id = 'odom' if self.rng.integers(2) else 'elsewhere'
         msg.pose.pose.orientation.w = 1.0
         msg.twist.twist.linear.x = self.bad()
         return msg
 
     def control_sequence(self):
-        names = ["torque", "force"] if self.rng.integers(2) else ["torque"]
+        names = ['torque', 'force'] if self.rng.integers(2) else ['torque']
         return JointTrajectory(joint_names=names, points=[
             JointTrajectoryPoint(effort=[self.bad(), 0.0])])
 
@@ -80,21 +96,21 @@ class Fuzzer:
 
     def initialpose(self):
         msg = PoseWithCovarianceStamped()
-        msg.header.frame_id = "odom"
+        msg.header.frame_id = 'odom'
         msg.pose.pose.orientation.z = 2.0  # not a unit quaternion
         return msg
 
 
 def test_fuzz_flood_and_concurrent_calls_leave_the_loop_tracking(graph):
-    pair = WallClockPair(graph, planner_params={"replan_on_odom": True})
+    pair = WallClockPair(graph, planner_params={'replan_on_odom': True})
     pair.send_reference()
     published = _record_outputs(pair.planner)  # the fuzzer writes to cmd_vel and
     fuzz = Fuzzer(pair)                         # control_sequence too: check at the source
-    topics = {"reference_path": Path, "reference_trajectory": MultiDOFJointTrajectory,
-              "odom": Odometry, "control_sequence": JointTrajectory, "cmd_vel": Twist,
-              "initialpose": PoseWithCovarianceStamped}
+    topics = {'reference_path': Path, 'reference_trajectory': MultiDOFJointTrajectory,
+              'odom': Odometry, 'control_sequence': JointTrajectory, 'cmd_vel': Twist,
+              'initialpose': PoseWithCovarianceStamped}
     pubs = {t: pair.publisher(m, t) for t, m in topics.items()}
-    sent = {t: 0 for t in topics}
+    sent = dict.fromkeys(topics, 0)
     # fuzz every input topic of both nodes for 3 s
     end = time.monotonic() + 3.0
     while time.monotonic() < end:
@@ -107,21 +123,21 @@ def test_fuzz_flood_and_concurrent_calls_leave_the_loop_tracking(graph):
     while time.monotonic() < end:
         if flood % 10 == 0:  # refresh the state now and then, re-stamp every time
             q, v = pair.sim.state
-            msg = cv.odometry_msg("odom", "base_link", 0, pair.planner.pose_map.pose(q),
+            msg = cv.odometry_msg('odom', 'base_link', 0, pair.planner.pose_map.pose(q),
                                   pair.planner.pose_map.body_twist(q, v))
         msg.header.stamp = cv.time_msg(pair.planner.get_clock().now().nanoseconds)
-        pubs["odom"].publish(msg)
+        pubs['odom'].publish(msg)
         flood += 1
     # 20 plan calls at once
-    client = pair.node.create_client(GetPlan, f"{pair.ns}/plan",
+    client = pair.node.create_client(GetPlan, f'{pair.ns}/plan',
                                      qos_profile=QoSProfile(depth=100))
     assert client.wait_for_service(timeout_sec=10.0)
     futures = [client.call_async(GetPlan.Request()) for _ in range(20)]
     assert wait_until(lambda: all(f.done() for f in futures), 60.0)
     answers = [f.result() for f in futures]
-    print(f"fuzzed {sum(sent.values())} messages {sent}; odometry flood {flood} in 2 s; "
-          f"20 plan calls answered; rejected: planner {pair.planner.rejected_inputs}, "
-          f"simulator {pair.sim.rejected_inputs}")
+    print(f'fuzzed {sum(sent.values())} messages {sent}; odometry flood {flood} in 2 s; '
+          f'20 plan calls answered; rejected: planner {pair.planner.rejected_inputs}, '
+          f'simulator {pair.sim.rejected_inputs}')
     assert flood >= 1000 and sum(sent.values()) > 1000
     assert all(len(a.plan.poses) == 31 for a in answers)
     assert all(np.isfinite(p.pose.position.x) for a in answers for p in a.plan.poses)
@@ -140,7 +156,7 @@ def test_fuzz_flood_and_concurrent_calls_leave_the_loop_tracking(graph):
 def _record_outputs(node) -> dict[str, list]:
     """Every message the planner publishes, recorded at its publishers."""
     published = {}
-    for name in ("pub_path", "pub_controls", "pub_cmd"):
+    for name in ('pub_path', 'pub_controls', 'pub_cmd'):
         publisher, seen = getattr(node, name), []
         original = publisher.publish
 
@@ -157,27 +173,29 @@ def _finite_message(msg) -> bool:
     """No NaN or Inf in any float field, however deep."""
     if isinstance(msg, float):
         return np.isfinite(msg)
-    if isinstance(msg, (list, tuple)) or type(msg).__name__ == "array":
+    if isinstance(msg, (list, tuple)) or type(msg).__name__ == 'array':
         return all(_finite_message(x) for x in msg)
-    if hasattr(msg, "get_fields_and_field_types"):
+    if hasattr(msg, 'get_fields_and_field_types'):
         return all(_finite_message(getattr(msg, f)) for f in msg.get_fields_and_field_types())
     return True
 
 
 def _process_figures() -> tuple[float, int]:
     """(resident memory [MiB], threads) of this process, from /proc."""
-    fields = dict(line.split(":", 1) for line in open("/proc/self/status"))
-    return int(fields["VmRSS"].split()[0]) / 1024, int(fields["Threads"])
+    fields = dict(line.split(':', 1) for line in open('/proc/self/status'))
+    return int(fields['VmRSS'].split()[0]) / 1024, int(fields['Threads'])
 
 
 def test_soak_with_reference_swaps_and_parameter_changes(graph):
-    """>= 60 s simulated with a reference swap (Path <-> MultiDOF) and a parameter change every
-    5 s: memory and thread count stay flat, and the loop keeps tracking."""
-    loop = ClosedLoop(graph, namespace="/soak")
+    """Soak for >= 60 s simulated: memory and threads stay flat, the loop keeps tracking.
+
+    A reference swap (Path <-> MultiDOF) and a parameter change every 5 s.
+    """
+    loop = ClosedLoop(graph, namespace='/soak')
     reference = sleigh_reference(120.0)
-    loop.start(reference, "path", time_scale=10.0)
-    samples, kinds = [], ["trajectory", "path"]
-    changes = [("horizon", 2.5), ("epsilon", 0.8), ("horizon", 3.0), ("epsilon", 1.0)]
+    loop.start(reference, 'path', time_scale=10.0)
+    samples, kinds = [], ['trajectory', 'path']
+    changes = [('horizon', 2.5), ('epsilon', 0.8), ('horizon', 3.0), ('epsilon', 1.0)]
     for step in range(13):
         target = START + 5.0 * (step + 1)
         assert wait_until(lambda: loop.sim_time() >= target, 60.0)
@@ -189,9 +207,9 @@ def test_soak_with_reference_swaps_and_parameter_changes(graph):
     memory = np.array([m for m, _ in samples])
     threads = [n for _, n in samples]
     growth = memory[-1] - memory[2]
-    print(f"soak: {t[-1] - START:.0f} s simulated, {loop.planner.planner.stats.plans} plans; "
-          f"RSS {memory[2]:.1f} -> {memory[-1]:.1f} MiB (growth {growth:.1f} MiB); "
-          f"threads {threads}")
+    print(f'soak: {t[-1] - START:.0f} s simulated, {loop.planner.planner.stats.plans} plans; '
+          f'RSS {memory[2]:.1f} -> {memory[-1]:.1f} MiB (growth {growth:.1f} MiB); '
+          f'threads {threads}')
     assert t[-1] - START >= 60.0
     assert growth < 15.0  # MiB over the last 50 s: flat, not accumulating per plan
     # never more than at the start (a previous test's DDS participant may end meanwhile, when

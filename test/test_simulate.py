@@ -1,3 +1,17 @@
+# Copyright 2026 nh_tracking maintainers
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+
 """Simulation: conservation laws, constraint preservation, controls held per interval."""
 import numpy as np
 import pytest
@@ -6,7 +20,7 @@ import nh_tracking as nht
 from systems import coupled_system, inclined_knife_edge
 
 
-@pytest.mark.parametrize("make, q0, v0", [
+@pytest.mark.parametrize('make, q0, v0', [
     (nht.models.chaplygin_sleigh, [0.0, 0.5, 0.0], [1 / 3, 1.0]),
     (nht.models.rolling_disk, [0.0, 0.0, 0.3, 0.0], [0.7, 2.0]),
     (inclined_knife_edge, [0.0, 0.0, 0.2], [0.5, 1.5]),
@@ -26,9 +40,12 @@ def test_free_motion_conserves_energy_and_constraints(make, q0, v0):
 
 
 def test_knife_edge_matches_its_closed_form_solution():
-    """Bloch §1.6: with phi = w t and no initial speed along the blade, the speed is
-    s = g sin(alpha)/w sin(wt), so x = g sin(alpha)/(4 w^2) (1 - cos 2wt) (it never slides
-    further downhill than g sin(alpha)/(2 w^2)) and y = g sin(alpha)/(2 w) (t - sin(2wt)/(2w))."""
+    """Bloch §1.6: with phi = w t and no initial speed along the blade.
+
+    The speed is s = g sin(alpha)/w sin(wt), so x = g sin(alpha)/(4 w^2) (1 - cos 2wt) (it never
+    slides further downhill than g sin(alpha)/(2 w^2)) and y = g sin(alpha)/(2 w) (t -
+    sin(2wt)/(2w)).
+    """
     alpha, w, g, J = 0.35, 2.0, 9.81, 0.4
     system = inclined_knife_edge(alpha=alpha, J=J, g=g)
     t = np.linspace(0.0, 2 * np.pi / w, 101)
@@ -42,8 +59,11 @@ def test_knife_edge_matches_its_closed_form_solution():
 
 
 def test_controlled_energy_balance_with_zero_order_hold():
-    """Work-energy: dE/dt = v^T G_D u. With u held per interval, E(T) - E(0) equals the
-    integral of the power — computed here independently by a fine trapezoid sum."""
+    """Work-energy: dE/dt = v^T G_D u.
+
+    With u held per interval, E(T) - E(0) equals the integral of the power — computed here
+    independently by a fine trapezoid sum.
+    """
     sleigh = nht.models.chaplygin_sleigh()
     rng = np.random.default_rng(6)
     t = np.linspace(0.0, 2.0, 11)
@@ -71,13 +91,13 @@ def test_feedback_law_is_applied():
 
 def test_bad_simulation_input_is_rejected():
     sleigh = nht.models.chaplygin_sleigh()
-    with pytest.raises(ValueError, match="increasing"):
+    with pytest.raises(ValueError, match='increasing'):
         nht.simulate(sleigh, [0, 0, 0], [0, 0], [0.0, 1.0, 1.0])
-    with pytest.raises(ValueError, match="finite"):
+    with pytest.raises(ValueError, match='finite'):
         nht.simulate(sleigh, [0, np.nan, 0], [0, 0], [0.0, 1.0])
-    with pytest.raises(ValueError, match=r"\(2, 2\)"):
+    with pytest.raises(ValueError, match=r'\(2, 2\)'):
         nht.simulate(sleigh, [0, 0, 0], [0, 0], [0.0, 1.0, 2.0], np.zeros((3, 2)))
-    with pytest.raises(ValueError, match="control law must return 2 finite"):
+    with pytest.raises(ValueError, match='control law must return 2 finite'):
         nht.simulate(sleigh, [0, 0, 0], [0, 0], [0.0, 1.0], lambda s, q, v: [np.inf, 0])
 
 
@@ -92,5 +112,5 @@ def test_trajectory_sampling_interpolates_smoothly_and_holds():
     assert np.allclose(traj.at(0.77)[0], 0.77**3 - 0.77)
     q_out, _ = traj.sample([-1.0, 5.0])
     assert np.allclose(q_out.ravel(), [0.0, 6.0])
-    with pytest.raises(ValueError, match="non-finite"):
+    with pytest.raises(ValueError, match='non-finite'):
         nht.Trajectory(t=[0.0, 1.0], q=[[0.0], [np.nan]], v=[[0.0], [0.0]], u=[[0.0]])

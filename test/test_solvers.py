@@ -1,3 +1,17 @@
+# Copyright 2026 nh_tracking maintainers
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+
 """The three tracking solvers: the paper's figures, mutual agreement, optimality conditions."""
 import casadi as ca
 import numpy as np
@@ -8,21 +22,23 @@ from nh_tracking.examples.experiments import particle_problem, replay, sleigh_pr
 from systems import inclined_knife_edge
 
 
-@pytest.fixture(scope="module")
+@pytest.fixture(scope='module')
 def sleigh_literal():
     problem = sleigh_problem(wrap_angles=False)
-    return problem, nht.solve(problem, "variational")
+    return problem, nht.solve(problem, 'variational')
 
 
 def test_sleigh_reproduces_the_paper(sleigh_literal):
-    """§5 literal formulation: discrete cost 42.369 (independent prototype), exact terminal
-    state, admissible to round-off; the controls replayed on the continuous dynamics land
-    within 0.01 of the planned end state."""
+    """§5 literal formulation: discrete cost 42.369 (independent prototype).
+
+    Exact terminal state, admissible to round-off; the controls replayed on the continuous dynamics
+    land within 0.01 of the planned end state.
+    """
     problem, sol = sleigh_literal
     assert sol.success
     assert abs(sol.cost - 42.369) / 42.369 < 2e-3
     assert sol.terminal_error <= 1e-8
-    assert sol.details["admissibility_residual"] <= 1e-10
+    assert sol.details['admissibility_residual'] <= 1e-10
     replayed = replay(problem, sol.u)
     end_gap = np.linalg.norm(np.hstack([replayed.q[-1] - sol.q[-1], replayed.v[-1] - sol.v[-1]]))
     assert end_gap < 0.01
@@ -32,27 +48,30 @@ def test_sleigh_reproduces_the_paper(sleigh_literal):
 
 def test_halving_h_converges_at_second_order():
     """Reference figures (docs/theory.md §5): 42.3535, 42.3497, 42.3487 for N = 100, 200, 400."""
-    costs = [nht.solve(sleigh_problem(steps=n), "variational").cost for n in (50, 100, 200)]
+    costs = [nht.solve(sleigh_problem(steps=n), 'variational').cost for n in (50, 100, 200)]
     d1, d2 = costs[0] - costs[1], costs[1] - costs[2]
     assert abs(costs[1] - 42.3535) < 2e-3 and abs(costs[2] - 42.3497) < 2e-3
     assert 3.0 < d1 / d2 < 5.0  # ratio 4 for a second-order method
 
 
 def _discrete_euler_lagrange_residual(problem, sol):
-    """Stationarity of the extended discrete action sum (§5) at the interior knots, derived
-    here from the paper's formulas, with the solver's multipliers lambda^k."""
+    """Stationarity of the extended discrete action sum (§5) at the interior knots.
+
+    Derived here from the paper's formulas, with the solver's multipliers lambda^k.
+    """
     system, h, eps = problem.system, problem.h, problem.epsilon
     n, k = system.n, system.k
-    qa, qb, qr = ca.SX.sym("qa", n), ca.SX.sym("qb", n), ca.SX.sym("qr", n)
-    va, vb, vr = ca.SX.sym("va", k), ca.SX.sym("vb", k), ca.SX.sym("vr", k)
+    qa, qb, qr = ca.SX.sym('qa', n), ca.SX.sym('qb', n), ca.SX.sym('qr', n)
+    va, vb, vr = ca.SX.sym('va', k), ca.SX.sym('vb', k), ca.SX.sym('vr', k)
     qm, vm, vd = (qa + qb) / 2, (va + vb) / 2, (vb - va) / h
     _, f0 = system.dynamics_fn(qm, vm, ca.DM.zeros(k))
     l_d = h * 0.5 * (ca.sumsqr(qm - qr) + ca.sumsqr(vm - vr) + eps * ca.sumsqr(vd - f0))
     psi = (qb - qa) / h - system.rho_fn(qm) @ vm
-    lam = ca.SX.sym("lam", n)
+    lam = ca.SX.sym('lam', n)
     ext = l_d + lam.T @ psi
-    grads = ca.Function("g", [qa, va, qb, vb, qr, vr, lam],
-                        [ca.gradient(ext, ca.vertcat(qa, va)), ca.gradient(ext, ca.vertcat(qb, vb))])
+    grads = ca.Function('g', [qa, va, qb, vb, qr, vr, lam],
+                        [ca.gradient(ext, ca.vertcat(qa, va)),
+                         ca.gradient(ext, ca.vertcat(qb, vb))])
     q_ref, v_ref = problem.reference_at(problem.grid[:-1] + h / 2)
     multipliers = -h * sol.costates[0]  # the solver reports costates lambda = -lambda^k / h
     worst = 0.0
@@ -65,59 +84,60 @@ def _discrete_euler_lagrange_residual(problem, sol):
     return worst
 
 
-@pytest.mark.parametrize("make", [lambda: sleigh_problem(wrap_angles=False),
+@pytest.mark.parametrize('make', [lambda: sleigh_problem(wrap_angles=False),
                                   lambda: particle_problem(2)])
 def test_variational_solution_satisfies_discrete_euler_lagrange(make):
     problem = make()
-    sol = nht.solve(problem, "variational")
+    sol = nht.solve(problem, 'variational')
     assert _discrete_euler_lagrange_residual(problem, sol) < 1e-8
-    assert sol.details["admissibility_residual"] < 1e-10
+    assert sol.details['admissibility_residual'] < 1e-10
 
 
-@pytest.mark.parametrize("case, pmp_cost, var_cost", [(1, 14.8598, 14.8594), (2, 5.0484, 5.0482)])
+@pytest.mark.parametrize('case, pmp_cost, var_cost', [(1, 14.8598, 14.8594), (2, 5.0484, 5.0482)])
 def test_particle_cases_reproduce_pmp_and_variational_costs(case, pmp_cost, var_cost):
     problem = particle_problem(case)
-    pmp = nht.solve(problem, "pmp")
-    var = nht.solve(problem, "variational")
-    assert pmp.success and pmp.route == "zero-costates"  # the paper's own route works here
+    pmp = nht.solve(problem, 'pmp')
+    var = nht.solve(problem, 'variational')
+    assert pmp.success and pmp.route == 'zero-costates'  # the paper's own route works here
     assert abs(pmp.cost - pmp_cost) / pmp_cost < 3e-3
     assert abs(var.cost - var_cost) / var_cost < 3e-3
     # the discrete costates approximate the PMP costates (O(h) apart: midpoints vs knots)
-    assert np.allclose(var.costates[0][0], pmp.costates[0][0], atol=0.15 * np.abs(pmp.costates[0][0]).max())
+    assert np.allclose(var.costates[0][0], pmp.costates[0][0],
+                       atol=0.15 * np.abs(pmp.costates[0][0]).max())
 
 
 def _unicycle_circle_problem():
     uni = nht.models.unicycle(m=2.0, J=0.5)
     ref = nht.simulate(uni, [1.0, 0.0, np.pi / 2], [0.8, 0.8], np.linspace(0, 8, 161))
     return nht.TrackingProblem(uni, ref, q0=[0.0, -0.5, 0.3], v0=[0.0, 0.0], horizon=6.0,
-                               steps=60, epsilon=0.5, terminal="cost", omega=5.0)
+                               steps=60, epsilon=0.5, terminal='cost', omega=5.0)
 
 
 def _knife_edge_problem():
     knife = inclined_knife_edge()
     ref = nht.simulate(knife, [0, 0, 0], [0.0, 0.6], np.linspace(0, 4, 81))
     return nht.TrackingProblem(knife, ref, q0=[0.3, 0.2, 0.5], v0=[0.2, 0.0], horizon=3.0,
-                               steps=40, epsilon=2.0, terminal="cost", omega=2.0)
+                               steps=40, epsilon=2.0, terminal='cost', omega=2.0)
 
 
 def _rolling_disk_problem():
     disk = nht.models.rolling_disk()
     ref = nht.simulate(disk, [0, 0, 0, 0], [0.5, 2.0], np.linspace(0, 5, 101))
     return nht.TrackingProblem(disk, ref, q0=[0.2, -0.3, 0.4, 0.0], v0=[0.0, 1.0], horizon=4.0,
-                               steps=40, epsilon=1.0, terminal="cost", omega=1.0)
+                               steps=40, epsilon=1.0, terminal='cost', omega=1.0)
 
 
-@pytest.mark.parametrize("make", [
-    lambda: sleigh_problem(wrap_angles=False, terminal="cost"),
-    lambda: sleigh_problem(wrap_angles=True, terminal="cost"),
+@pytest.mark.parametrize('make', [
+    lambda: sleigh_problem(wrap_angles=False, terminal='cost'),
+    lambda: sleigh_problem(wrap_angles=True, terminal='cost'),
     _unicycle_circle_problem, _knife_edge_problem, _rolling_disk_problem,
-], ids=["sleigh", "sleigh_wrapped", "unicycle", "knife_edge", "rolling_disk"])
+], ids=['sleigh', 'sleigh_wrapped', 'unicycle', 'knife_edge', 'rolling_disk'])
 def test_methods_agree_on_terminal_cost_problems(make):
     """PMP and the variational method agree within 0.5 %, multiple shooting within 3 %."""
     problem = make()
-    var = nht.solve(problem, "variational")
-    pmp = nht.solve(problem, "pmp")
-    ms = nht.solve(problem, "multiple_shooting")
+    var = nht.solve(problem, 'variational')
+    pmp = nht.solve(problem, 'pmp')
+    ms = nht.solve(problem, 'multiple_shooting')
     assert var.success and pmp.success and ms.success, (pmp.message, ms.message)
     assert abs(pmp.cost - var.cost) / var.cost < 5e-3
     assert abs(ms.cost - var.cost) / var.cost < 3e-2
@@ -126,10 +146,10 @@ def test_methods_agree_on_terminal_cost_problems(make):
 
 def test_pmp_recovers_where_shooting_from_zero_blows_up():
     problem = sleigh_problem(wrap_angles=False)
-    sol = nht.solve(problem, "pmp")
+    sol = nht.solve(problem, 'pmp')
     assert sol.success
-    assert sol.message.startswith("zero-costates -> ")  # plain shooting failed first
-    assert sol.route in ("variational-costates", "multiple-shooting-pmp")
+    assert sol.message.startswith('zero-costates -> ')  # plain shooting failed first
+    assert sol.route in ('variational-costates', 'multiple-shooting-pmp')
     assert abs(sol.cost - 42.369) / 42.369 < 5e-3
 
 
@@ -137,29 +157,29 @@ def test_pmp_never_hangs_and_reports_the_deadline():
     from nh_tracking.solvers.pmp import solve_pmp
 
     sol = solve_pmp(sleigh_problem(wrap_angles=False), max_time=0.3)
-    assert not sol.success and "deadline" in sol.message
+    assert not sol.success and 'deadline' in sol.message
     assert sol.solve_time < 5.0  # a bound on the guard, not a performance figure
     assert np.all(np.isfinite(sol.q)) and sol.cost == np.inf
 
 
 def test_wrapping_makes_the_cost_independent_of_whole_turns():
-    base = nht.solve(sleigh_problem(wrap_angles=True), "variational")
+    base = nht.solve(sleigh_problem(wrap_angles=True), 'variational')
     shifted_problem = sleigh_problem(wrap_angles=True)
     shifted_problem = nht.TrackingProblem(
         shifted_problem.system, shifted_problem.reference,
         q0=shifted_problem.q0 + [0, 0, 2 * np.pi], v0=shifted_problem.v0, horizon=5.0,
         steps=50, wrap_angles=True)
-    shifted = nht.solve(shifted_problem, "variational")
+    shifted = nht.solve(shifted_problem, 'variational')
     assert abs(shifted.cost - base.cost) < 1e-6 * base.cost
     assert base.cost < 0.5 * 42.369 and abs(base.cost - 17.9) < 0.1
     literal_shifted = nht.TrackingProblem(
         shifted_problem.system, shifted_problem.reference, q0=shifted_problem.q0,
         v0=shifted_problem.v0, horizon=5.0, steps=50, wrap_angles=False)
-    assert nht.solve(literal_shifted, "variational").cost > 100  # 10 pi/3 heading error
+    assert nht.solve(literal_shifted, 'variational').cost > 100  # 10 pi/3 heading error
 
 
 def test_multi_start_finds_the_best_and_several_minima():
-    sol = nht.solve(sleigh_problem(wrap_angles=False), "variational", starts=24, seed=1)
+    sol = nht.solve(sleigh_problem(wrap_angles=False), 'variational', starts=24, seed=1)
     assert abs(sol.cost - 42.369) / 42.369 < 2e-3
     assert len(sol.minima) > 1 and sol.minima[0][0] == pytest.approx(sol.cost)
     assert all(c2 > c1 for (c1, _), (c2, _) in zip(sol.minima, sol.minima[1:]))
@@ -167,23 +187,23 @@ def test_multi_start_finds_the_best_and_several_minima():
 
 def test_warm_start_from_a_previous_plan_converges_faster(sleigh_literal):
     problem, cold = sleigh_literal
-    warm = nht.solve(problem, "variational", initial_guess=cold)
+    warm = nht.solve(problem, 'variational', initial_guess=cold)
     assert warm.cost == pytest.approx(cold.cost, rel=1e-9)
     assert warm.iterations < cold.iterations
 
 
-@pytest.mark.parametrize("kwargs, message", [
-    (dict(horizon=0.0), "horizon"), (dict(steps=1), "steps"), (dict(epsilon=-1.0), "epsilon"),
-    (dict(terminal="free"), "terminal"), (dict(q0=[0, np.nan, 0]), "finite"),
+@pytest.mark.parametrize('kwargs, message', [
+    ({'horizon': 0.0}, 'horizon'), ({'steps': 1}, 'steps'), ({'epsilon': -1.0}, 'epsilon'),
+    ({'terminal': 'free'}, 'terminal'), ({'q0': [0, np.nan, 0]}, 'finite'),
 ])
 def test_bad_problems_are_rejected(kwargs, message):
-    base = dict(system=nht.models.chaplygin_sleigh(), reference=sleigh_problem().reference,
-                q0=[0, 0, 0], v0=[0, 0], horizon=5.0, steps=50)
+    base = {'system': nht.models.chaplygin_sleigh(), 'reference': sleigh_problem().reference,
+            'q0': [0, 0, 0], 'v0': [0, 0], 'horizon': 5.0, 'steps': 50}
     base.update(kwargs)
     with pytest.raises(ValueError, match=message):
         nht.TrackingProblem(**base)
-    with pytest.raises(ValueError, match="unknown method"):
-        nht.solve(sleigh_problem(), "shooting")
+    with pytest.raises(ValueError, match='unknown method'):
+        nht.solve(sleigh_problem(), 'shooting')
 
 
 def test_compiled_nlp_gives_the_same_plan_and_is_cached(tmp_path, monkeypatch):
@@ -192,38 +212,40 @@ def test_compiled_nlp_gives_the_same_plan_and_is_cached(tmp_path, monkeypatch):
 
     from nh_tracking.solvers.variational import solve_variational
 
-    if shutil.which("gcc") is None:
-        pytest.skip("no C compiler: the interpreted NLP is used instead")
-    monkeypatch.setenv("NH_TRACKING_CACHE", str(tmp_path))
+    if shutil.which('gcc') is None:
+        pytest.skip('no C compiler: the interpreted NLP is used instead')
+    monkeypatch.setenv('NH_TRACKING_CACHE', str(tmp_path))
     problem = particle_problem(2, h=0.4)
     compiled = solve_variational(problem, compiled=True)
-    assert len(list(tmp_path.glob("nlp-*.so"))) == 1
+    assert len(list(tmp_path.glob('nlp-*.so'))) == 1
     interpreted = solve_variational(problem)
     assert compiled.success and compiled.cost == pytest.approx(interpreted.cost, rel=1e-12)
     assert np.allclose(compiled.q, interpreted.q, atol=1e-10)
 
 
 def test_methods_are_objects_with_their_own_options(sleigh_literal):
-    """By name or as an object, the same method gives the same plan; an option a method does
-    not take is an error naming the methods that do; backends agree."""
+    """By name or as an object, the same method gives the same plan.
+
+    An option a method does not take is an error naming the methods that do; backends agree.
+    """
     from nh_tracking.receding_horizon import PlannerSettings
-    from nh_tracking.solvers import METHODS, Variational, make_method
+    from nh_tracking.solvers import make_method, METHODS, Variational
 
     problem, reference = sleigh_literal
-    assert set(METHODS) == {"variational", "pmp", "multiple_shooting"}
-    by_object = nht.solve(problem, Variational(backend="ipopt"))
-    assert by_object.route == "ipopt" and by_object.success
+    assert set(METHODS) == {'variational', 'pmp', 'multiple_shooting'}
+    by_object = nht.solve(problem, Variational(backend='ipopt'))
+    assert by_object.route == 'ipopt' and by_object.success
     assert by_object.cost == pytest.approx(reference.cost, rel=1e-6)
     with pytest.raises(ValueError, match="takes no option compiled.*taken by \\['variational'"):
-        nht.solve(problem, "pmp", compiled=True)
-    with pytest.raises(ValueError, match="takes no option budget"):
-        make_method("multiple_shooting", budget=3.0)
+        nht.solve(problem, 'pmp', compiled=True)
+    with pytest.raises(ValueError, match='takes no option budget'):
+        make_method('multiple_shooting', budget=3.0)
     with pytest.raises(ValueError, match="unknown method 'magic'"):
-        make_method("magic")
-    with pytest.raises(ValueError, match="backend must be one of"):
-        Variational(backend="snopt")
-    with pytest.raises(ValueError, match="give options to the method object"):
+        make_method('magic')
+    with pytest.raises(ValueError, match='backend must be one of'):
+        Variational(backend='snopt')
+    with pytest.raises(ValueError, match='give options to the method object'):
         make_method(Variational(), compiled=True)
-    with pytest.raises(ValueError, match="takes no option compiled"):
-        PlannerSettings(method="multiple_shooting", compiled=True)
-    assert make_method("pmp", budget=5.0).budget == 5.0
+    with pytest.raises(ValueError, match='takes no option compiled'):
+        PlannerSettings(method='multiple_shooting', compiled=True)
+    assert make_method('pmp', budget=5.0).budget == 5.0

@@ -1,6 +1,22 @@
-"""A robot the package does not ship, written as a user would, in a module of their own: the
-car-like robot (rear-wheel drive, front-wheel steering), loaded with ``model`` =
-``user_robots:CAR`` by the library, the command line and the ROS nodes."""
+# Copyright 2026 nh_tracking maintainers
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+
+"""A robot the package does not ship, written as a user would, in a module of their own.
+
+The car-like robot (rear-wheel drive, front-wheel steering), loaded with ``model`` =
+``user_robots:CAR`` by the library, the command line and the ROS nodes.
+"""
 import casadi as ca
 
 from nh_tracking import NonholonomicSystem
@@ -9,9 +25,11 @@ from nh_tracking.models import ModelSpec, PhysicalParameter
 
 def car_like(m: float = 1.0, J: float = 0.5, I_steer: float = 0.05,
              L: float = 0.5) -> NonholonomicSystem:
-    """q = (x, y, theta, phi): rear axle position, heading, steering angle. Neither wheel slips
-    sideways; basis: driving e1 = (L cos th cos phi, L sin th cos phi, sin phi, 0) (smooth for
-    every phi) and steering e2 = d_phi."""
+    """Q = (x, y, theta, phi): rear axle position, heading, steering angle.
+
+    Neither wheel slips sideways; basis: driving e1 = (L cos th cos phi, L sin th cos phi, sin phi,
+    0) (smooth for every phi) and steering e2 = d_phi.
+    """
 
     def constraints(q):
         th, phi = q[2], q[3]
@@ -26,18 +44,18 @@ def car_like(m: float = 1.0, J: float = 0.5, I_steer: float = 0.05,
         return ca.horzcat(drive, ca.vertcat(0, 0, 0, 1))
 
     return NonholonomicSystem.from_constraints(
-        ["x", "y", "theta", "phi"], lambda q: ca.diag(ca.vertcat(m, m, J, I_steer)),
-        constraints, basis=basis, angles=["theta", "phi"], controls=["drive", "steer"],
-        pose={"x": "x", "y": "y", "theta": "yaw"}, name="car_like",
-        parameters={"m": m, "J": J, "I_steer": I_steer, "L": L})
+        ['x', 'y', 'theta', 'phi'], lambda q: ca.diag(ca.vertcat(m, m, J, I_steer)),
+        constraints, basis=basis, angles=['theta', 'phi'], controls=['drive', 'steer'],
+        pose={'x': 'x', 'y': 'y', 'theta': 'yaw'}, name='car_like',
+        parameters={'m': m, 'J': J, 'I_steer': I_steer, 'L': L})
 
 
 CAR = ModelSpec(
-    "car_like", car_like,
-    (PhysicalParameter("m", 1.0, "kg", "mass"),
-     PhysicalParameter("J", 0.5, "kg m^2", "yaw inertia"),
-     PhysicalParameter("I_steer", 0.05, "kg m^2", "steering inertia"),
-     PhysicalParameter("L", 0.5, "m", "wheelbase")),
-    "a car-like robot", start=((0.0, 0.0, 0.0, 0.0), (1.0, 0.0)))
+    'car_like', car_like,
+    (PhysicalParameter('m', 1.0, 'kg', 'mass'),
+     PhysicalParameter('J', 0.5, 'kg m^2', 'yaw inertia'),
+     PhysicalParameter('I_steer', 0.05, 'kg m^2', 'steering inertia'),
+     PhysicalParameter('L', 0.5, 'm', 'wheelbase')),
+    'a car-like robot', start=((0.0, 0.0, 0.0, 0.0), (1.0, 0.0)))
 
 NOT_A_MODEL = 42

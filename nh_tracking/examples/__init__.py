@@ -1,3 +1,19 @@
-"""What the package is shown and measured with, apart from what a robot runs: the paper's
-experiments, the closed-loop demo, the benchmark, figures and the ``nh-tracking`` command.
-Nothing in the runtime layers (core, solvers, planner, ROS nodes) imports from here."""
+# Copyright 2026 nh_tracking maintainers
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+
+"""What the package is shown and measured with, apart from what a robot runs.
+
+The paper's experiments, the closed-loop demo, the benchmark, figures and the ``nh-tracking``
+command. Nothing in the runtime layers (core, solvers, planner, ROS nodes) imports from here.
+"""

@@ -1,3 +1,17 @@
+# Copyright 2026 nh_tracking maintainers
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+
 """``nh-tracking bench``: how fast and how predictably the planner solves, side by side.
 
 Every figure is measured in the same run on the same machine, against a peer where there is
@@ -6,17 +20,20 @@ one (do-mpc for the cold solve, IPOPT for the structure-exploiting fatrop), and 
 """
 from __future__ import annotations
 
-import json
-import time
-import warnings
 from collections.abc import Callable
+from functools import partial
+import json
 from pathlib import Path
+import time
+from typing import Any, TypeVar
+import warnings
 
 import casadi as ca
 import numpy as np
 
 from nh_tracking import models
-from nh_tracking.examples.experiments import SLEIGH_REFERENCE_START, SLEIGH_START, particle_problem, sleigh_problem
+from nh_tracking.examples.experiments import (particle_problem, sleigh_problem,
+                                              SLEIGH_REFERENCE_START, SLEIGH_START)
 from nh_tracking.metrics import cross_track_error, percentiles_ms
 from nh_tracking.problem import TrackingProblem
 from nh_tracking.receding_horizon import PlannerSettings, RecedingHorizonPlanner
@@ -25,53 +42,58 @@ from nh_tracking.solvers.pmp import solve_pmp
 from nh_tracking.solvers.variational import solve_variational, transcription
 
 REPEATS = 9
+T = TypeVar('T')
 
 
-def _median_time(run: Callable[[], object], repeats: int = REPEATS) -> tuple[float, object]:
-    times, result = [], None
+def _median_time(run: Callable[[], T], repeats: int = REPEATS) -> tuple[float, T]:
+    times, results = [], []
     for _ in range(repeats):
         start = time.perf_counter()
-        result = run()
+        results.append(run())
         times.append(time.perf_counter() - start)
-    return float(np.median(times)), result
+    return float(np.median(times)), results[-1]
 
 
 def cold_solve(log: Callable[[str], None]) -> dict:
-    """The paper's sleigh (literal angles, N = 50) from each tool's default guess; solvers
-    built once beforehand (building is reported separately)."""
+    """Time the paper's sleigh (literal angles, N = 50) from each tool's default guess.
+
+    Solvers built once beforehand (building is reported separately).
+    """
     problem = sleigh_problem(wrap_angles=False)
-    out = {}
-    for solver, compiled in (("fatrop", True), ("fatrop", False), ("ipopt", False)):
-        name = f"variational_{solver}" + ("_compiled" if compiled else "")
+    out: dict[str, Any] = {}
+    for solver, compiled in (('fatrop', True), ('fatrop', False), ('ipopt', False)):
+        name = f'variational_{solver}' + ('_compiled' if compiled else '')
         start = time.perf_counter()
         transcription(problem.system, problem.steps, problem.terminal, None, solver, compiled)
         build = time.perf_counter() - start
-        median, sol = _median_time(
-            lambda s=solver, c=compiled: solve_variational(problem, solver=s, compiled=c))
-        out[name] = {"median_s": median, "cost": sol.cost, "iterations": sol.iterations,
-                     "build_s": build}
-        log(f"  {name}: {median * 1e3:.2f} ms, cost {sol.cost:.4f} (built in {build:.1f} s"
+        median, sol = _median_time(partial(solve_variational, problem, solver=solver,
+                                           compiled=compiled))
+        out[name] = {'median_s': median, 'cost': sol.cost, 'iterations': sol.iterations,
+                     'build_s': build}
+        log(f'  {name}: {median * 1e3:.2f} ms, cost {sol.cost:.4f} (built in {build:.1f} s'
             f"{', compiling on first use, then cached' if compiled else ''})")
     try:
         median, cost, build = _dompc_cold(problem)
-        out["do_mpc"] = {"median_s": median, "cost": cost, "build_s": build}
-        out["speedup_vs_do_mpc"] = median / out["variational_fatrop_compiled"]["median_s"]
-        out["speedup_vs_do_mpc_interpreted"] = median / out["variational_fatrop"]["median_s"]
-        log(f"  do-mpc: {median * 1e3:.1f} ms, objective {cost:.4f}; ours is "
+        out['do_mpc'] = {'median_s': median, 'cost': cost, 'build_s': build}
+        out['speedup_vs_do_mpc'] = median / out['variational_fatrop_compiled']['median_s']
+        out['speedup_vs_do_mpc_interpreted'] = median / out['variational_fatrop']['median_s']
+        log(f'  do-mpc: {median * 1e3:.1f} ms, objective {cost:.4f}; ours is '
             f"{out['speedup_vs_do_mpc']:.1f}x faster compiled, "
             f"{out['speedup_vs_do_mpc_interpreted']:.1f}x interpreted")
     except ImportError:
-        out["do_mpc"] = None
+        out['do_mpc'] = None
         log("  do-mpc not installed (pip install '.[bench]'): comparison skipped")
     return out
 
 
 def _dompc_cold(problem: TrackingProblem) -> tuple[float, float, float]:
-    """do-mpc on the same problem: its default orthogonal collocation, objective
-    h * L(x_k, u_k) summed over stages (its running cost is per stage, so scaled by the step),
-    terminal state fixed by terminal bounds, the reference as time-varying parameters."""
+    """do-mpc on the same problem: its default orthogonal collocation, objective h * L(x_k.
+
+    U_k) summed over stages (its running cost is per stage, so scaled by the step), terminal state
+    fixed by terminal bounds, the reference as time-varying parameters.
+    """
     with warnings.catch_warnings():  # do-mpc warns about its optional features on import
-        warnings.simplefilter("ignore")
+        warnings.simplefilter('ignore')
         import do_mpc
     mode = ca.GlobalOptions.getNumpyMode()
     ca.GlobalOptions.setNumpyMode(-1)  # do-mpc relies on casadi's legacy numpy behaviour
@@ -84,35 +106,35 @@ def _dompc_cold(problem: TrackingProblem) -> tuple[float, float, float]:
 def _dompc_solve(do_mpc, problem: TrackingProblem) -> tuple[float, float, float]:
     system, n, k = problem.system, problem.system.n, problem.system.k
     start = time.perf_counter()
-    model = do_mpc.model.Model("continuous", "SX")
-    q = model.set_variable("_x", "q", (n, 1))
-    v = model.set_variable("_x", "v", (k, 1))
-    u = model.set_variable("_u", "u", (k, 1))
-    q_r = model.set_variable("_tvp", "q_r", (n, 1))
-    v_r = model.set_variable("_tvp", "v_r", (k, 1))
+    model = do_mpc.model.Model('continuous', 'SX')
+    q = model.set_variable('_x', 'q', (n, 1))
+    v = model.set_variable('_x', 'v', (k, 1))
+    u = model.set_variable('_u', 'u', (k, 1))
+    q_r = model.set_variable('_tvp', 'q_r', (n, 1))
+    v_r = model.set_variable('_tvp', 'v_r', (k, 1))
     qdot, vdot = system.dynamics_fn(q, v, u)
-    model.set_rhs("q", qdot)
-    model.set_rhs("v", vdot)
+    model.set_rhs('q', qdot)
+    model.set_rhs('v', vdot)
     model.setup()
     mpc = do_mpc.controller.MPC(model)
     mpc.settings.n_horizon = problem.steps
     mpc.settings.t_step = problem.h
     mpc.settings.store_full_solution = False
-    mpc.settings.nlpsol_opts = {"ipopt.print_level": 0, "ipopt.sb": "yes", "print_time": 0}
+    mpc.settings.nlpsol_opts = {'ipopt.print_level': 0, 'ipopt.sb': 'yes', 'print_time': 0}
     running = problem.h * 0.5 * (ca.sumsqr(q - q_r) + ca.sumsqr(v - v_r)
                                  + problem.epsilon * ca.sumsqr(u))
     mpc.set_objective(lterm=running, mterm=ca.DM(0))
     mpc.set_rterm(u=0.0)
     q_knots, v_knots = problem.reference_samples[:2]
-    for bound in ("lower", "upper"):
-        mpc.terminal_bounds[bound, "q"] = q_knots[-1]
-        mpc.terminal_bounds[bound, "v"] = v_knots[-1]
+    for bound in ('lower', 'upper'):
+        mpc.terminal_bounds[bound, 'q'] = q_knots[-1]
+        mpc.terminal_bounds[bound, 'v'] = v_knots[-1]
     template = mpc.get_tvp_template()
 
     def tvp(t_now: float):
         for i in range(problem.steps + 1):
-            template["_tvp", i, "q_r"] = q_knots[i]
-            template["_tvp", i, "v_r"] = v_knots[i]
+            template['_tvp', i, 'q_r'] = q_knots[i]
+            template['_tvp', i, 'v_r'] = v_knots[i]
         return template
 
     mpc.set_tvp_fun(tvp)
@@ -125,7 +147,7 @@ def _dompc_solve(do_mpc, problem: TrackingProblem) -> tuple[float, float, float]
         mpc.x0 = x0
         mpc.set_initial_guess()
         mpc.make_step(x0)
-        return float(mpc.opt_x_num.cat.shape[0] and mpc.solver_stats["iterations"]["obj"][-1])
+        return float(mpc.opt_x_num.cat.shape[0] and mpc.solver_stats['iterations']['obj'][-1])
 
     median, cost = _median_time(step)
     return median, cost, build
@@ -133,8 +155,10 @@ def _dompc_solve(do_mpc, problem: TrackingProblem) -> tuple[float, float, float]
 
 def warm_replanning(log: Callable[[str], None], rate: float = 100.0, duration: float = 20.0
                     ) -> dict:
-    """A 20 s closed loop replanned at ``rate`` Hz from the measured state of a robot 10 %
-    heavier than the model; deadline = one period."""
+    """Run a 20 s closed loop replanned at ``rate`` Hz, the deadline one period.
+
+    The measured state is that of a robot 10 % heavier than the model.
+    """
     model = models.chaplygin_sleigh()
     real = models.chaplygin_sleigh(J=4.4)
     reference = simulate(model, *SLEIGH_REFERENCE_START, np.linspace(0, duration + 10, 601))
@@ -153,12 +177,12 @@ def warm_replanning(log: Callable[[str], None], rate: float = 100.0, duration: f
     times = np.array(planner.stats.solve_times)
     planning = np.array(planner.stats.plan_durations)
     error = cross_track_error(np.array(positions[-100:]), reference.q[:, :2])
-    result = {
-        "rate_hz": rate, "solves": int(times.size), **percentiles_ms(times),
-        "plan_call_ms": {**percentiles_ms(planning), "max": float(planning.max() * 1e3)},
-        "max_ms": float(times.max() * 1e3), "deadline_misses": int((planning > period).sum()),
-        "fallbacks": planner.stats.fallbacks, "shifted": planner.stats.shifted,
-        "final_cross_track_error": float(error.max()),
+    result: dict[str, Any] = {
+        'rate_hz': rate, 'solves': int(times.size), **percentiles_ms(times),
+        'plan_call_ms': {**percentiles_ms(planning), 'max': float(planning.max() * 1e3)},
+        'max_ms': float(times.max() * 1e3), 'deadline_misses': int((planning > period).sum()),
+        'fallbacks': planner.stats.fallbacks, 'shifted': planner.stats.shifted,
+        'final_cross_track_error': float(error.max()),
     }
     log(f"  {times.size} solves at {rate:g} Hz: p50 {result['p50']:.2f} ms, p99 "
         f"{result['p99']:.2f} ms, max {result['max_ms']:.2f} ms, "
@@ -169,29 +193,29 @@ def warm_replanning(log: Callable[[str], None], rate: float = 100.0, duration: f
 
 def scaling(log: Callable[[str], None], sizes=(50, 100, 200, 400, 800)) -> dict:
     """Cold solve time of the paper's sleigh as the horizon is cut finer (T = 5 s)."""
-    out = {}
+    out: dict[str, Any] = {}
     for n in sizes:
         problem = sleigh_problem(wrap_angles=False, steps=n)
         start = time.perf_counter()
         transcription(problem.system, n, problem.terminal)
         build = time.perf_counter() - start
-        median, sol = _median_time(lambda p=problem: solve_variational(p), repeats=3)
-        out[str(n)] = {"median_s": median, "build_s": build, "cost": sol.cost,
-                       "iterations": sol.iterations}
-        log(f"  N = {n}: {median * 1e3:.1f} ms ({sol.iterations} iterations, built in "
-            f"{build:.1f} s), cost {sol.cost:.4f}")
-    out["ratio_800_50"] = out[str(sizes[-1])]["median_s"] / out[str(sizes[0])]["median_s"]
+        median, sol = _median_time(partial(solve_variational, problem), repeats=3)
+        out[str(n)] = {'median_s': median, 'build_s': build, 'cost': sol.cost,
+                       'iterations': sol.iterations}
+        log(f'  N = {n}: {median * 1e3:.1f} ms ({sol.iterations} iterations, built in '
+            f'{build:.1f} s), cost {sol.cost:.4f}')
+    out['ratio_800_50'] = out[str(sizes[-1])]['median_s'] / out[str(sizes[0])]['median_s']
     return out
 
 
 def pmp_shooting(log: Callable[[str], None]) -> dict:
-    out = {}
+    out: dict[str, Any] = {}
     for case in (1, 2):
         problem = particle_problem(case)
         solve_pmp(problem)  # builds the flow once
-        median, sol = _median_time(lambda p=problem: solve_pmp(p), repeats=3)
-        out[f"particle_case{case}"] = {"median_s": median, "cost": sol.cost, "route": sol.message}
-        log(f"  particle case {case}: {median:.2f} s via {sol.message}, cost {sol.cost:.5f}")
+        median, sol = _median_time(partial(solve_pmp, problem), repeats=3)
+        out[f'particle_case{case}'] = {'median_s': median, 'cost': sol.cost, 'route': sol.message}
+        log(f'  particle case {case}: {median:.2f} s via {sol.message}, cost {sol.cost:.5f}')
     return out
 
 
@@ -201,49 +225,49 @@ def run_bench(out: Path, log: Callable[[str], None] = print, ros: bool = True) -
 
     out.mkdir(parents=True, exist_ok=True)
     sections: list[tuple[str, Callable[[], dict]]] = [
-        ("cold_solve", lambda: cold_solve(log)),
-        ("warm_replanning", lambda: warm_replanning(log)),
-        ("scaling", lambda: scaling(log)),
-        ("pmp_shooting", lambda: pmp_shooting(log)),
+        ('cold_solve', lambda: cold_solve(log)),
+        ('warm_replanning', lambda: warm_replanning(log)),
+        ('scaling', lambda: scaling(log)),
+        ('pmp_shooting', lambda: pmp_shooting(log)),
     ]
     if ros:
         from nh_tracking.examples.latency import ros_latency
-        sections.append(("ros_latency", lambda: ros_latency(log)))
+        sections.append(('ros_latency', lambda: ros_latency(log)))
     results: dict[str, dict] = {}
     for i, (name, run) in enumerate(sections, 1):
-        log(f"[{i}/{len(sections)}] {name}")
+        log(f'[{i}/{len(sections)}] {name}')
         results[name] = run()
-    results["acceptance"] = acceptance(results)
-    (out / "bench.json").write_text(json.dumps(results, indent=2, default=float))
-    plot_bench(results, out / "bench.png")
-    for name, verdict in results["acceptance"].items():
+    results['acceptance'] = acceptance(results)
+    (out / 'bench.json').write_text(json.dumps(results, indent=2, default=float))
+    plot_bench(results, out / 'bench.png')
+    for name, verdict in results['acceptance'].items():
         log(f"  {'PASS' if verdict['pass'] else 'FAIL'} {name}: {verdict['value']}")
     return results
 
 
 def acceptance(results: dict) -> dict:
-    """The issue's bars, as measured in this run."""
+    """Return the issue's bars, as measured in this run."""
     verdicts = {}
-    cold = results.get("cold_solve", {})
-    if cold.get("do_mpc"):
-        ratio = cold["speedup_vs_do_mpc"]
-        verdicts["cold solve >= 10x faster than do-mpc"] = {
-            "value": f"{ratio:.1f}x compiled ({cold['speedup_vs_do_mpc_interpreted']:.1f}x "
-                     f"interpreted)", "pass": ratio >= 10}
-    warm = results.get("warm_replanning")
+    cold = results.get('cold_solve', {})
+    if cold.get('do_mpc'):
+        ratio = cold['speedup_vs_do_mpc']
+        verdicts['cold solve >= 10x faster than do-mpc'] = {
+            'value': f"{ratio:.1f}x compiled ({cold['speedup_vs_do_mpc_interpreted']:.1f}x "
+                     f'interpreted)', 'pass': ratio >= 10}
+    warm = results.get('warm_replanning')
     if warm:
-        verdicts["warm p50 <= 3 ms, p99 <= 10 ms, no misses at 100 Hz"] = {
-            "value": f"p50 {warm['p50']:.2f} ms, p99 {warm['p99']:.2f} ms, "
+        verdicts['warm p50 <= 3 ms, p99 <= 10 ms, no misses at 100 Hz'] = {
+            'value': f"p50 {warm['p50']:.2f} ms, p99 {warm['p99']:.2f} ms, "
                      f"{warm['deadline_misses']} misses",
-            "pass": warm["p50"] <= 3 and warm["p99"] <= 10 and warm["deadline_misses"] == 0}
-    scale = results.get("scaling")
+            'pass': warm['p50'] <= 3 and warm['p99'] <= 10 and warm['deadline_misses'] == 0}
+    scale = results.get('scaling')
     if scale:
-        verdicts["t(N=800)/t(N=50) <= 20"] = {"value": f"{scale['ratio_800_50']:.1f}",
-                                             "pass": scale["ratio_800_50"] <= 20}
-    ros = results.get("ros_latency")
+        verdicts['t(N=800)/t(N=50) <= 20'] = {'value': f"{scale['ratio_800_50']:.1f}",
+                                              'pass': scale['ratio_800_50'] <= 20}
+    ros = results.get('ros_latency')
     if ros:
-        verdicts["ROS overhead beyond the solve p50 <= 2 ms"] = {
-            "value": f"{ros['overhead_ms']['p50']:.2f} ms beyond the numerical planner "
+        verdicts['ROS overhead beyond the solve p50 <= 2 ms'] = {
+            'value': f"{ros['overhead_ms']['p50']:.2f} ms beyond the numerical planner "
                      f"({ros['not_in_nlp_solver_ms']['p50']:.2f} ms beyond the NLP solver alone)",
-            "pass": ros["overhead_ms"]["p50"] <= 2}
+            'pass': ros['overhead_ms']['p50'] <= 2}
     return verdicts

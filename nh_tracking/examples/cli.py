@@ -1,10 +1,24 @@
+# Copyright 2026 nh_tracking maintainers
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+
 """``nh-tracking``: the command line (simulate a model, and later reproduce, demo, bench)."""
 from __future__ import annotations
 
 import argparse
 import json
-import sys
 from pathlib import Path
+import sys
 
 import numpy as np
 
@@ -13,15 +27,14 @@ from nh_tracking.examples.plotting import plot_simulation
 from nh_tracking.simulate import simulate
 
 
-
 def _floats(text: str) -> list[float]:
-    return [float(x) for x in text.replace(",", " ").split()]
+    return [float(x) for x in text.replace(',', ' ').split()]
 
 
 def _param(text: str) -> tuple[str, float]:
-    name, _, value = text.partition("=")
+    name, _, value = text.partition('=')
     if not _ or not name:
-        raise argparse.ArgumentTypeError(f"expected NAME=VALUE, got {text!r}")
+        raise argparse.ArgumentTypeError(f'expected NAME=VALUE, got {text!r}')
     return name, float(value)
 
 
@@ -40,17 +53,17 @@ def cmd_simulate(args: argparse.Namespace) -> int:
                    for q, v in zip(traj.q, traj.v))
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    figure = plot_simulation(system, traj, out / "simulation.png")
+    figure = plot_simulation(system, traj, out / 'simulation.png')
     summary = {
-        "model": system.name, "parameters": system.parameters, "duration": args.duration,
-        "q_final": traj.q[-1].tolist(), "v_final": traj.v[-1].tolist(),
-        "energy_initial": float(energy[0]),
-        "energy_drift_max": float(np.abs(energy - energy[0]).max()),
-        "constraint_residual_max": float(residual),
+        'model': system.name, 'parameters': system.parameters, 'duration': args.duration,
+        'q_final': traj.q[-1].tolist(), 'v_final': traj.v[-1].tolist(),
+        'energy_initial': float(energy[0]),
+        'energy_drift_max': float(np.abs(energy - energy[0]).max()),
+        'constraint_residual_max': float(residual),
     }
-    (out / "simulation.json").write_text(json.dumps(summary, indent=2))
-    print(f"{system.name}: simulated {args.duration:g} s; final q = "
-          f"{np.array2string(traj.q[-1], precision=4)}; energy drift "
+    (out / 'simulation.json').write_text(json.dumps(summary, indent=2))
+    print(f'{system.name}: simulated {args.duration:g} s; final q = '
+          f'{np.array2string(traj.q[-1], precision=4)}; energy drift '
           f"{summary['energy_drift_max']:.2e}; constraint residual {residual:.1e}")
     print(f"wrote {figure} and {out / 'simulation.json'}")
     return 0
@@ -62,7 +75,7 @@ def cmd_reproduce(args: argparse.Namespace) -> int:
 
     out = Path(args.out)
     metrics = reproduce(out, log=lambda line: print(line, flush=True))
-    s, w = metrics["sleigh"], metrics["sleigh_wrapped"]
+    s, w = metrics['sleigh'], metrics['sleigh_wrapped']
     print(f"sleigh cost {s['cost']:.4f} (paper prototype 42.369), wrapped {w['cost']:.4f}; "
           f"particle PMP {metrics['particle_case1']['pmp_cost']:.4f} / "
           f"{metrics['particle_case2']['pmp_cost']:.4f}")
@@ -71,12 +84,15 @@ def cmd_reproduce(args: argparse.Namespace) -> int:
 
 
 def cmd_demo(args: argparse.Namespace) -> int:
-    """Closed loop through ROS: planner + simulator (10 % heavier) on the paper's sleigh."""
+    """Run the closed loop through ROS.
+
+    Planner + simulator (10 % heavier) on the paper's sleigh.
+    """
     from nh_tracking.examples.demo import run_demo
 
     summary = run_demo(Path(args.out), duration=args.duration, reference_kind=args.reference,
                        time_scale=args.time_scale, log=lambda line: print(line, flush=True))
-    return 0 if summary["final_cross_track_error"] < 0.05 else 1
+    return 0 if summary['final_cross_track_error'] < 0.05 else 1
 
 
 def cmd_bench(args: argparse.Namespace) -> int:
@@ -90,39 +106,39 @@ def cmd_bench(args: argparse.Namespace) -> int:
 
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
-        prog="nh-tracking",
-        description="Optimal trajectory tracking for nonholonomic mechanical systems.")
-    sub = parser.add_subparsers(dest="command", required=True)
-    sim = sub.add_parser("simulate", help="simulate a built-in model and plot it",
+        prog='nh-tracking',
+        description='Optimal trajectory tracking for nonholonomic mechanical systems.')
+    sub = parser.add_subparsers(dest='command', required=True)
+    sim = sub.add_parser('simulate', help='simulate a built-in model and plot it',
                          description=cmd_simulate.__doc__)
-    sim.add_argument("--model", default="chaplygin_sleigh",
+    sim.add_argument('--model', default='chaplygin_sleigh',
                      help=f"built-in ({', '.join(models.MODELS)}) or package.module:attribute")
-    sim.add_argument("--param", type=_param, action="append", default=[],
-                     metavar="NAME=VALUE", help="a physical parameter of the model (repeatable)")
-    sim.add_argument("--q0", type=_floats, help="initial configuration (default: paper's sleigh)")
-    sim.add_argument("--v0", type=_floats, help="initial quasi-velocities")
-    sim.add_argument("--u", type=_floats, help="constant control (default: none)")
-    sim.add_argument("--duration", type=float, default=10.0)
-    sim.add_argument("--steps", type=int, default=400)
-    sim.add_argument("--out", default="results/simulate")
+    sim.add_argument('--param', type=_param, action='append', default=[],
+                     metavar='NAME=VALUE', help='a physical parameter of the model (repeatable)')
+    sim.add_argument('--q0', type=_floats, help="initial configuration (default: paper's sleigh)")
+    sim.add_argument('--v0', type=_floats, help='initial quasi-velocities')
+    sim.add_argument('--u', type=_floats, help='constant control (default: none)')
+    sim.add_argument('--duration', type=float, default=10.0)
+    sim.add_argument('--steps', type=int, default=400)
+    sim.add_argument('--out', default='results/simulate')
     sim.set_defaults(func=cmd_simulate)
-    rep = sub.add_parser("reproduce", help="re-run the paper's experiments",
+    rep = sub.add_parser('reproduce', help="re-run the paper's experiments",
                          description=cmd_reproduce.__doc__)
-    rep.add_argument("--out", default="results/reproduce")
+    rep.add_argument('--out', default='results/reproduce')
     rep.set_defaults(func=cmd_reproduce)
-    demo = sub.add_parser("demo", help="closed-loop tracking through ROS (the main job)",
+    demo = sub.add_parser('demo', help='closed-loop tracking through ROS (the main job)',
                           description=cmd_demo.__doc__)
-    demo.add_argument("--out", default="results/demo")
-    demo.add_argument("--duration", type=float, default=15.0, help="simulated seconds")
-    demo.add_argument("--reference", choices=("path", "trajectory"), default="path",
-                      help="send the reference as nav_msgs/Path or MultiDOFJointTrajectory")
-    demo.add_argument("--time-scale", type=float, default=4.0,
-                      help="simulated seconds per wall second")
+    demo.add_argument('--out', default='results/demo')
+    demo.add_argument('--duration', type=float, default=15.0, help='simulated seconds')
+    demo.add_argument('--reference', choices=('path', 'trajectory'), default='path',
+                      help='send the reference as nav_msgs/Path or MultiDOFJointTrajectory')
+    demo.add_argument('--time-scale', type=float, default=4.0,
+                      help='simulated seconds per wall second')
     demo.set_defaults(func=cmd_demo)
-    bench = sub.add_parser("bench", help="benchmark the solvers (do-mpc: pip install '.[bench]')",
+    bench = sub.add_parser('bench', help="benchmark the solvers (do-mpc: pip install '.[bench]')",
                            description=cmd_bench.__doc__)
-    bench.add_argument("--out", default="results/bench")
-    bench.add_argument("--no-ros", action="store_true", help="skip the ROS latency section")
+    bench.add_argument('--out', default='results/bench')
+    bench.add_argument('--no-ros', action='store_true', help='skip the ROS latency section')
     bench.set_defaults(func=cmd_bench)
     return parser
 
@@ -132,9 +148,9 @@ def main(argv: list[str] | None = None) -> int:
     try:
         return args.func(args)
     except (ValueError, RuntimeError) as exc:
-        print(f"nh-tracking {args.command}: error: {exc}", file=sys.stderr)
+        print(f'nh-tracking {args.command}: error: {exc}', file=sys.stderr)
         return 2
 
 
-if __name__ == "__main__":
+if __name__ == '__main__':
     sys.exit(main())

@@ -1,3 +1,17 @@
+# Copyright 2026 nh_tracking maintainers
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+
 """PNG figures of trajectories, for people to look at.
 
 Figures are matplotlib ``Figure`` objects drawn straight to PNG: no pyplot, so importing this
@@ -7,8 +21,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
-import numpy as np
 from matplotlib.figure import Figure
+import numpy as np
 
 from nh_tracking.system import NonholonomicSystem
 from nh_tracking.trajectory import Trajectory
@@ -23,7 +37,7 @@ def _subplots(*grid: int, figsize: tuple[float, float]):
 def _finish(fig, path: Path, dpi: int = 100) -> Path:
     """Grid on every 2-D axis, tight layout, write the PNG, free the figure."""
     for ax in fig.axes:
-        if ax.name != "3d":
+        if ax.name != '3d':
             ax.grid(alpha=0.3)
     fig.tight_layout()
     fig.savefig(path, dpi=dpi)
@@ -36,128 +50,136 @@ def plot_simulation(system: NonholonomicSystem, traj: Trajectory, path: Path) ->
     fig, axes = _subplots(1, 3, figsize=(15, 4.5))
     ax = axes[0]
     ax.plot(traj.q[:, 0], traj.q[:, 1], lw=2)
-    ax.plot(*traj.q[0, :2], "go", label="start")
-    ax.plot(*traj.q[-1, :2], "rs", label="end")
-    ax.set(xlabel=system.coordinates[0], ylabel=system.coordinates[1], aspect="equal",
-           title=f"{system.name}: path")
+    ax.plot(*traj.q[0, :2], 'go', label='start')
+    ax.plot(*traj.q[-1, :2], 'rs', label='end')
+    ax.set(xlabel=system.coordinates[0], ylabel=system.coordinates[1], aspect='equal',
+           title=f'{system.name}: path')
     ax.legend()
     for a, name in enumerate(system.velocity_names):
         axes[1].plot(traj.t, traj.v[:, a], label=name)
-    axes[1].set(xlabel="t [s]", ylabel="v (adapted basis)", title="quasi-velocities")
+    axes[1].set(xlabel='t [s]', ylabel='v (adapted basis)', title='quasi-velocities')
     axes[1].legend()
     axes[2].plot(traj.t, energy - energy[0])
-    axes[2].set(xlabel="t [s]", ylabel="E(t) - E(0)", title=f"energy drift (E0 = {energy[0]:.4g})")
+    axes[2].set(xlabel='t [s]', ylabel='E(t) - E(0)', title=f'energy drift (E0 = {energy[0]:.4g})')
     return _finish(fig, path, dpi=110)
 
 
 def plot_tracking(problem, solution, running: np.ndarray, path: Path, title: str,
                   compare=None) -> Path:
-    """A plan against its reference: the path in 2-D and with the third coordinate as height,
-    the controls, and the running action h L per interval with the accumulated cost."""
+    """Plot a plan against its reference.
+
+    The path in 2-D and with the third coordinate as height, the controls, and the running action h
+    L per interval with the accumulated cost.
+    """
     system = problem.system
     t_fine = np.linspace(problem.grid[0], problem.grid[-1], 400)
     q_ref, _ = problem.reference_at(t_fine)
     names = system.coordinates
     fig = Figure(figsize=(15, 9))
     ax = fig.add_subplot(2, 2, 1)
-    ax.plot(q_ref[:, 0], q_ref[:, 1], "k--", label="reference")
-    ax.plot(solution.q[:, 0], solution.q[:, 1], "o-", ms=3, label=solution.method)
+    ax.plot(q_ref[:, 0], q_ref[:, 1], 'k--', label='reference')
+    ax.plot(solution.q[:, 0], solution.q[:, 1], 'o-', ms=3, label=solution.method)
     if compare is not None:
-        ax.plot(compare.q[:, 0], compare.q[:, 1], "-", alpha=0.7, label=compare.method)
-    ax.plot(*problem.q0[:2], "gs", label="start")
-    ax.set(xlabel=names[0], ylabel=names[1], title=f"{title}: path", aspect="equal")
+        ax.plot(compare.q[:, 0], compare.q[:, 1], '-', alpha=0.7, label=compare.method)
+    ax.plot(*problem.q0[:2], 'gs', label='start')
+    ax.set(xlabel=names[0], ylabel=names[1], title=f'{title}: path', aspect='equal')
     ax.legend()
-    ax3 = fig.add_subplot(2, 2, 2, projection="3d")
-    ax3.plot(*q_ref[:, :3].T, "k--", label="reference")
-    ax3.plot(*solution.q[:, :3].T, "o-", ms=2, label=solution.method)
-    ax3.set(xlabel=names[0], ylabel=names[1], zlabel=names[2], title="with " + names[2])
+    ax3 = fig.add_subplot(2, 2, 2, projection='3d')
+    ax3.plot(*q_ref[:, :3].T, 'k--', label='reference')
+    ax3.plot(*solution.q[:, :3].T, 'o-', ms=2, label=solution.method)
+    ax3.set(xlabel=names[0], ylabel=names[1], zlabel=names[2], title='with ' + names[2])
     ax = fig.add_subplot(2, 2, 3)
     for a, name in enumerate(system.control_names):
-        ax.step(solution.t[:-1], solution.u[:, a], where="post", label=name)
-    ax.set(xlabel="t [s]", ylabel="u", title="controls (held per interval)")
+        ax.step(solution.t[:-1], solution.u[:, a], where='post', label=name)
+    ax.set(xlabel='t [s]', ylabel='u', title='controls (held per interval)')
     ax.legend()
     ax = fig.add_subplot(2, 2, 4)
     mids = solution.t[:-1] + 0.5 * problem.h
-    ax.bar(mids, running, width=problem.h * 0.9, alpha=0.5, label="h L per interval")
-    ax.set(xlabel="t [s]", ylabel="h L", title=f"running action; cost {solution.cost:.4f}")
+    ax.bar(mids, running, width=problem.h * 0.9, alpha=0.5, label='h L per interval')
+    ax.set(xlabel='t [s]', ylabel='h L', title=f'running action; cost {solution.cost:.4f}')
     twin = ax.twinx()
-    twin.plot(solution.t[1:], np.cumsum(running), "r-", label="accumulated")
-    twin.set_ylabel("accumulated running cost")
-    ax.legend(loc="upper left")
-    twin.legend(loc="upper right")
+    twin.plot(solution.t[1:], np.cumsum(running), 'r-', label='accumulated')
+    twin.set_ylabel('accumulated running cost')
+    ax.legend(loc='upper left')
+    twin.legend(loc='upper right')
     return _finish(fig, path)
 
 
 def plot_energy(system: NonholonomicSystem, solution, fine: Trajectory, path: Path) -> Path:
-    """Energy of the controlled system along the plan's knots and along a fine integration
-    of the same controls (the paper's Fig. 8 comparison)."""
+    """Plot the energy along the plan's knots and along a fine integration of its controls.
+
+    The paper's Fig. 8 comparison.
+    """
     e_plan = [system.energy(q, v) for q, v in zip(solution.q, solution.v)]
     e_fine = [system.energy(q, v) for q, v in zip(fine.q, fine.v)]
     fig, ax = _subplots(figsize=(8, 4.5))
-    ax.plot(fine.t, e_fine, "b-", label="fine RK45 integration of the plan's controls")
-    ax.plot(solution.t, e_plan, "ro", ms=4, label=f"{solution.method} plan ({len(solution.t)} knots)")
-    ax.set(xlabel="t [s]", ylabel="energy", title="controlled energy")
+    ax.plot(fine.t, e_fine, 'b-', label="fine RK45 integration of the plan's controls")
+    ax.plot(solution.t, e_plan, 'ro', ms=4,
+            label=f'{solution.method} plan ({len(solution.t)} knots)')
+    ax.set(xlabel='t [s]', ylabel='energy', title='controlled energy')
     ax.legend()
     return _finish(fig, path)
 
 
 def plot_closed_loop(reference: Trajectory, t: np.ndarray, xy: np.ndarray, error: np.ndarray,
                      solve_t: np.ndarray, solve_s: np.ndarray, path: Path) -> Path:
-    """The closed loop: reference vs driven path, cross-track error, and solve times (all
-    times from the start of the run)."""
+    """Plot the closed loop: reference vs driven path, cross-track error.
+
+    And solve times (all times from the start of the run).
+    """
     fig, axes = _subplots(1, 3, figsize=(16, 4.8))
     ax = axes[0]
     shown = reference.t <= t[-1] + 1.0
-    ax.plot(reference.q[shown, 0], reference.q[shown, 1], "k--", label="reference")
-    ax.plot(xy[:, 0], xy[:, 1], "-", lw=2, label="closed loop (robot 10 % heavier)")
-    ax.plot(*xy[0], "gs", label="start")
-    ax.set(xlabel="x [m]", ylabel="y [m]", aspect="equal", title="sleigh tracking through ROS")
-    ax.legend(loc="upper left", fontsize=8)
+    ax.plot(reference.q[shown, 0], reference.q[shown, 1], 'k--', label='reference')
+    ax.plot(xy[:, 0], xy[:, 1], '-', lw=2, label='closed loop (robot 10 % heavier)')
+    ax.plot(*xy[0], 'gs', label='start')
+    ax.set(xlabel='x [m]', ylabel='y [m]', aspect='equal', title='sleigh tracking through ROS')
+    ax.legend(loc='upper left', fontsize=8)
     axes[1].semilogy(t, np.maximum(error, 1e-5))
-    axes[1].axhline(0.05, color="r", ls=":", label="0.05 m")
-    axes[1].set(xlabel="t [s]", ylabel="cross-track error [m]", title="tracking error")
+    axes[1].axhline(0.05, color='r', ls=':', label='0.05 m')
+    axes[1].set(xlabel='t [s]', ylabel='cross-track error [m]', title='tracking error')
     axes[1].legend()
-    axes[2].plot(solve_t, solve_s * 1e3, ".", ms=3)
-    axes[2].set(xlabel="t [s]", ylabel="solve time [ms]", title="replanning solve time")
+    axes[2].plot(solve_t, solve_s * 1e3, '.', ms=3)
+    axes[2].set(xlabel='t [s]', ylabel='solve time [ms]', title='replanning solve time')
     return _finish(fig, path)
 
 
 def plot_bench(results: dict, path: Path) -> Path:
     """Cold solve vs do-mpc, warm replanning solve times, scaling in N, ROS latency split."""
     fig, axes = _subplots(1, 4, figsize=(19, 4.5))
-    cold = results.get("cold_solve", {})
-    names = [k for k in ("variational_fatrop_compiled", "variational_fatrop",
-                         "variational_ipopt", "do_mpc") if cold.get(k)]
-    axes[0].bar([k.replace("variational_", "").replace("_", "\n") for k in names],
-                [cold[k]["median_s"] * 1e3 for k in names],
-                color=["C2", "C1", "C0", "C3"][:len(names)])
-    axes[0].set(ylabel="median solve [ms]", title="cold solve, paper's sleigh (N = 50)")
-    axes[0].tick_params(axis="x", labelrotation=15)
-    warm = results.get("warm_replanning")
+    cold = results.get('cold_solve', {})
+    names = [k for k in ('variational_fatrop_compiled', 'variational_fatrop',
+                         'variational_ipopt', 'do_mpc') if cold.get(k)]
+    axes[0].bar([k.replace('variational_', '').replace('_', '\n') for k in names],
+                [cold[k]['median_s'] * 1e3 for k in names],
+                color=['C2', 'C1', 'C0', 'C3'][:len(names)])
+    axes[0].set(ylabel='median solve [ms]', title="cold solve, paper's sleigh (N = 50)")
+    axes[0].tick_params(axis='x', labelrotation=15)
+    warm = results.get('warm_replanning')
     if warm:
-        axes[1].bar(["p50", "p99", "max"], [warm["p50"], warm["p99"], warm["max_ms"]])
-        axes[1].axhline(1e3 / warm["rate_hz"], color="r", ls=":", label="deadline (100 Hz)")
-        axes[1].set(ylabel="solve time [ms]",
+        axes[1].bar(['p50', 'p99', 'max'], [warm['p50'], warm['p99'], warm['max_ms']])
+        axes[1].axhline(1e3 / warm['rate_hz'], color='r', ls=':', label='deadline (100 Hz)')
+        axes[1].set(ylabel='solve time [ms]',
                     title=f"warm replanning, {warm['solves']} solves, "
                           f"{warm['deadline_misses']} misses")
         axes[1].legend()
-    scale = results.get("scaling")
+    scale = results.get('scaling')
     if scale:
         sizes = [int(k) for k in scale if k.isdigit()]
-        times = [scale[str(n)]["median_s"] * 1e3 for n in sizes]
-        axes[2].loglog(sizes, times, "o-", label="measured")
-        axes[2].loglog(sizes, [times[0] * n / sizes[0] for n in sizes], "k:", label="linear")
-        axes[2].set(xlabel="N", ylabel="cold solve [ms]", title="scaling in N")
+        times = [scale[str(n)]['median_s'] * 1e3 for n in sizes]
+        axes[2].loglog(sizes, times, 'o-', label='measured')
+        axes[2].loglog(sizes, [times[0] * n / sizes[0] for n in sizes], 'k:', label='linear')
+        axes[2].set(xlabel='N', ylabel='cold solve [ms]', title='scaling in N')
         axes[2].legend()
-    ros = results.get("ros_latency")
+    ros = results.get('ros_latency')
     if ros:
-        keys = ["p50", "p99"]
-        solve = np.array([ros["solve_ms"][k] for k in keys])
-        planner = np.array([ros["planner_ms"][k] for k in keys])
-        ros_layer = np.array([ros["overhead_ms"][k] for k in keys])
-        axes[3].bar(keys, solve, label="NLP solver")
-        axes[3].bar(keys, planner - solve, bottom=solve, label="rest of the planner")
-        axes[3].bar(keys, ros_layer, bottom=planner, label="ROS layer")
-        axes[3].set(ylabel="odom -> control_sequence [ms]", title="ROS latency (in process)")
+        keys = ['p50', 'p99']
+        solve = np.array([ros['solve_ms'][k] for k in keys])
+        planner = np.array([ros['planner_ms'][k] for k in keys])
+        ros_layer = np.array([ros['overhead_ms'][k] for k in keys])
+        axes[3].bar(keys, solve, label='NLP solver')
+        axes[3].bar(keys, planner - solve, bottom=solve, label='rest of the planner')
+        axes[3].bar(keys, ros_layer, bottom=planner, label='ROS layer')
+        axes[3].set(ylabel='odom -> control_sequence [ms]', title='ROS latency (in process)')
         axes[3].legend()
     return _finish(fig, path)

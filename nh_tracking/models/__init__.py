@@ -1,3 +1,17 @@
+# Copyright 2026 nh_tracking maintainers
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+
 """Models: built-in ones by name, and user models with no edit to the package.
 
 Each built-in model is one module holding its Lagrangian data (metric, constraints, basis —
@@ -22,30 +36,33 @@ from nh_tracking.models.spec import ModelSpec, PhysicalParameter
 from nh_tracking.models.unicycle import unicycle
 from nh_tracking.system import NonholonomicSystem
 
-__all__ = ["MODELS", "ModelSpec", "PhysicalParameter", "chaplygin_sleigh", "create",
-           "model_parameters", "nonholonomic_particle", "rolling_disk", "spec", "unicycle"]
+__all__ = ['MODELS', 'ModelSpec', 'PhysicalParameter', 'chaplygin_sleigh', 'create',
+           'model_parameters', 'nonholonomic_particle', 'rolling_disk', 'spec', 'unicycle']
 
 MODELS: dict[str, ModelSpec] = {m.SPEC.name: m.SPEC for m in (_sleigh, _particle, _unicycle,
                                                               _disk)}
-ENTRY_POINTS = "nh_tracking.models"
+ENTRY_POINTS = 'nh_tracking.models'
 
 
 def spec(name: str) -> ModelSpec:
-    """The model called ``name``: built-in, from an entry point, or ``package.module:attr``."""
+    """Return the model called ``name``: built-in, from an entry point.
+
+    Or ``package.module:attr``.
+    """
     if name in MODELS:
         return MODELS[name]
     plugins = {ep.name: ep for ep in entry_points(group=ENTRY_POINTS)}
     if name in plugins:
         return _as_spec(name, plugins[name].load())
-    if ":" in name:
-        module, _, attribute = name.partition(":")
+    if ':' in name:
+        module, _, attribute = name.partition(':')
         try:
             target = getattr(importlib.import_module(module), attribute)
         except (ImportError, AttributeError, ValueError) as exc:
-            raise ValueError(f"cannot load model {name!r}: {type(exc).__name__}: {exc}") from None
+            raise ValueError(f'cannot load model {name!r}: {type(exc).__name__}: {exc}') from None
         return _as_spec(name, target)
-    raise ValueError(f"unknown model {name!r}; built-in: {sorted(MODELS)}, from entry points: "
-                     f"{sorted(plugins)}, or give package.module:attribute")
+    raise ValueError(f'unknown model {name!r}; built-in: {sorted(MODELS)}, from entry points: '
+                     f'{sorted(plugins)}, or give package.module:attribute')
 
 
 def _as_spec(name: str, target: object) -> ModelSpec:
@@ -53,14 +70,14 @@ def _as_spec(name: str, target: object) -> ModelSpec:
         return target
     if callable(target):
         return ModelSpec.from_factory(name, target)
-    raise ValueError(f"model {name!r} is neither a ModelSpec nor a factory function")
+    raise ValueError(f'model {name!r} is neither a ModelSpec nor a factory function')
 
 
 def model_parameters(name: str) -> dict[str, float]:
-    """The physical parameters a model takes, with their defaults."""
+    """Return the physical parameters a model takes, with their defaults."""
     return spec(name).defaults
 
 
 def create(name: str, **parameters: float) -> NonholonomicSystem:
-    """A model by name (as the ROS parameter ``model`` names it), its parameters checked."""
+    """Return a model by name (as the ROS parameter ``model`` names it), its parameters checked."""
     return spec(name).create(**parameters)

@@ -1,3 +1,17 @@
+# Copyright 2026 nh_tracking maintainers
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+
 """The Chaplygin sleigh: the paper's main example."""
 from __future__ import annotations
 
@@ -10,7 +24,7 @@ from nh_tracking.system import NonholonomicSystem
 
 
 def chaplygin_sleigh(m: float = 1.0, J: float = 4.0, a: float = 0.2) -> NonholonomicSystem:
-    """The Chaplygin sleigh (paper §2.1): q = (x1, x2, theta), the paper's basis X1, X2.
+    """Build the Chaplygin sleigh (paper §2.1): q = (x1, x2, theta), the paper's basis X1, X2.
 
     m: mass, J: inertia about the centre of mass, a: distance from the blade's contact point to
     the centre of mass (along the blade). v1 is the rotation (X1 = d_theta / sqrt(J + m a^2)), v2
@@ -20,7 +34,7 @@ def chaplygin_sleigh(m: float = 1.0, J: float = 4.0, a: float = 0.2) -> Nonholon
     """
     positive(m=m, J=J)
     if not math.isfinite(a):
-        raise ValueError(f"model parameter a must be finite, got {a!r}")
+        raise ValueError(f'model parameter a must be finite, got {a!r}')
     inertia = J + m * a**2
 
     def metric(q: ca.SX) -> ca.SX:
@@ -38,17 +52,18 @@ def chaplygin_sleigh(m: float = 1.0, J: float = 4.0, a: float = 0.2) -> Nonholon
         return ca.horzcat(x1, x2)
 
     return NonholonomicSystem.from_constraints(
-        ["x1", "x2", "theta"], metric, constraints, basis=basis, angles=["theta"],
-        controls=["torque", "force"], velocities=["rotation", "forward"],
-        pose={"x1": "x", "x2": "y", "theta": "yaw"}, name="chaplygin_sleigh", parameters={"m": m, "J": J, "a": a},
+        ['x1', 'x2', 'theta'], metric, constraints, basis=basis, angles=['theta'],
+        controls=['torque', 'force'], velocities=['rotation', 'forward'],
+        pose={'x1': 'x', 'x2': 'y', 'theta': 'yaw'}, name='chaplygin_sleigh',
+        parameters={'m': m, 'J': J, 'a': a},
     )
 
 
 SPEC = ModelSpec(
-    "chaplygin_sleigh", chaplygin_sleigh,
-    (PhysicalParameter("m", 1.0, "kg", "mass"),
-     PhysicalParameter("J", 4.0, "kg m^2", "moment of inertia about the centre of mass"),
-     PhysicalParameter("a", 0.2, "m", "distance from the blade's contact point to the centre "
-                       "of mass", (-1e6, 1e6))),
-    "a rigid body on a blade that cannot slip sideways",
+    'chaplygin_sleigh', chaplygin_sleigh,
+    (PhysicalParameter('m', 1.0, 'kg', 'mass'),
+     PhysicalParameter('J', 4.0, 'kg m^2', 'moment of inertia about the centre of mass'),
+     PhysicalParameter('a', 0.2, 'm', "distance from the blade's contact point to the centre "
+                       'of mass', (-1e6, 1e6))),
+    'a rigid body on a blade that cannot slip sideways',
     start=((0.0, 0.5, 0.0), (1 / 3, 1.0)))

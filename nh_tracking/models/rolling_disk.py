@@ -1,3 +1,17 @@
+# Copyright 2026 nh_tracking maintainers
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+
 """A vertical disk rolling without slipping."""
 from __future__ import annotations
 
@@ -10,7 +24,7 @@ from nh_tracking.system import NonholonomicSystem
 def rolling_disk(
     m: float = 1.0, R: float = 0.5, I_spin: float = 0.1, I_turn: float = 0.05
 ) -> NonholonomicSystem:
-    """A vertical disk rolling without slipping, q = (x, y, theta, phi).
+    """Build a vertical disk rolling without slipping, q = (x, y, theta, phi).
 
     theta is the heading, phi the rolling angle; rolling: x' = R cos(theta) phi',
     y' = R sin(theta) phi'. Basis: e1 = d_theta (turning), e2 = R (cos, sin) + d_phi (rolling),
@@ -27,18 +41,19 @@ def rolling_disk(
         return ca.horzcat(ca.vertcat(0, 0, 1, 0), ca.vertcat(R * c, R * s, 0, 1))
 
     return NonholonomicSystem.from_constraints(
-        ["x", "y", "theta", "phi"], lambda q: ca.diag(ca.vertcat(m, m, I_turn, I_spin)),
-        constraints, basis=basis, angles=["theta", "phi"],
-        controls=["turn_acceleration", "spin_acceleration"], velocities=["turn", "spin"],
-        pose={"x": "x", "y": "y", "theta": "yaw"}, name="rolling_disk", parameters={"m": m, "R": R, "I_spin": I_spin, "I_turn": I_turn},
+        ['x', 'y', 'theta', 'phi'], lambda q: ca.diag(ca.vertcat(m, m, I_turn, I_spin)),
+        constraints, basis=basis, angles=['theta', 'phi'],
+        controls=['turn_acceleration', 'spin_acceleration'], velocities=['turn', 'spin'],
+        pose={'x': 'x', 'y': 'y', 'theta': 'yaw'}, name='rolling_disk',
+        parameters={'m': m, 'R': R, 'I_spin': I_spin, 'I_turn': I_turn},
     )
 
 
 SPEC = ModelSpec(
-    "rolling_disk", rolling_disk,
-    (PhysicalParameter("m", 1.0, "kg", "mass"),
-     PhysicalParameter("R", 0.5, "m", "wheel radius"),
-     PhysicalParameter("I_spin", 0.1, "kg m^2", "inertia about the wheel axle"),
-     PhysicalParameter("I_turn", 0.05, "kg m^2", "inertia about the vertical axis")),
-    "a coin rolling upright; its rolling angle is not seen in a pose",
+    'rolling_disk', rolling_disk,
+    (PhysicalParameter('m', 1.0, 'kg', 'mass'),
+     PhysicalParameter('R', 0.5, 'm', 'wheel radius'),
+     PhysicalParameter('I_spin', 0.1, 'kg m^2', 'inertia about the wheel axle'),
+     PhysicalParameter('I_turn', 0.05, 'kg m^2', 'inertia about the vertical axis')),
+    'a coin rolling upright; its rolling angle is not seen in a pose',
     start=((0.0, 0.0, 0.0, 0.0), (1.0, 1.0)))

@@ -1,12 +1,28 @@
-"""What the package knows about a model beyond its equations: its physical parameters (range,
-unit, meaning), so every front end — ROS parameters, the command line, documentation — reads
-them from one place instead of knowing each robot."""
+# Copyright 2026 nh_tracking maintainers
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+
+"""What the package knows about a model beyond its equations: its physical parameters (range.
+
+Unit, meaning), so every front end — ROS parameters, the command line, documentation — reads them
+from one place instead of knowing each robot.
+"""
 from __future__ import annotations
 
-import inspect
-import math
 from collections.abc import Callable
 from dataclasses import dataclass
+import inspect
+import math
 
 from nh_tracking.system import NonholonomicSystem
 
@@ -17,7 +33,7 @@ def positive(**values: float) -> None:
     """Factories check their own arguments too: they can be called without a spec."""
     for name, value in values.items():
         if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
-            raise ValueError(f"model parameter {name} must be a finite number > 0, got {value!r}")
+            raise ValueError(f'model parameter {name} must be a finite number > 0, got {value!r}')
 
 
 @dataclass(frozen=True)
@@ -33,8 +49,8 @@ class PhysicalParameter:
     def check(self, value: object) -> float:
         if isinstance(value, bool) or not isinstance(value, (int, float)) or not (
                 math.isfinite(value) and self.bounds[0] <= value <= self.bounds[1]):
-            raise ValueError(f"model parameter {self.name} must be a number in "
-                             f"[{self.bounds[0]:g}, {self.bounds[1]:g}], got {value!r}")
+            raise ValueError(f'model parameter {self.name} must be a number in '
+                             f'[{self.bounds[0]:g}, {self.bounds[1]:g}], got {value!r}')
         return float(value)
 
 
@@ -42,19 +58,20 @@ class PhysicalParameter:
 class ModelSpec:
     """A model: its factory (keyword arguments = the physical parameters) and their specs.
 
-    ``start`` is a typical initial state (q, v) for demonstrations."""
+    ``start`` is a typical initial state (q, v) for demonstrations.
+    """
 
     name: str
     factory: Callable[..., NonholonomicSystem]
     parameters: tuple[PhysicalParameter, ...] = ()
-    summary: str = ""
+    summary: str = ''
     start: tuple[tuple[float, ...], tuple[float, ...]] | None = None
 
     def __post_init__(self) -> None:
         accepted = set(inspect.signature(self.factory).parameters)
         declared = {p.name for p in self.parameters}
         if declared != accepted:
-            raise ValueError(f"model {self.name}: parameters {sorted(declared)} do not match "
+            raise ValueError(f'model {self.name}: parameters {sorted(declared)} do not match '
                              f"the factory's arguments {sorted(accepted)}")
 
     @property
@@ -66,7 +83,7 @@ class ModelSpec:
         known = {p.name: p for p in self.parameters}
         unknown = set(values) - set(known)
         if unknown:
-            raise ValueError(f"model {self.name} takes {sorted(known)}, not {sorted(unknown)}")
+            raise ValueError(f'model {self.name} takes {sorted(known)}, not {sorted(unknown)}')
         return {**self.defaults, **{k: known[k].check(v) for k, v in values.items()}}
 
     def create(self, **values: object) -> NonholonomicSystem:
@@ -74,12 +91,14 @@ class ModelSpec:
 
     @classmethod
     def from_factory(cls, name: str, factory: Callable[..., NonholonomicSystem]) -> ModelSpec:
-        """A spec for a plain factory function: its keyword defaults are the parameters, each
-        a positive number (write a ModelSpec to say more)."""
+        """Return a spec for a plain factory function: its keyword defaults are the parameters.
+
+        Each a positive number (write a ModelSpec to say more).
+        """
         parameters = []
         for p in inspect.signature(factory).parameters.values():
             if isinstance(p.default, bool) or not isinstance(p.default, (int, float)):
-                raise ValueError(f"model {name}: argument {p.name} needs a numeric default "
-                                 "to be a physical parameter")
-            parameters.append(PhysicalParameter(p.name, float(p.default), "", p.name))
-        return cls(name, factory, tuple(parameters), (factory.__doc__ or "").strip())
+                raise ValueError(f'model {name}: argument {p.name} needs a numeric default '
+                                 'to be a physical parameter')
+            parameters.append(PhysicalParameter(p.name, float(p.default), '', p.name))
+        return cls(name, factory, tuple(parameters), (factory.__doc__ or '').strip())

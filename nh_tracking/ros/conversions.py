@@ -1,3 +1,17 @@
+# Copyright 2026 nh_tracking maintainers
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+
 """ROS messages to and from plain arrays, with validation; unit conversion only, no numerics.
 
 Every ``*_to_arrays`` function either returns clean numbers or raises :class:`InputRejected`
@@ -6,18 +20,18 @@ plan (the pattern of ros2_controllers' ``validate_trajectory_msg``).
 """
 from __future__ import annotations
 
-import math
 from collections.abc import Sequence
+import math
 
-import numpy as np
 from builtin_interfaces.msg import Duration, Time
 from diagnostic_msgs.msg import DiagnosticStatus, KeyValue
 from geometry_msgs.msg import (Point, Pose, PoseStamped, Quaternion, Transform, Twist,
                                TwistStamped, Vector3)
 from nav_msgs.msg import Odometry, Path
+import numpy as np
 from std_msgs.msg import ColorRGBA, Header
-from trajectory_msgs.msg import (JointTrajectory, JointTrajectoryPoint,
-                                 MultiDOFJointTrajectory, MultiDOFJointTrajectoryPoint)
+from trajectory_msgs.msg import (JointTrajectory, JointTrajectoryPoint, MultiDOFJointTrajectory,
+                                 MultiDOFJointTrajectoryPoint)
 from visualization_msgs.msg import Marker, MarkerArray
 
 from nh_tracking.poses import PoseMap
@@ -55,10 +69,10 @@ def yaw_of(q: Quaternion) -> float:
     """Yaw of a unit quaternion; rejects non-finite and non-unit ones."""
     values = (q.x, q.y, q.z, q.w)
     if not all(math.isfinite(c) for c in values):
-        raise InputRejected("orientation has non-finite components")
+        raise InputRejected('orientation has non-finite components')
     norm = math.sqrt(sum(c * c for c in values))
     if abs(norm - 1.0) > QUATERNION_TOLERANCE:
-        raise InputRejected(f"orientation quaternion is not unit (norm {norm:.4g})")
+        raise InputRejected(f'orientation quaternion is not unit (norm {norm:.4g})')
     return math.atan2(2.0 * (q.w * q.z + q.x * q.y), 1.0 - 2.0 * (q.y * q.y + q.z * q.z))
 
 
@@ -68,19 +82,19 @@ def quaternion_of(yaw: float) -> Quaternion:
 
 def _finite(values: Sequence[float], what: str, bound: float = MAX_POSITION) -> None:
     if not all(math.isfinite(v) for v in values):
-        raise InputRejected(f"{what} has NaN or Inf values")
+        raise InputRejected(f'{what} has NaN or Inf values')
     if any(abs(v) > bound for v in values):
-        raise InputRejected(f"{what} has values beyond {bound:g}")
+        raise InputRejected(f'{what} has values beyond {bound:g}')
 
 
 def pose_array(pose: Pose, what: str) -> np.ndarray:
     """(x, y, z, yaw) of a pose, validated."""
     p = pose.position
-    _finite((p.x, p.y, p.z), f"{what} position")
+    _finite((p.x, p.y, p.z), f'{what} position')
     return np.array([p.x, p.y, p.z, yaw_of(pose.orientation)])
 
 
-def twist_array(twist: Twist, what: str = "twist") -> np.ndarray:
+def twist_array(twist: Twist, what: str = 'twist') -> np.ndarray:
     """(vx, vy, vz, wz) of a twist, validated (roll and pitch rates are ignored)."""
     values = (twist.linear.x, twist.linear.y, twist.linear.z, twist.angular.z)
     _finite(values + (twist.angular.x, twist.angular.y), what, MAX_RATE)
@@ -88,92 +102,95 @@ def twist_array(twist: Twist, what: str = "twist") -> np.ndarray:
 
 
 def check_frame(frame_id: str, expected: str, what: str) -> None:
-    if frame_id.lstrip("/") != expected.lstrip("/"):
+    if frame_id.lstrip('/') != expected.lstrip('/'):
         raise InputRejected(f"{what} is in frame '{frame_id}', expected '{expected}'")
 
 
 def _increasing(times: np.ndarray, what: str) -> None:
     if len(times) < 2:
-        raise InputRejected(f"{what} needs at least 2 points, got {len(times)}")
+        raise InputRejected(f'{what} needs at least 2 points, got {len(times)}')
     if np.any(np.diff(times) <= 0):
         i = int(np.argmax(np.diff(times) <= 0))
-        raise InputRejected(f"{what} times are not strictly increasing at point {i + 1}")
+        raise InputRejected(f'{what} times are not strictly increasing at point {i + 1}')
 
 
 # inputs ---------------------------------------------------------------------------------------
 def path_to_arrays(msg: Path, frame: str, receipt_ns: int) -> tuple[np.ndarray, np.ndarray]:
-    """(times [ns, absolute], poses (N, 4)) of a timed Path.
+    """Return (times [ns, absolute], poses (N, 4)) of a timed Path.
 
     Timing comes from each pose's stamp. A path whose header stamp is zero starts on receipt:
     its pose stamps are then offsets from the first pose's stamp.
     """
     if not msg.poses:
-        raise InputRejected("path is empty")
-    check_frame(msg.header.frame_id, frame, "path")
+        raise InputRejected('path is empty')
+    check_frame(msg.header.frame_id, frame, 'path')
     for i, ps in enumerate(msg.poses):
         if ps.header.frame_id:
-            check_frame(ps.header.frame_id, frame, f"path pose {i}")
+            check_frame(ps.header.frame_id, frame, f'path pose {i}')
     stamps = np.array([stamp_ns(ps.header.stamp) for ps in msg.poses], dtype=np.int64)
     if stamp_ns(msg.header.stamp) == 0:
         stamps = stamps - stamps[0] + receipt_ns
-    _increasing(stamps.astype(float), "path")
-    poses = np.array([pose_array(ps.pose, f"path pose {i}") for i, ps in enumerate(msg.poses)])
+    _increasing(stamps.astype(float), 'path')
+    poses = np.array([pose_array(ps.pose, f'path pose {i}') for i, ps in enumerate(msg.poses)])
     return stamps, poses
 
 
 def multidof_to_arrays(msg: MultiDOFJointTrajectory, frame: str, receipt_ns: int
                        ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(times [ns], poses (N, 4), body twists (N, 4)) of a one-joint MultiDOFJointTrajectory."""
+    """Return (times [ns], poses (N, 4), body twists (N.
+
+    4)) of a one-joint MultiDOFJointTrajectory.
+    """
     if not msg.points:
-        raise InputRejected("trajectory has no points")
+        raise InputRejected('trajectory has no points')
     if len(msg.joint_names) != 1:
-        raise InputRejected(f"trajectory must have exactly 1 joint, got {len(msg.joint_names)}")
-    check_frame(msg.header.frame_id, frame, "trajectory")
+        raise InputRejected(f'trajectory must have exactly 1 joint, got {len(msg.joint_names)}')
+    check_frame(msg.header.frame_id, frame, 'trajectory')
     base = stamp_ns(msg.header.stamp) or receipt_ns
     poses, twists, times = [], [], []
     for i, pt in enumerate(msg.points):
         if len(pt.transforms) != 1 or len(pt.velocities) != 1:
             raise InputRejected(
-                f"trajectory point {i} has {len(pt.transforms)} transforms and "
-                f"{len(pt.velocities)} velocities for 1 joint")
+                f'trajectory point {i} has {len(pt.transforms)} transforms and '
+                f'{len(pt.velocities)} velocities for 1 joint')
         tr = pt.transforms[0]
-        _finite((tr.translation.x, tr.translation.y, tr.translation.z), f"point {i} translation")
+        _finite((tr.translation.x, tr.translation.y, tr.translation.z), f'point {i} translation')
         poses.append([tr.translation.x, tr.translation.y, tr.translation.z,
                       yaw_of(tr.rotation)])
-        twists.append(twist_array(pt.velocities[0], f"point {i} velocity"))
+        twists.append(twist_array(pt.velocities[0], f'point {i} velocity'))
         times.append(base + int(round(duration_seconds(pt.time_from_start) * 1e9)))
     stamps = np.array(times, dtype=np.int64)
-    _increasing(stamps.astype(float), "trajectory")
+    _increasing(stamps.astype(float), 'trajectory')
     return stamps, np.array(poses), np.array(twists)
 
 
 def odom_to_arrays(msg: Odometry, frame: str) -> tuple[int, np.ndarray, np.ndarray]:
     """(stamp [ns], pose (4,), body twist (4,)) of an Odometry message."""
-    check_frame(msg.header.frame_id, frame, "odometry")
-    return (stamp_ns(msg.header.stamp), pose_array(msg.pose.pose, "odometry pose"),
-            twist_array(msg.twist.twist, "odometry twist"))
+    check_frame(msg.header.frame_id, frame, 'odometry')
+    return (stamp_ns(msg.header.stamp), pose_array(msg.pose.pose, 'odometry pose'),
+            twist_array(msg.twist.twist, 'odometry twist'))
 
 
 def controls_to_arrays(msg: JointTrajectory, names: Sequence[str]
                        ) -> tuple[int, np.ndarray, np.ndarray]:
     """(start stamp [ns], times from start (N,), efforts (N, k) in ``names`` order)."""
     if not msg.points:
-        raise InputRejected("control sequence has no points")
+        raise InputRejected('control sequence has no points')
     if sorted(msg.joint_names) != sorted(names):
-        raise InputRejected(f"control sequence joints {list(msg.joint_names)} are not "
-                            f"the controls {list(names)}")
+        raise InputRejected(f'control sequence joints {list(msg.joint_names)} are not '
+                            f'the controls {list(names)}')
     order = [list(msg.joint_names).index(n) for n in names]
     efforts, times = [], []
     for i, pt in enumerate(msg.points):
         if len(pt.effort) != len(names):
-            raise InputRejected(f"control point {i} has {len(pt.effort)} efforts for "
-                                f"{len(names)} joints")
-        _finite(pt.effort, f"control point {i} effort", MAX_RATE)
+            raise InputRejected(f'control point {i} has {len(pt.effort)} efforts for '
+                                f'{len(names)} joints')
+        _finite(pt.effort, f'control point {i} effort', MAX_RATE)
         efforts.append([pt.effort[j] for j in order])
         times.append(duration_seconds(pt.time_from_start))
     times_arr = np.array(times)
     if len(times_arr) > 1:
-        _increasing(times_arr, "control sequence")
+        _increasing(times_arr, 'control sequence')
     return stamp_ns(msg.header.stamp), times_arr, np.array(efforts)
 
 
@@ -191,8 +208,8 @@ def path_msg(frame: str, stamps_ns: Sequence[int], poses: np.ndarray) -> Path:
 
 
 def multidof_msg(frame: str, start_ns: int, offsets: np.ndarray, poses: np.ndarray,
-                 body_twists: np.ndarray, joint: str = "base_link") -> MultiDOFJointTrajectory:
-    """A one-joint trajectory: pose and body twist per point, timed from ``start_ns``."""
+                 body_twists: np.ndarray, joint: str = 'base_link') -> MultiDOFJointTrajectory:
+    """Return a one-joint trajectory: pose and body twist per point, timed from ``start_ns``."""
     points = []
     for dt, pose, twist in zip(offsets, poses, body_twists):
         point = MultiDOFJointTrajectoryPoint(time_from_start=duration_msg(float(dt)))
@@ -244,20 +261,22 @@ def line_strip(frame: str, stamp: int, ns: str, points: np.ndarray, rgba: tuple,
 
 def plan_markers(frame: str, stamp: int, plan_poses: np.ndarray,
                  reference_poses: np.ndarray) -> MarkerArray:
-    """The plan (green) and the reference over the same horizon (grey), for RViz."""
+    """Return the plan (green) and the reference over the same horizon (grey), for RViz."""
     return MarkerArray(markers=[
-        line_strip(frame, stamp, "planned_path", plan_poses, (0.1, 0.8, 0.2, 1.0)),
-        line_strip(frame, stamp, "reference", reference_poses, (0.6, 0.6, 0.6, 0.8), 0.02),
+        line_strip(frame, stamp, 'planned_path', plan_poses, (0.1, 0.8, 0.2, 1.0)),
+        line_strip(frame, stamp, 'reference', reference_poses, (0.6, 0.6, 0.6, 0.8), 0.02),
     ])
 
 
 def reference_message(reference: Trajectory, pose_map: PoseMap, start: float, kind: str,
-                      frame: str = "odom"):
-    """The reference as nav_msgs/Path (poses only) or MultiDOFJointTrajectory (poses and
-    body twists), starting at ``start`` seconds on the clock."""
+                      frame: str = 'odom'):
+    """Return the reference as a Path (poses) or MultiDOFJointTrajectory (poses, twists).
+
+    It starts at ``start`` seconds on the clock.
+    """
     start_ns = int(round(start * 1e9))
     poses = np.array([pose_map.pose(q) for q in reference.q])
-    if kind == "path":
+    if kind == 'path':
         return path_msg(frame, [start_ns + int(round(t * 1e9)) for t in reference.t], poses)
     twists = np.array([pose_map.body_twist(q, v) for q, v in zip(reference.q, reference.v)])
     return multidof_msg(frame, start_ns, reference.t, poses, twists)

@@ -1,3 +1,17 @@
+# Copyright 2026 nh_tracking maintainers
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+
 """Several nodes in one process: one Context, a single-threaded executor on its own thread.
 
 What ``nh-tracking demo`` and the integration tests use to compose planner and simulator
@@ -5,15 +19,18 @@ without launch files (the pattern of rclpy's own tests).
 """
 from __future__ import annotations
 
+from collections.abc import Callable
 import threading
 import time
-from collections.abc import Callable
+from typing import TypeVar
 
 import rclpy
 from rclpy.context import Context
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.parameter import Parameter
+
+N = TypeVar('N', bound=Node)
 
 
 def parameters(**values: object) -> list[Parameter]:
@@ -39,7 +56,7 @@ class InProcessGraph:
         rclpy.init(context=self.context, domain_id=domain_id)
         self.executor = SingleThreadedExecutor(context=self.context)
         self.nodes: list[Node] = []
-        self._thread = threading.Thread(target=self._spin, name="ros_graph", daemon=True)
+        self._thread = threading.Thread(target=self._spin, name='ros_graph', daemon=True)
         self._thread.start()
 
     def _spin(self) -> None:
@@ -48,14 +65,14 @@ class InProcessGraph:
         except Exception:  # noqa: BLE001 - shutdown races end the thread quietly
             pass
 
-    def add(self, make: Callable[..., Node], **kwargs) -> Node:
+    def add(self, make: Callable[..., N], **kwargs: object) -> N:
         """Create a node in this graph's context (``make(context=..., **kwargs)``) and spin it."""
         node = make(context=self.context, **kwargs)
         self.nodes.append(node)
         self.executor.add_node(node)
         return node
 
-    def plain_node(self, name: str, namespace: str = "") -> Node:
+    def plain_node(self, name: str, namespace: str = '') -> Node:
         return self.add(lambda **kw: rclpy.create_node(name, **kw), namespace=namespace)
 
     def close(self) -> None:

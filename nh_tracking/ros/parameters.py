@@ -1,5 +1,20 @@
-"""Parameters as data: one table per node gives the declarations, their descriptors (ranges,
-descriptions), the start-up checks, ``--help`` and the installed parameter file.
+# Copyright 2026 nh_tracking maintainers
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+
+"""Parameters as data: one table per node gives the declarations, their descriptors (ranges.
+
+Descriptions), the start-up checks, ``--help`` and the installed parameter file.
 
 Start-up values are checked before they are declared, so a bad ``-p`` or params file ends the
 process with one line naming the parameter instead of a traceback; an integer given for a
@@ -7,15 +22,16 @@ floating-point parameter (``horizon:=3``) is that number, as every ROS user expe
 """
 from __future__ import annotations
 
-import weakref
 from dataclasses import dataclass
+from typing import Any
+import weakref
 
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 
 from nh_tracking import models
-from nh_tracking.settings import Setting, check, described, markdown_table
+from nh_tracking.settings import check, described, markdown_table, Setting
 
 
 @dataclass(frozen=True)
@@ -29,18 +45,18 @@ class ParameterSpec:
 
     @classmethod
     def of(cls, settings: type, read_only: bool = False) -> tuple[ParameterSpec, ...]:
-        """The parameters of a settings dataclass, one per described field."""
+        """Return the parameters of a settings dataclass, one per described field."""
         return tuple(cls(name, default, meta, read_only)
                      for name, default, meta in described(settings))
 
     @property
     def description(self) -> str:
         meta = self.meta
-        return meta.description + (f" [{meta.unit}]" if meta.unit else "")
+        return meta.description + (f' [{meta.unit}]' if meta.unit else '')
 
     def descriptor(self) -> ParameterDescriptor:
         choices = self.meta.choices
-        text = self.description + (f" (one of {', '.join(choices)})" if choices else "")
+        text = self.description + (f" (one of {', '.join(choices)})" if choices else '')
         descriptor = ParameterDescriptor(description=text, read_only=self.read_only)
         bounds = self.meta.bounds
         if bounds is not None and isinstance(self.default, int) \
@@ -57,23 +73,25 @@ class ParameterSpec:
         if isinstance(self.default, list) and isinstance(value, (list, tuple)):
             value = [float(v) if isinstance(v, int) and not isinstance(v, bool) else v
                      for v in value]
-        return check(value, f"parameter {self.name}", self.default, self.meta)
+        return check(value, f'parameter {self.name}', self.default, self.meta)
 
 
-def plain(name: str, default: object, description: str, unit: str = "",
+def plain(name: str, default: object, description: str, unit: str = '',
           bounds: tuple[float, float] | None = None, read_only: bool = False,
           choices: tuple[str, ...] = ()) -> ParameterSpec:
-    """A parameter of the ROS layer alone (frames, message types, start-up)."""
+    """Return a parameter of the ROS layer alone (frames, message types, start-up)."""
     return ParameterSpec(name, default, Setting(description, unit, bounds, choices), read_only)
 
 
 _FLOATS: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()  # node -> float names
 
 
-def declare(node: Node, spec: ParameterSpec):
-    """Declare ``spec`` on ``node``, checking (and coercing) a start-up override first. At run
-    time too, an integer set on a floating-point parameter (``ros2 param set ... horizon 3``)
-    is taken as that number instead of refused."""
+def declare(node: Node, spec: ParameterSpec) -> Any:
+    """Declare ``spec`` on ``node``, checking (and coercing) a start-up override first.
+
+    At run time too, an integer set on a floating-point parameter (``ros2 param set ... horizon
+    3``) is taken as that number instead of refused.
+    """
     overrides = node._parameter_overrides  # rclpy keeps -p / params-file values here
     if spec.name in overrides:
         value = spec.check(overrides[spec.name].value)
@@ -89,50 +107,51 @@ def declare(node: Node, spec: ParameterSpec):
     return node.declare_parameter(spec.name, spec.default, spec.descriptor()).value
 
 
-def declare_all(node: Node, specs: tuple[ParameterSpec, ...]) -> dict[str, object]:
+def declare_all(node: Node, specs: tuple[ParameterSpec, ...]) -> dict[str, Any]:
     return {spec.name: declare(node, spec) for spec in specs}
 
 
 def model_specs(model: str) -> tuple[ParameterSpec, ...]:
-    """The physical parameters of ``model``, as its spec describes them."""
+    """Return the physical parameters of ``model``, as its spec describes them."""
     try:
         physical = models.spec(model).parameters
     except ValueError as exc:
-        raise ValueError(f"parameter model: {exc}") from None
+        raise ValueError(f'parameter model: {exc}') from None
     return tuple(plain(p.name, p.default, p.description, p.unit, p.bounds) for p in physical)
 
 
-MODEL = plain("model", "chaplygin_sleigh", "the robot's model: a built-in one "
+MODEL = plain('model', 'chaplygin_sleigh', "the robot's model: a built-in one "
               f"({', '.join(models.MODELS)}), an entry point of group {models.ENTRY_POINTS}, "
-              "or package.module:attribute", read_only=True)
+              'or package.module:attribute', read_only=True)
 
 
 def declare_model(node: Node) -> tuple[str, dict[str, float]]:
     """Declare ``model`` and its physical parameters; returns (model, parameters)."""
     model = declare(node, MODEL)
-    return model, {k: float(v) for k, v in declare_all(node, model_specs(model)).items()}
+    values = declare_all(node, model_specs(model))
+    return str(model), {k: float(v) for k, v in values.items()}
 
 
 def usage(executable: str, node_name: str, specs: tuple[ParameterSpec, ...]) -> str:
     """``--help`` text: how to start the node and every parameter it takes."""
-    lines = [f"usage: {executable} [--ros-args -p NAME:=VALUE ... --params-file FILE "
-             f"-r __ns:=/NAMESPACE]", "",
-             f"Starts the ROS 2 node {node_name}. Parameters (default, range):"]
+    lines = [f'usage: {executable} [--ros-args -p NAME:=VALUE ... --params-file FILE '
+             f'-r __ns:=/NAMESPACE]', '',
+             f'Starts the ROS 2 node {node_name}. Parameters (default, range):']
     for spec in (MODEL, *specs):
         bounds, choices = spec.meta.bounds, spec.meta.choices
-        limits = f", [{bounds[0]:g}, {bounds[1]:g}]" if bounds else ""
-        fixed = ", read-only" if spec.read_only else ""
-        one_of = f" — one of {', '.join(choices)}" if choices else ""
-        lines.append(f"  {spec.name} ({spec.default!r}{limits}{fixed}): {spec.description}"
-                     f"{one_of}")
-    lines.append("  and the model's physical parameters, e.g. for chaplygin_sleigh: " + ", ".join(
-        f"{s.name} ({s.default!r}): {s.description}" for s in model_specs("chaplygin_sleigh")))
-    return "\n".join(lines)
+        limits = f', [{bounds[0]:g}, {bounds[1]:g}]' if bounds else ''
+        fixed = ', read-only' if spec.read_only else ''
+        one_of = f" — one of {', '.join(choices)}" if choices else ''
+        lines.append(f'  {spec.name} ({spec.default!r}{limits}{fixed}): {spec.description}'
+                     f'{one_of}')
+    lines.append("  and the model's physical parameters, e.g. for chaplygin_sleigh: " + ', '.join(
+        f'{s.name} ({s.default!r}): {s.description}' for s in model_specs('chaplygin_sleigh')))
+    return '\n'.join(lines)
 
 
 def parameter_table(specs: tuple[ParameterSpec, ...]) -> str:
-    """The README's table of a node's parameters (``model`` first), from the same specs."""
+    """Return the README's table of a node's parameters (``model`` first), from the same specs."""
     rows = [(s.name, s.default, s.meta if not s.read_only else Setting(
-        s.meta.description + " (read-only)", s.meta.unit, s.meta.bounds, s.meta.choices))
+        s.meta.description + ' (read-only)', s.meta.unit, s.meta.bounds, s.meta.choices))
         for s in (MODEL, *specs)]
     return markdown_table(rows)

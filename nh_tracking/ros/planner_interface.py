@@ -1,5 +1,21 @@
-"""The planner's contract with the ROS graph beyond topic names: the QoS it offers and
-expects, and its parameters (declared from the settings dataclasses, plus the ROS-only ones)."""
+# Copyright 2026 nh_tracking maintainers
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+
+"""The planner's contract with the ROS graph beyond topic names: the QoS it offers and expects.
+
+And its parameters (declared from the settings dataclasses, plus the ROS-only ones).
+"""
 from __future__ import annotations
 
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
@@ -19,9 +35,9 @@ REFERENCE_QOS = (LATCHED, QoSProfile(depth=10, reliability=ReliabilityPolicy.REL
 SETTINGS = ParameterSpec.of(PlannerSettings)
 SESSION = ParameterSpec.of(SessionSettings)
 NODE = (
-    plain("frame_id", "odom", "fixed frame of references and odometry", read_only=True),
-    plain("cmd_vel_stamped", False, "publish TwistStamped on cmd_vel", read_only=True),
-    plain("autostart", True, "configure and activate at start-up (false: wait for a "
-          "lifecycle manager)", read_only=True),
+    plain('frame_id', 'odom', 'fixed frame of references and odometry', read_only=True),
+    plain('cmd_vel_stamped', False, 'publish TwistStamped on cmd_vel', read_only=True),
+    plain('autostart', True, 'configure and activate at start-up (false: wait for a '
+          'lifecycle manager)', read_only=True),
 )
 PARAMETERS = SETTINGS + SESSION + NODE

@@ -1,3 +1,17 @@
+# Copyright 2026 nh_tracking maintainers
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+
 """The planner node: reference + odometry in, optimal tracking plans out, as a lifecycle node.
 
 The numerics live in a :class:`~nh_tracking.session.TrackingSession` (ROS-free): its solver
@@ -12,10 +26,10 @@ from __future__ import annotations
 
 import time
 
-import numpy as np
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from geometry_msgs.msg import Twist, TwistStamped
 from nav_msgs.msg import Odometry, Path
+import numpy as np
 from rcl_interfaces.msg import SetParametersResult
 from rclpy.event_handler import SubscriptionEventCallbacks
 from rclpy.lifecycle import LifecycleNode, LifecycleState, TransitionCallbackReturn
@@ -23,55 +37,51 @@ from trajectory_msgs.msg import JointTrajectory, MultiDOFJointTrajectory
 from visualization_msgs.msg import MarkerArray
 
 from nh_tracking.health import session_health
-from nh_tracking.receding_horizon import PlannerSettings, PlanOutcome
+from nh_tracking.receding_horizon import PlannerSettings
 from nh_tracking.ros import conversions as cv
 from nh_tracking.ros.parameters import declare_all, declare_model
 from nh_tracking.ros.planner_interface import LATCHED, PARAMETERS, REFERENCE_QOS, SETTINGS
 from nh_tracking.ros.planner_services import PlannerServices
-from nh_tracking.ros.safety import SafeNode, guarded
+from nh_tracking.ros.safety import guarded, SafeNode
 from nh_tracking.session import PlanResult, TrackingSession
+
 
 class PlannerNode(SafeNode, LifecycleNode):
     """``nh_tracking_planner``: topics, services and parameters in the README's table."""
 
     def __init__(self, **kwargs) -> None:
-        super().__init__("nh_tracking_planner", **kwargs)
+        super().__init__('nh_tracking_planner', **kwargs)
         self.model, self.physical = declare_model(self)
         self.params = declare_all(self, PARAMETERS)
-        self.frame = self.params["frame_id"]
+        self.frame = self.params['frame_id']
         PlannerSettings(**self._settings_values())  # consistent at start-up, or ValueError
         self.session: TrackingSession | None = None
         self._command_timers: list = []
         self._entities: list = []
         self._service_host: PlannerServices | None = None
-        self._last_reference: tuple[int, int] | None = None
+        self._last_reference: tuple[object, object] | None = None
         self.add_on_set_parameters_callback(self._validate_parameters)
         self.add_post_set_parameters_callback(self._apply_parameters)
-        if self.params["autostart"]:
+        if self.params['autostart']:
             if self.trigger_configure() != TransitionCallbackReturn.SUCCESS:
-                raise ValueError(f"configuring failed: {self.take_problem()}")
+                raise ValueError(f'configuring failed: {self.take_problem()}')
             self.trigger_activate()
 
     # the numerics, for tests, the demo and the benchmark -------------------------------------
     @property
+    def live(self) -> TrackingSession:
+        """Return the session; callbacks run only while the node is configured."""
+        if self.session is None:
+            raise RuntimeError('the planner is not configured')
+        return self.session
+
+    @property
     def planner(self):
-        return self.session.planner
+        return self.live.planner
 
     @property
     def pose_map(self):
-        return self.session.pose_map
-
-    @property
-    def system(self):
-        return self.session.system
-
-    @property
-    def latencies(self):
-        return self.session.latencies
-
-    @property
-    def stale(self) -> bool:
-        return self.session is not None and self.session.stale
+        return self.live.pose_map
 
     def _settings_values(self) -> dict:
         return {s.name: self.get_parameter(s.name).value for s in SETTINGS}
@@ -81,9 +91,9 @@ class PlannerNode(SafeNode, LifecycleNode):
 
     def _log(self, level: str, text: str) -> None:
         # one call site per severity: rclpy's logger ties a call site to its first severity
-        if level == "error":  # counted, and reported as a diagnostic
-            self.fail("planning", RuntimeError(text))
-        elif level == "warn":
+        if level == 'error':  # counted, and reported as a diagnostic
+            self.fail('planning', RuntimeError(text))
+        elif level == 'warn':
             self.get_logger().warn(text)
         else:
             self.get_logger().info(text)
@@ -93,20 +103,20 @@ class PlannerNode(SafeNode, LifecycleNode):
         try:
             session = TrackingSession(self.model, self.physical,
                                       PlannerSettings(**self._settings_values()), self._now_ns,
-                                      self.params["odom_timeout"], self._log)
+                                      self.params['odom_timeout'], self._log)
             session.prepare()
         except (ValueError, TypeError, RuntimeError) as exc:
-            self.fail("configure", exc)
+            self.fail('configure', exc)
             return TransitionCallbackReturn.FAILURE
         self.session = session
-        cmd_type = TwistStamped if self.params["cmd_vel_stamped"] else Twist
-        self.pub_path = self.create_lifecycle_publisher(Path, "planned_path", LATCHED)
-        self.pub_controls = self.create_lifecycle_publisher(JointTrajectory, "control_sequence",
+        cmd_type = TwistStamped if self.params['cmd_vel_stamped'] else Twist
+        self.pub_path = self.create_lifecycle_publisher(Path, 'planned_path', LATCHED)
+        self.pub_controls = self.create_lifecycle_publisher(JointTrajectory, 'control_sequence',
                                                             LATCHED)
-        self.pub_cmd = self.create_lifecycle_publisher(cmd_type, "cmd_vel", 10)
-        self.pub_markers = self.create_lifecycle_publisher(MarkerArray, "planned_markers",
+        self.pub_cmd = self.create_lifecycle_publisher(cmd_type, 'cmd_vel', 10)
+        self.pub_markers = self.create_lifecycle_publisher(MarkerArray, 'planned_markers',
                                                            LATCHED)
-        self.pub_diag = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
+        self.pub_diag = self.create_publisher(DiagnosticArray, '/diagnostics', 10)
         self._entities = [self.pub_path, self.pub_controls, self.pub_cmd, self.pub_markers,
                           self.pub_diag, self.create_timer(1.0, self.publish_diagnostics)]
         # a volatile publisher cannot match the transient-local listener; that is expected
@@ -114,27 +124,28 @@ class PlannerNode(SafeNode, LifecycleNode):
         quiet = SubscriptionEventCallbacks(incompatible_qos=lambda info: None)
         for qos in REFERENCE_QOS:
             self._entities += [
-                self.create_subscription(Path, "reference_path", self.on_reference_path, qos,
+                self.create_subscription(Path, 'reference_path', self.on_reference_path, qos,
                                          event_callbacks=quiet),
-                self.create_subscription(MultiDOFJointTrajectory, "reference_trajectory",
+                self.create_subscription(MultiDOFJointTrajectory, 'reference_trajectory',
                                          self.on_reference_trajectory, qos,
                                          event_callbacks=quiet)]
-        self._entities.append(self.create_subscription(Odometry, "odom", self.on_odom, 10))
+        self._entities.append(self.create_subscription(Odometry, 'odom', self.on_odom, 10))
         self._service_host = PlannerServices(self)
         session.start(self._publish_plan)
-        self.get_logger().info(f"planning for {self.model} {self.physical} with "
-                               f"{session.planner.settings}")
+        self.get_logger().info(f'planning for {self.model} {self.physical} with '
+                               f'{session.planner.settings}')
         return TransitionCallbackReturn.SUCCESS
 
     def on_activate(self, state: LifecycleState) -> TransitionCallbackReturn:
-        self._command_timers = [self.create_timer(self.params["replan_period"], self.session.wake),
-                        self.create_timer(1.0 / self.params["cmd_rate"], self.publish_cmd_vel)]
-        self.session.active = True
-        self.session.wake()
+        self._command_timers = [
+            self.create_timer(self.params['replan_period'], self.live.wake),
+            self.create_timer(1.0 / self.params['cmd_rate'], self.publish_cmd_vel)]
+        self.live.active = True
+        self.live.wake()
         return super().on_activate(state)
 
     def on_deactivate(self, state: LifecycleState) -> TransitionCallbackReturn:
-        self.session.active = False
+        self.live.active = False
         for timer in self._command_timers:
             self.destroy_timer(timer)
         self._command_timers = []
@@ -156,12 +167,12 @@ class PlannerNode(SafeNode, LifecycleNode):
             self._service_host.close()
             self._service_host = None
         if self.session is not None:
-            self.session.stop()
+            self.live.stop()
             self.session = None
         for entity in self._entities:
-            if hasattr(entity, "timer_period_ns"):
+            if hasattr(entity, 'timer_period_ns'):
                 self.destroy_timer(entity)
-            elif hasattr(entity, "publish"):
+            elif hasattr(entity, 'publish'):
                 self.destroy_lifecycle_publisher(entity)
             else:
                 self.destroy_subscription(entity)
@@ -173,64 +184,67 @@ class PlannerNode(SafeNode, LifecycleNode):
         self.publish_diagnostics()
 
     def _first_delivery(self, info: dict | None) -> bool:
-        """False for the second copy of a sample (both reference subscriptions match a
-        latched publisher)."""
+        """Return False for the second copy of a sample.
+
+        Both reference subscriptions match a latched publisher, so it arrives twice.
+        """
         if not info:
             return True
-        key = (info.get("source_timestamp"), info.get("publication_sequence_number"))
+        key = (info.get('source_timestamp'), info.get('publication_sequence_number'))
         duplicate = key == self._last_reference
         self._last_reference = key
         return not duplicate
 
-    @guarded("reference_path")
+    @guarded('reference_path')
     def on_reference_path(self, msg: Path, info: dict) -> None:
         if self._first_delivery(info):
             self._set_reference(*cv.path_to_arrays(msg, self.frame, self._now_ns()), None)
 
-    @guarded("reference_trajectory")
+    @guarded('reference_trajectory')
     def on_reference_trajectory(self, msg: MultiDOFJointTrajectory, info: dict) -> None:
         if self._first_delivery(info):
             self._set_reference(*cv.multidof_to_arrays(msg, self.frame, self._now_ns()))
 
     def _set_reference(self, stamps: np.ndarray, poses: np.ndarray, twists) -> None:
-        reference = self.session.set_reference(stamps, poses, twists)
-        self.get_logger().info(f"new reference: {len(reference.t)} points over "
-                               f"{reference.t[-1] - reference.t[0]:.2f} s")
-        self.session.wake()
+        reference = self.live.set_reference(stamps, poses, twists)
+        self.get_logger().info(f'new reference: {len(reference.t)} points over '
+                               f'{reference.t[-1] - reference.t[0]:.2f} s')
+        self.live.wake()
 
-    @guarded("odom")
+    @guarded('odom')
     def on_odom(self, msg: Odometry) -> None:
         received = time.perf_counter()
-        self.session.set_odometry(*cv.odom_to_arrays(msg, self.frame), received)
-        if self.params["replan_on_odom"]:
-            self.session.wake()
+        self.live.set_odometry(*cv.odom_to_arrays(msg, self.frame), received)
+        if self.params['replan_on_odom']:
+            self.live.wake()
 
     # outputs ----------------------------------------------------------------------------------
-    @guarded("publishing the plan")
+    @guarded('publishing the plan')
     def _publish_plan(self, result: PlanResult) -> None:
-        """On the solver thread: the control sequence first (what the robot waits for)."""
-        outcome, session = result.outcome, self.session
-        plan = outcome.plan
-        self.pub_controls.publish(cv.control_sequence_msg(
-            self.frame, session.ns(plan.t[0]), plan.t[:-1] - plan.t[0],
-            session.system.control_names, plan.u))
-        self._publish_display(outcome)
+        """Publish a new plan, on the solver thread: the control sequence first.
 
-    def _publish_display(self, outcome: PlanOutcome) -> None:
-        """planned_path and planned_markers (markers only when someone listens)."""
-        plan, session = outcome.plan, self.session
+        It is what the robot waits for; then planned_path, and planned_markers when someone
+        listens.
+        """
+        outcome, session = result.outcome, self.live
+        if outcome is None:
+            return
+        plan, pose = outcome.plan, session.pose_map.pose
         stamps = [session.ns(t) for t in plan.t]
-        poses = np.array([session.pose_map.pose(q) for q in plan.q])
+        self.pub_controls.publish(cv.control_sequence_msg(
+            self.frame, stamps[0], plan.t[:-1] - plan.t[0], session.system.control_names,
+            plan.u))
+        poses = np.array([pose(q) for q in plan.q])
         self.pub_path.publish(cv.path_msg(self.frame, stamps, poses))
         if self.pub_markers.get_subscription_count() > 0:
-            reference = np.array([session.pose_map.pose(q) for q in outcome.reference])
+            reference = np.array([pose(q) for q in outcome.reference])
             self.pub_markers.publish(cv.plan_markers(self.frame, stamps[0], poses[:, :3],
                                                      reference[:, :3]))
 
-    @guarded("cmd_vel")
+    @guarded('cmd_vel')
     def publish_cmd_vel(self) -> None:
-        """The plan's velocity now, as a body twist; zero when odometry is stale."""
-        twist = self.session.command(self._now_ns())
+        """Publish the plan's velocity now, as a body twist; zero when odometry is stale."""
+        twist = self.live.command(self._now_ns())
         if twist is not None:
             self._publish_twist(twist)
 
@@ -250,7 +264,7 @@ class PlannerNode(SafeNode, LifecycleNode):
             return SetParametersResult(successful=False, reason=str(exc))
         return SetParametersResult(successful=True)
 
-    @guarded("parameter change")
+    @guarded('parameter change')
     def _apply_parameters(self, params) -> None:
         names = {p.name for p in params}
         for p in params:
@@ -258,38 +272,38 @@ class PlannerNode(SafeNode, LifecycleNode):
                 self.params[p.name] = p.value
             if p.name in self.physical:
                 self.physical[p.name] = float(p.value)
-        timers = {"replan_period": 0, "cmd_rate": 1}
+        timers = {'replan_period': 0, 'cmd_rate': 1}
         for name in names & timers.keys():
             if self._command_timers:
-                period = self.params[name] if name == "replan_period" else 1 / self.params[name]
+                period = self.params[name] if name == 'replan_period' else 1 / self.params[name]
                 self._command_timers[timers[name]].timer_period_ns = int(period * 1e9)
         if self.session is not None:
-            self.session.odom_timeout = self.params["odom_timeout"]
+            self.live.odom_timeout = self.params['odom_timeout']
             if names & (_SETTING_NAMES | set(self.physical)):
                 # built on the session's builder thread; the plan in force keeps going
-                self.session.reconfigure(self.physical,
-                                         PlannerSettings(**self._settings_values()))
-        self.get_logger().info(f"parameters changed: {sorted(names)}")
+                self.live.reconfigure(self.physical,
+                                      PlannerSettings(**self._settings_values()))
+        self.get_logger().info(f'parameters changed: {sorted(names)}')
 
     # diagnostics ------------------------------------------------------------------------------
-    @guarded("diagnostics")
+    @guarded('diagnostics')
     def publish_diagnostics(self) -> None:
         session = self.session
         if session is None:
             return
         health = session_health(session, self.take_problem(), {
-            "rejected_inputs": self.rejected_inputs, "errors": self.errors})
-        level = {"ok": DiagnosticStatus.OK, "warn": DiagnosticStatus.WARN,
-                 "stale": DiagnosticStatus.STALE}[health.level]
+            'rejected_inputs': self.rejected_inputs, 'errors': self.errors})
+        level = {'ok': DiagnosticStatus.OK, 'warn': DiagnosticStatus.WARN,
+                 'stale': DiagnosticStatus.STALE}[health.level]
         array = DiagnosticArray(status=[cv.diagnostic_status(
-            f"{self.get_name()}: planning", self.get_fully_qualified_name(), level,
+            f'{self.get_name()}: planning', self.get_fully_qualified_name(), level,
             health.message, health.values)])
         array.header.stamp = cv.time_msg(self._now_ns())
         self.pub_diag.publish(array)
 
     def destroy_node(self) -> None:
         if self.session is not None:
-            self.session.active = False
+            self.live.active = False
         self._release()
         super().destroy_node()
 

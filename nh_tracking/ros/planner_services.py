@@ -1,3 +1,17 @@
+# Copyright 2026 nh_tracking maintainers
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+
 """The planner's services, answered on a thread of their own.
 
 A service that solves (``plan``) or waits for a solve (``replan``) must not hold the executor
@@ -12,10 +26,10 @@ from __future__ import annotations
 import threading
 from typing import TYPE_CHECKING
 
-import numpy as np
-import rclpy
 from nav_msgs.msg import Path
 from nav_msgs.srv import GetPlan
+import numpy as np
+import rclpy
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 from std_srvs.srv import Trigger
@@ -33,17 +47,17 @@ class PlannerServices:
 
     def __init__(self, planner: PlannerNode) -> None:
         self.planner = planner
-        self.node = rclpy.create_node(f"{planner.get_name()}_services",
+        self.node = rclpy.create_node(f'{planner.get_name()}_services',
                                       namespace=planner.get_namespace(),
                                       context=planner.context,
                                       start_parameter_services=False)
         requests = QoSProfile(depth=SERVICE_QUEUE, reliability=ReliabilityPolicy.RELIABLE)
-        self.node.create_service(GetPlan, "plan", self.on_plan, qos_profile=requests)
-        self.node.create_service(Trigger, "replan", self.on_replan, qos_profile=requests)
+        self.node.create_service(GetPlan, 'plan', self.on_plan, qos_profile=requests)
+        self.node.create_service(Trigger, 'replan', self.on_replan, qos_profile=requests)
         self.executor = SingleThreadedExecutor(context=planner.context)
         self.executor.add_node(self.node)
-        self._thread = threading.Thread(target=self._spin, name="nh_tracking_services",
-                                         daemon=True)
+        self._thread = threading.Thread(target=self._spin, name='nh_tracking_services',
+                                        daemon=True)
         self._thread.start()
 
     def _spin(self) -> None:
@@ -60,29 +74,32 @@ class PlannerServices:
 
     def on_plan(self, request: GetPlan.Request, response: GetPlan.Response
                 ) -> GetPlan.Response:
-        """A plan from ``start`` (at rest), or from the latest odometry when start's frame is
-        empty, tracking the active reference; an empty path when there is none to give."""
+        """Answer with a plan from ``start`` (at rest).
+
+        Or from the latest odometry when start's frame is empty, tracking the active reference; an
+        empty path when there is none to give.
+        """
         node = self.planner
         response.plan = Path()
         response.plan.header.frame_id = node.frame
         try:
             pose = None
             if request.start.header.frame_id:
-                cv.check_frame(request.start.header.frame_id, node.frame, "plan start")
-                pose = cv.pose_array(request.start.pose, "plan start")
+                cv.check_frame(request.start.header.frame_id, node.frame, 'plan start')
+                pose = cv.pose_array(request.start.pose, 'plan start')
             session = node.session
             if session is None:
-                node.get_logger().warn("plan request: the planner is not configured")
+                node.get_logger().warn('plan request: the planner is not configured')
                 return response
             solution, reason = session.preview(pose)
         except cv.InputRejected as exc:
-            node.reject("plan request", str(exc))
+            node.reject('plan request', str(exc))
             return response
         except Exception as exc:  # noqa: BLE001 - a service must always answer
-            node.fail("plan service", exc)
+            node.fail('plan service', exc)
             return response
         if solution is None:
-            node.get_logger().warn(f"plan request: {reason}")
+            node.get_logger().warn(f'plan request: {reason}')
             return response
         stamps = [session.ns(t) for t in solution.t]
         response.plan = cv.path_msg(node.frame, stamps,
@@ -96,11 +113,11 @@ class PlannerServices:
         try:
             result = session.replan() if session is not None else None
         except Exception as exc:  # noqa: BLE001 - a service must always answer
-            self.planner.fail("replan service", exc)
-            response.success, response.message = False, f"replanning failed: {exc}"
+            self.planner.fail('replan service', exc)
+            response.success, response.message = False, f'replanning failed: {exc}'
             return response
         if result is None:
-            response.success, response.message = False, "the planner is not configured"
+            response.success, response.message = False, 'the planner is not configured'
         else:
             response.success, response.message = result.outcome is not None, result.reason
         return response

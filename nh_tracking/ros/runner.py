@@ -1,37 +1,57 @@
-"""``main()`` plumbing shared by the executables: ``--help``, start-up errors as one line and
-exit code 2, spin, and a clean exit (code 0) on Ctrl-C or SIGTERM."""
+# Copyright 2026 nh_tracking maintainers
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+
+"""``main()`` plumbing shared by the executables: ``--help``.
+
+Start-up errors as one line and exit code 2, spin, and a clean exit (code 0) on Ctrl-C or SIGTERM.
+"""
 from __future__ import annotations
 
+from collections.abc import Callable, Sequence
 import signal
 import sys
-from collections.abc import Callable, Sequence
 
 import rclpy
 from rclpy.exceptions import ParameterException
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
 
-HELP = ("-h", "--help")
+HELP = ('-h', '--help')
 SWITCH_INTERVAL = 5e-4  # s
 
 
 def responsive_threads() -> None:
-    """Let the solver, builder and executor threads hand the interpreter over every 0.5 ms:
-    CPython's default (5 ms) would add up to 5 ms to a replan's latency. Process-wide, so
-    only entry points (executables, the demo's graph) call it, never the library."""
+    """Let the solver, builder and executor threads hand the interpreter over every 0.5 ms.
+
+    CPython's default (5 ms) would add up to 5 ms to a replan's latency. Process-wide, so only
+    entry points (executables, the demo's graph) call it, never the library.
+    """
     sys.setswitchinterval(min(sys.getswitchinterval(), SWITCH_INTERVAL))
 
 
 def _wants_help(args: Sequence[str]) -> bool:
     """``--help`` before any ``--ros-args`` section (what follows that belongs to ROS)."""
-    ours = list(args)[:list(args).index("--ros-args")] if "--ros-args" in args else list(args)
+    ours = list(args)[:list(args).index('--ros-args')] if '--ros-args' in args else list(args)
     return any(a in HELP for a in ours)
 
 
 def run(make_node: Callable[[], Node], usage: Callable[[], str],
         args: Sequence[str] | None = None) -> int:
-    """Create the node and spin it until Ctrl-C, SIGTERM or an external shutdown; exit code
-    0, or 2 when the node cannot start (bad parameters), with the reason on stderr."""
+    """Create the node and spin it until Ctrl-C, SIGTERM or an external shutdown; exit code 0.
+
+    Or 2 when the node cannot start (bad parameters), with the reason on stderr.
+    """
     argv = list(sys.argv if args is None else args)
     if _wants_help(argv[1:]):
         print(usage())
@@ -39,12 +59,12 @@ def run(make_node: Callable[[], Node], usage: Callable[[], str],
     try:
         rclpy.init(args=argv)
     except Exception as exc:  # noqa: BLE001 - malformed --ros-args: say so, in one line
-        print(f"cannot start: bad command line: {str(exc).splitlines()[0]}", file=sys.stderr)
+        print(f'cannot start: bad command line: {str(exc).splitlines()[0]}', file=sys.stderr)
         return 2
     try:
         node = make_node()
     except (ValueError, TypeError, ParameterException) as exc:
-        print(f"cannot start: {str(exc).splitlines()[0]}", file=sys.stderr)
+        print(f'cannot start: {str(exc).splitlines()[0]}', file=sys.stderr)
         rclpy.try_shutdown()
         return 2
     responsive_threads()

@@ -1,3 +1,17 @@
+# Copyright 2026 nh_tracking maintainers
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+
 """Callbacks that never let an exception reach the executor, and rejection bookkeeping."""
 from __future__ import annotations
 
@@ -18,28 +32,28 @@ class SafeNode(Node):
         self._reporting = threading.local()
         self.rejected_inputs = 0
         self.errors = 0
-        self.last_problem = ""
+        self.last_problem = ''
 
     def reject(self, what: str, reason: str) -> None:
         """One clear log line for a message that cannot be used; the node carries on."""
-        self.get_logger().warn(f"rejected {what}: {reason}")
+        self.get_logger().warn(f'rejected {what}: {reason}')
         with self._problem_lock:
             self.rejected_inputs += 1
-            self.last_problem = f"rejected {what}: {reason}"
+            self.last_problem = f'rejected {what}: {reason}'
         self._report()
 
     def fail(self, what: str, exc: BaseException) -> None:
         if not self.context.ok():  # shutting down: publishing fails, nothing is wrong
             return
-        self.get_logger().error(f"{what} failed: {type(exc).__name__}: {exc}")
+        self.get_logger().error(f'{what} failed: {type(exc).__name__}: {exc}')
         with self._problem_lock:
             self.errors += 1
-            self.last_problem = f"{what} failed: {type(exc).__name__}: {exc}"
+            self.last_problem = f'{what} failed: {type(exc).__name__}: {exc}'
         self._report()
 
     def _report(self) -> None:
         """``on_problem`` once: a problem met while reporting one is not reported again."""
-        if getattr(self._reporting, "active", False):
+        if getattr(self._reporting, 'active', False):
             return
         self._reporting.active = True
         try:
@@ -48,13 +62,13 @@ class SafeNode(Node):
             self._reporting.active = False
 
     def take_problem(self) -> str:
-        """The last problem since the previous call (for diagnostics)."""
+        """Return the last problem since the previous call (for diagnostics)."""
         with self._problem_lock:
-            problem, self.last_problem = self.last_problem, ""
+            problem, self.last_problem = self.last_problem, ''
         return problem
 
     def on_problem(self) -> None:
-        """Hook: report a problem at once (the planner publishes a diagnostic)."""
+        """Report a problem at once (the planner publishes a diagnostic)."""
 
 
 def guarded(what: str):

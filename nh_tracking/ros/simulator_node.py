@@ -1,3 +1,17 @@
+# Copyright 2026 nh_tracking maintainers
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+
 """The simulator node: integrates the model's real controlled dynamics and publishes odometry.
 
 It applies ``control_sequence`` by its timing (each effort held over its interval, the step
@@ -9,9 +23,9 @@ from __future__ import annotations
 
 import threading
 
-import numpy as np
 from geometry_msgs.msg import PoseWithCovarianceStamped, Twist, TwistStamped
 from nav_msgs.msg import Odometry
+import numpy as np
 from rclpy.clock import Clock, ClockType
 from rosgraph_msgs.msg import Clock as ClockMsg
 from trajectory_msgs.msg import JointTrajectory
@@ -20,22 +34,22 @@ from nh_tracking import models
 from nh_tracking.poses import PoseMap
 from nh_tracking.ros import conversions as cv
 from nh_tracking.ros.parameters import declare, declare_all, declare_model, plain
-from nh_tracking.ros.safety import SafeNode, guarded
+from nh_tracking.ros.safety import guarded, SafeNode
 from nh_tracking.simulate import simulate
 
 PARAMETERS = (
-    plain("rate", 50.0, "integration and odometry rate", "Hz", (1.0, 2000.0), read_only=True),
-    plain("control_timeout", 0.5, "zero control after this long without commands", "s",
+    plain('rate', 50.0, 'integration and odometry rate', 'Hz', (1.0, 2000.0), read_only=True),
+    plain('control_timeout', 0.5, 'zero control after this long without commands', 's',
           (1e-3, 3600.0)),
-    plain("mode", "effort", "effort: follow control_sequence; velocity: follow cmd_vel",
-          read_only=True, choices=("effort", "velocity")),
-    plain("frame_id", "odom", "odometry frame", read_only=True),
-    plain("child_frame_id", "base_link", "body frame", read_only=True),
-    plain("publish_clock", False, "own the clock: publish /clock (sim time)", read_only=True),
-    plain("time_scale", 1.0, "simulated seconds per wall second when publishing /clock", "",
+    plain('mode', 'effort', 'effort: follow control_sequence; velocity: follow cmd_vel',
+          read_only=True, choices=('effort', 'velocity')),
+    plain('frame_id', 'odom', 'odometry frame', read_only=True),
+    plain('child_frame_id', 'base_link', 'body frame', read_only=True),
+    plain('publish_clock', False, 'own the clock: publish /clock (sim time)', read_only=True),
+    plain('time_scale', 1.0, 'simulated seconds per wall second when publishing /clock', '',
           (1e-3, 1000.0), read_only=True),
-    plain("start_time", 0.0, "initial /clock time", "s", (0.0, 1e9), read_only=True),
-    plain("cmd_vel_stamped", False, "cmd_vel is TwistStamped", read_only=True),
+    plain('start_time', 0.0, 'initial /clock time', 's', (0.0, 1e9), read_only=True),
+    plain('cmd_vel_stamped', False, 'cmd_vel is TwistStamped', read_only=True),
 )
 
 
@@ -43,22 +57,22 @@ class SimulatorNode(SafeNode):
     """``nh_tracking_sim``: topics and parameters in the README's table."""
 
     def __init__(self, **kwargs) -> None:
-        super().__init__("nh_tracking_sim", **kwargs)
+        super().__init__('nh_tracking_sim', **kwargs)
         model, params = declare_model(self)
         self.system = models.create(model, **params)
         self.pose_map = PoseMap(self.system)
         n, k = self.system.n, self.system.k
-        initial = declare(self, plain("initial_state", [0.0] * (n + k),
-                                      f"initial q then v ({n} + {k} numbers)"))
+        initial = declare(self, plain('initial_state', [0.0] * (n + k),
+                                      f'initial q then v ({n} + {k} numbers)'))
         initial = np.asarray(initial, dtype=float)
         if initial.size != n + k or not np.all(np.isfinite(initial)):
-            raise ValueError(f"parameter initial_state needs {n + k} finite numbers "
-                             f"(q then v of {model}), got {list(initial)}")
+            raise ValueError(f'parameter initial_state needs {n + k} finite numbers '
+                             f'(q then v of {model}), got {list(initial)}')
         p = declare_all(self, PARAMETERS)
-        self.rate, self.control_timeout, self.mode = p["rate"], p["control_timeout"], p["mode"]
-        self.frame, self.child_frame = p["frame_id"], p["child_frame_id"]
-        self.publish_clock, scale, start = p["publish_clock"], p["time_scale"], p["start_time"]
-        stamped = p["cmd_vel_stamped"]
+        self.rate, self.control_timeout, self.mode = p['rate'], p['control_timeout'], p['mode']
+        self.frame, self.child_frame = p['frame_id'], p['child_frame_id']
+        self.publish_clock, scale, start = p['publish_clock'], p['time_scale'], p['start_time']
+        stamped = p['cmd_vel_stamped']
 
         self._lock = threading.Lock()
         self._q, self._v = initial[:n].copy(), initial[n:].copy()
@@ -69,14 +83,14 @@ class SimulatorNode(SafeNode):
         self._sim_ns = int(round(start * 1e9)) if self.publish_clock else self._clock_ns()
         self._last_ns = self._sim_ns
 
-        self.pub_odom = self.create_publisher(Odometry, "odom", 10)
-        self.pub_clock = (self.create_publisher(ClockMsg, "/clock", 10)
+        self.pub_odom = self.create_publisher(Odometry, 'odom', 10)
+        self.pub_clock = (self.create_publisher(ClockMsg, '/clock', 10)
                           if self.publish_clock else None)
         # volatile: matches latched (the planner's) and ordinary publishers alike
-        self.create_subscription(JointTrajectory, "control_sequence", self.on_controls, 10)
-        self.create_subscription(TwistStamped if stamped else Twist, "cmd_vel",
+        self.create_subscription(JointTrajectory, 'control_sequence', self.on_controls, 10)
+        self.create_subscription(TwistStamped if stamped else Twist, 'cmd_vel',
                                  self.on_cmd_vel, 10)
-        self.create_subscription(PoseWithCovarianceStamped, "initialpose", self.on_initialpose,
+        self.create_subscription(PoseWithCovarianceStamped, 'initialpose', self.on_initialpose,
                                  10)
         self.add_post_set_parameters_callback(self._apply_parameters)
         if self.publish_clock:
@@ -84,12 +98,12 @@ class SimulatorNode(SafeNode):
                               clock=Clock(clock_type=ClockType.STEADY_TIME))
         else:
             self.create_timer(1.0 / self.rate, self.step)
-        self.get_logger().info(f"simulating {model} {params} from {initial.tolist()}, "
-                               f"{self.mode} mode at {self.rate:g} Hz")
+        self.get_logger().info(f'simulating {model} {params} from {initial.tolist()}, '
+                               f'{self.mode} mode at {self.rate:g} Hz')
 
     def _apply_parameters(self, params) -> None:
         for p in params:
-            if p.name == "control_timeout":
+            if p.name == 'control_timeout':
                 self.control_timeout = p.value
 
     def _clock_ns(self) -> int:
@@ -104,33 +118,35 @@ class SimulatorNode(SafeNode):
         with self._lock:
             return self._q.copy(), self._v.copy()
 
-    @guarded("control_sequence")
+    @guarded('control_sequence')
     def on_controls(self, msg: JointTrajectory) -> None:
         start, offsets, efforts = cv.controls_to_arrays(msg, self.system.control_names)
         with self._lock:
             self._controls = (start, offsets, efforts)
             self._command_ns = self._now_ns()
 
-    @guarded("cmd_vel")
+    @guarded('cmd_vel')
     def on_cmd_vel(self, msg) -> None:
-        twist = cv.twist_array(msg.twist if isinstance(msg, TwistStamped) else msg, "cmd_vel")
+        twist = cv.twist_array(msg.twist if isinstance(msg, TwistStamped) else msg, 'cmd_vel')
         with self._lock:
             self._command = twist
             self._command_ns = self._now_ns()
 
-    @guarded("initialpose")
+    @guarded('initialpose')
     def on_initialpose(self, msg: PoseWithCovarianceStamped) -> None:
-        cv.check_frame(msg.header.frame_id, self.frame, "initial pose")
-        pose = cv.pose_array(msg.pose.pose, "initial pose")
+        cv.check_frame(msg.header.frame_id, self.frame, 'initial pose')
+        pose = cv.pose_array(msg.pose.pose, 'initial pose')
         with self._lock:
             self._q = self.pose_map.configuration(pose, self._q)
             self._v = np.zeros(self.system.k)
             self._controls, self._command = None, None
-        self.get_logger().info(f"reset to pose {np.round(pose, 3).tolist()} at rest")
+        self.get_logger().info(f'reset to pose {np.round(pose, 3).tolist()} at rest')
 
-    def _pieces(self, t0: int, t1: int) -> list[tuple[int, int, np.ndarray]]:
-        """[(from, to, u)] covering [t0, t1]: the control sequence held per interval, zero
-        outside it and from the instant the control timeout expires (a cut in the step)."""
+    def _pieces(self, t0: int, t1: int) -> list[tuple[int, int, np.ndarray | None]]:
+        """[(from, to, u)] covering [t0, t1]: the control sequence held per interval.
+
+        Zero outside it and from the instant the control timeout expires (a cut in the step).
+        """
         zero = np.zeros(self.system.k)
         expiry = self._command_ns + int(round(self.control_timeout * 1e9))
         if self._controls is None or t0 >= expiry:
@@ -142,12 +158,12 @@ class SimulatorNode(SafeNode):
         cuts = sorted({t0, t1, *[e for e in edges + [expiry] if t0 < e < t1]})
         pieces = []
         for a, b in zip(cuts[:-1], cuts[1:]):
-            i = int(np.searchsorted(edges, a, side="right")) - 1
+            i = int(np.searchsorted(edges, a, side='right')) - 1
             active = a < expiry and 0 <= i < len(efforts)
             pieces.append((a, b, efforts[i] if active else zero))
         return pieces
 
-    @guarded("simulation step")
+    @guarded('simulation step')
     def step(self) -> None:
         t0 = self._sim_ns if self.publish_clock else self._last_ns
         t1 = t0 + self._step_ns if self.publish_clock else self._clock_ns()
@@ -156,11 +172,11 @@ class SimulatorNode(SafeNode):
             return
         with self._lock:
             q, v = self._q, self._v
-            if self.mode == "velocity":
+            if self.mode == 'velocity':
                 fresh = (t0 - self._command_ns) * 1e-9 <= self.control_timeout
                 v = (self.pose_map.velocity(q, self._command)
                      if fresh and self._command is not None else np.zeros(self.system.k))
-                pieces = [(t0, t1, None)]
+                pieces: list[tuple[int, int, np.ndarray | None]] = [(t0, t1, None)]
             else:
                 pieces = self._pieces(t0, t1)
         for a, b, u in pieces:
@@ -173,7 +189,7 @@ class SimulatorNode(SafeNode):
             q, v = traj.q[-1], traj.v[-1]
         with self._lock:
             self._q, self._v = q, v
-        if self.publish_clock:
+        if self.pub_clock is not None:
             self._sim_ns = t1
             self.pub_clock.publish(ClockMsg(clock=cv.time_msg(t1)))
         self.pub_odom.publish(cv.odometry_msg(self.frame, self.child_frame, t1,

@@ -1,3 +1,17 @@
+# Copyright 2026 nh_tracking maintainers
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+
 """Direct multiple shooting with RK4 and piecewise-constant controls: the standard baseline.
 
 This is what a user would write without the paper's geometry: states and controls at the knots,
@@ -5,16 +19,16 @@ continuity x_{k+1} = RK4(x_k, u_k), and the running cost integrated alongside by
 """
 from __future__ import annotations
 
-import time
 from dataclasses import dataclass
+import time
 from typing import ClassVar
 
 import casadi as ca
 import numpy as np
 
-from nh_tracking.problem import (Solution, TrackingProblem, terminal_cost, terminal_error,
-                                 tracking_lagrangian)
-from nh_tracking.solvers.base import Guess, Method, Structure, ipopt_options
+from nh_tracking.problem import (Solution, terminal_cost, terminal_error, tracking_lagrangian,
+                                 TrackingProblem)
+from nh_tracking.solvers.base import Guess, ipopt_options, Method, Structure
 from nh_tracking.solvers.cache import PerSystemCache
 from nh_tracking.system import NonholonomicSystem
 
@@ -29,7 +43,7 @@ class ShootingTranscription:
     running_cost: ca.Function  # (w, p) -> integrated running cost
 
     def parameters(self, problem: TrackingProblem) -> np.ndarray:
-        fine = problem.t0 + np.linspace(0.0, problem.horizon, 2 * SUBSTEPS * problem.steps + 1)
+        fine = problem.start + np.linspace(0.0, problem.horizon, 2 * SUBSTEPS * problem.steps + 1)
         q_ref, v_ref = problem.reference_at(fine)
         return np.concatenate([q_ref.ravel(), v_ref.ravel(),
                                [problem.h, problem.epsilon, problem.omega]])
@@ -49,8 +63,8 @@ def _build(system: NonholonomicSystem, steps: int, terminal: str,
     n, k = system.n, system.k
     nx = n + k
     points = 2 * SUBSTEPS * steps + 1  # reference at every RK4 stage time
-    q_ref, v_ref = ca.SX.sym("q_r", n, points), ca.SX.sym("v_r", k, points)
-    h, eps, omega = ca.SX.sym("h"), ca.SX.sym("eps"), ca.SX.sym("omega")
+    q_ref, v_ref = ca.SX.sym('q_r', n, points), ca.SX.sym('v_r', k, points)
+    h, eps, omega = ca.SX.sym('h'), ca.SX.sym('eps'), ca.SX.sym('omega')
     p = ca.vertcat(ca.vec(q_ref), ca.vec(v_ref), h, eps, omega)
     lagrangian = tracking_lagrangian(system)
 
@@ -58,10 +72,10 @@ def _build(system: NonholonomicSystem, steps: int, terminal: str,
         xdot = system.ode_fn(x, u)
         return xdot, lagrangian(x[:n], x[n:], u, q_ref[:, j], v_ref[:, j], eps)
 
-    w = ca.SX.sym("w", nx * (steps + 1) + k * steps)  # stage-wise x_0, u_0, x_1, ..., x_N
+    w = ca.SX.sym('w', nx * (steps + 1) + k * steps)  # stage-wise x_0, u_0, x_1, ..., x_N
     xs = [w[i * (nx + k):i * (nx + k) + nx] for i in range(steps + 1)]
     us = [w[i * (nx + k) + nx:(i + 1) * (nx + k)] for i in range(steps)]
-    running, gaps = 0, []
+    running, gaps = ca.SX(0), []
     dt = h / SUBSTEPS
     for i in range(steps):
         x = xs[i]
@@ -75,13 +89,13 @@ def _build(system: NonholonomicSystem, steps: int, terminal: str,
             running += dt / 6 * (l1 + 2 * l2 + 2 * l3 + l4)
         gaps.append(x - xs[i + 1])
     objective = running
-    if terminal == "cost":
+    if terminal == 'cost':
         objective += 0.5 * omega * ca.sumsqr(xs[-1][:n] - q_ref[:, -1])
-    solver = ca.nlpsol(f"multiple_shooting_{system.name}_{steps}", "ipopt",
-                       {"x": w, "p": p, "f": objective, "g": ca.vertcat(*gaps)},
+    solver = ca.nlpsol(f'multiple_shooting_{system.name}_{steps}', 'ipopt',
+                       {'x': w, 'p': p, 'f': objective, 'g': ca.vertcat(*gaps)},
                        ipopt_options(max_time))
     return ShootingTranscription(system=system, steps=steps, solver=solver,
-                                 running_cost=ca.Function("running", [w, p], [running]))
+                                 running_cost=ca.Function('running', [w, p], [running]))
 
 
 def solve_multiple_shooting(problem: TrackingProblem, initial_guess: Guess | None = None,
@@ -102,7 +116,7 @@ def solve_multiple_shooting(problem: TrackingProblem, initial_guess: Guess | Non
     w0 = np.concatenate([np.concatenate([x_g[i], u_g[i]]) for i in range(big_n)] + [x_g[-1]])
     lbw, ubw = np.full(w0.size, -np.inf), np.full(w0.size, np.inf)
     lbw[:n + k] = ubw[:n + k] = x_g[0]
-    if problem.terminal == "equality":
+    if problem.terminal == 'equality':
         q_knots, v_knots = problem.reference_samples[:2]
         lbw[-(n + k):] = ubw[-(n + k):] = w0[-(n + k):] = np.concatenate([q_knots[-1],
                                                                           v_knots[-1]])
@@ -110,26 +124,28 @@ def solve_multiple_shooting(problem: TrackingProblem, initial_guess: Guess | Non
     result = tr.solver(x0=w0, p=p, lbx=lbw, ubx=ubw, lbg=0, ubg=0)
     elapsed = time.perf_counter() - start
     stats = tr.solver.stats()
-    w = np.array(result["x"]).ravel()
+    w = np.array(result['x']).ravel()
     stage = w[:-(n + k)].reshape(big_n, n + 2 * k)
     x = np.vstack([stage[:, :n + k], w[-(n + k):]])
     q, v, u = x[:, :n], x[:, n:], stage[:, n + k:]
     cost = float(tr.running_cost(w, p)) + terminal_cost(problem, q[-1])
     return Solution(
         t=problem.grid, q=q, v=v, u=u, cost=cost,
-        success=bool(stats["success"]) and bool(np.all(np.isfinite(w))),
-        iterations=int(stats["iter_count"]), solve_time=elapsed,
-        terminal_error=terminal_error(problem, q[-1], v[-1]), method="multiple_shooting",
-        message=stats["return_status"], route="ipopt",
+        success=bool(stats['success']) and bool(np.all(np.isfinite(w))),
+        iterations=int(stats['iter_count']), solve_time=elapsed,
+        terminal_error=terminal_error(problem, q[-1], v[-1]), method='multiple_shooting',
+        message=stats['return_status'], route='ipopt',
     )
 
 
 @dataclass(frozen=True)
 class MultipleShooting(Method):
-    """Direct multiple shooting (RK4, piecewise-constant controls) with IPOPT: the baseline a
-    user would write without the geometry. It has no options."""
+    """Direct multiple shooting (RK4, piecewise-constant controls) with IPOPT.
 
-    name: ClassVar[str] = "multiple_shooting"
+    The baseline a user would write without the geometry. It has no options.
+    """
+
+    name: ClassVar[str] = 'multiple_shooting'
 
     def prepare(self, system: NonholonomicSystem, structure: Structure) -> None:
         shooting_transcription(system, structure.steps, structure.terminal, structure.deadline)
