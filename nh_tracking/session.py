@@ -14,22 +14,19 @@
 
 """A tracking session: reference and odometry in, plans out, on one time base — without ROS.
 
-What a planner front end needs between its messages and the receding-horizon planner: the
-time base (integer nanoseconds in, seconds from an epoch inside, so wall-clock stamps near
-1.8e18 ns keep their resolution), the latest state estimate, a worker thread that solves so
-callbacks never wait, and reconfiguration built in the background: a model or NLP rebuild
-(seconds, when compiling) never stops the plan in force — the old solver keeps replanning
-until the new one is ready and is swapped in between two replans.
+What a planner front end needs between its messages and the planner: the time base (integer
+nanoseconds in, seconds from an epoch inside, so wall-clock stamps near 1.8e18 ns keep their
+resolution), the latest state, a worker thread that solves so callbacks never wait, and
+rebuilds in the background: a model or NLP rebuild (seconds, when compiling) never stops the
+plan in force — the old solver replans until the new one is swapped in between two replans.
 """
 from __future__ import annotations
 
 from collections import deque
 from collections.abc import Callable, Mapping
-import dataclasses
 from dataclasses import dataclass
 import threading
 import time
-from typing import Any
 
 import numpy as np
 
@@ -100,8 +97,8 @@ class TrackingSession:
         self.stale = False
         self.outcome: PlanOutcome | None = None
         self.plan_trajectory: Trajectory | None = None
-        # (odometry receipt -> plan ready, of which the numerical planner, of which the NLP
-        # solver) [s], for the recent plans
+        # (odometry receipt -> plan published, of which the numerical planner, of which the
+        # NLP solver) [s], for the recent plans
         self.latencies: deque[tuple[float, float, float]] = deque(maxlen=2000)
         self._state: StateEstimate | None = None
         self._lock = threading.Lock()  # the fields above shared between threads
@@ -110,6 +107,7 @@ class TrackingSession:
         self._wake, self._rebuild, self._stop = (threading.Event() for _ in range(3))
         self._threads: list[threading.Thread] = []
         self._on_plan: Callable[[PlanResult], None] = lambda result: None
+        self._on_display: Callable[[PlanResult], None] = lambda result: None
 
     # time -------------------------------------------------------------------------------------
     def seconds(self, ns: int) -> float:
@@ -124,9 +122,14 @@ class TrackingSession:
         """Build the solver now (blocking), so the first plan is not late."""
         self.planner.prepare()
 
-    def start(self, on_plan: Callable[[PlanResult], None]) -> None:
-        """Start the solver and builder threads; ``on_plan`` receives every new plan."""
-        self._on_plan = on_plan
+    def start(self, on_plan: Callable[[PlanResult], None],
+              on_display: Callable[[PlanResult], None] = lambda result: None) -> None:
+        """Start the solver and builder threads.
+
+        Every new plan goes to ``on_plan`` (commands: at once), then to ``on_display`` (what
+        people look at).
+        """
+        self._on_plan, self._on_display = on_plan, on_display
         self._stop.clear()
         self._threads = [threading.Thread(target=self._loop, args=(self._wake, self.replan),
                                           name='nh_tracking_solver', daemon=True),
@@ -240,18 +243,19 @@ class TrackingSession:
         with self._solve_lock:
             planner = self.planner
             outcome = planner.plan(self.seconds(state.ns), state.q, state.v)
-            planned = time.perf_counter()
-            self.latencies.append((planned - state.received, planner.stats.plan_durations[-1],
-                                   outcome.solve_time))
+            planning = planner.stats.plan_durations[-1]
+        result = PlanResult(outcome, state, f'{outcome.status}: {outcome.message} '
+                                            f'({outcome.solve_time * 1e3:.1f} ms)')
+        self._on_plan(result)  # the commands first: the robot waits for them
+        self.latencies.append((time.perf_counter() - state.received, planning,
+                               outcome.solve_time))
+        self._on_display(result)
         trajectory = outcome.plan.trajectory()
         with self._lock:
             if self.stale:
                 self.log('info', 'odometry is fresh again: planning resumed')
             self.stale = False
             self.outcome, self.plan_trajectory = outcome, trajectory
-        result = PlanResult(outcome, state, f'{outcome.status}: {outcome.message} '
-                                            f'({outcome.solve_time * 1e3:.1f} ms)')
-        self._on_plan(result)
         return result
 
     def _why_not(self, state: StateEstimate | None) -> str:
@@ -307,7 +311,3 @@ class TrackingSession:
             return np.zeros(4)
         q, v = trajectory.sample(t)
         return self.pose_map.body_twist(q[0], v[0])
-
-    def settings_with(self, **changes: Any) -> PlannerSettings:
-        """Return the current settings with ``changes`` (validated: ValueError/TypeError)."""
-        return dataclasses.replace(self.planner.settings, **changes)

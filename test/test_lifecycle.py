@@ -12,11 +12,11 @@
 # See the License for the specific language governing permissions and
 # limitations under the License.
 
-"""The planner's lifecycle, reconfiguration while commanding.
+"""The planner's lifecycle, reconfiguration while commanding, and unblocked services.
 
-And services that never hold up cmd_vel — in process, real nodes and the real solver, one Context
-per test.
+In process: real nodes and the real solver, one Context per test.
 """
+import dataclasses
 import time
 
 from geometry_msgs.msg import Twist
@@ -124,8 +124,8 @@ def test_reconfiguring_never_stops_the_plan_in_force(graph, tmp_path, monkeypatc
         result = planner.set_parameters_atomically([Parameter(k, value=v)
                                                     for k, v in change.items()])
         assert result.successful, result.reason
-        assert wait_until(lambda: planner.planner.settings == planner.session.settings_with(
-            **change) and not planner.session.reconfiguring, 120.0), change
+        assert wait_until(lambda: planner.planner.settings == dataclasses.replace(
+            planner.planner.settings, **change) and not planner.live.reconfiguring, 120.0)
         took = time.monotonic() - since
         count = sequences.count()
         assert wait_until(lambda: sequences.count() > count + 3, 10.0)

@@ -67,7 +67,6 @@ class PlannerNode(SafeNode, LifecycleNode):
                 raise ValueError(f'configuring failed: {self.take_problem()}')
             self.trigger_activate()
 
-    # the numerics, for tests, the demo and the benchmark -------------------------------------
     @property
     def live(self) -> TrackingSession:
         """Return the session; callbacks run only while the node is configured."""
@@ -90,7 +89,7 @@ class PlannerNode(SafeNode, LifecycleNode):
         return self.get_clock().now().nanoseconds
 
     def _log(self, level: str, text: str) -> None:
-        # one call site per severity: rclpy's logger ties a call site to its first severity
+        """Log ``text``; one call site per severity (rclpy ties a call site to a severity)."""
         if level == 'error':  # counted, and reported as a diagnostic
             self.fail('planning', RuntimeError(text))
         elif level == 'warn':
@@ -131,7 +130,7 @@ class PlannerNode(SafeNode, LifecycleNode):
                                          event_callbacks=quiet)]
         self._entities.append(self.create_subscription(Odometry, 'odom', self.on_odom, 10))
         self._service_host = PlannerServices(self)
-        session.start(self._publish_plan)
+        session.start(self._publish_plan, self._publish_display)
         self.get_logger().info(f'planning for {self.model} {self.physical} with '
                                f'{session.planner.settings}')
         return TransitionCallbackReturn.SUCCESS
@@ -221,19 +220,22 @@ class PlannerNode(SafeNode, LifecycleNode):
     # outputs ----------------------------------------------------------------------------------
     @guarded('publishing the plan')
     def _publish_plan(self, result: PlanResult) -> None:
-        """Publish a new plan, on the solver thread: the control sequence first.
+        """Publish a new plan's control sequence, on the solver thread."""
+        outcome, session = result.outcome, self.live
+        if outcome is not None:
+            plan = outcome.plan
+            self.pub_controls.publish(cv.control_sequence_msg(
+                self.frame, session.ns(plan.t[0]), plan.t[:-1] - plan.t[0],
+                session.system.control_names, plan.u))
 
-        It is what the robot waits for; then planned_path, and planned_markers when someone
-        listens.
-        """
+    @guarded('publishing the plan display')
+    def _publish_display(self, result: PlanResult) -> None:
+        """Publish planned_path, and planned_markers when someone listens."""
         outcome, session = result.outcome, self.live
         if outcome is None:
             return
         plan, pose = outcome.plan, session.pose_map.pose
         stamps = [session.ns(t) for t in plan.t]
-        self.pub_controls.publish(cv.control_sequence_msg(
-            self.frame, stamps[0], plan.t[:-1] - plan.t[0], session.system.control_names,
-            plan.u))
         poses = np.array([pose(q) for q in plan.q])
         self.pub_path.publish(cv.path_msg(self.frame, stamps, poses))
         if self.pub_markers.get_subscription_count() > 0:
