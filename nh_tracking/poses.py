@@ -32,6 +32,22 @@ from nh_tracking.system import NonholonomicSystem, POSE_AXES
 from nh_tracking.trajectory import Trajectory
 
 AXES = POSE_AXES
+_AXIS_BY_NAME = {'x': 'x', 'x1': 'x', 'y': 'y', 'x2': 'y', 'z': 'z', 'theta': 'yaw',
+                 'yaw': 'yaw'}
+
+
+def _by_name(system: NonholonomicSystem) -> dict[str, str]:
+    """Return pose axes from unambiguous coordinate names, for systems that declare none.
+
+    An angle that could be the heading but is not named so is an error, never silently hidden.
+    """
+    mapping = {c: _AXIS_BY_NAME[c] for c in system.coordinates if c in _AXIS_BY_NAME}
+    unnamed_angles = [a for a in system.angles if a not in mapping]
+    if 'x' not in mapping.values() or ('yaw' not in mapping.values() and unnamed_angles):
+        raise ValueError(f"{system.name}: which coordinates are the pose's x, y and heading "
+                         f'is not clear from {system.coordinates}; give pose={{...}} to '
+                         'NonholonomicSystem.from_constraints (or axes to PoseMap)')
+    return mapping
 
 
 def wrap_angle(angle: np.ndarray | float) -> np.ndarray | float:
@@ -43,16 +59,13 @@ class PoseMap:
     """Maps a system's (q, v) to and from world poses (x, y, z, yaw) and body twists.
 
     ``axes`` maps coordinate names to pose axes (default: the system's own ``pose``, which every
-    built-in model declares); coordinates without an axis are hidden from a pose.
+    built-in model declares; failing that, the unambiguous names x/x1, y/x2, z, theta/yaw);
+    coordinates without an axis are hidden from a pose.
     """
 
     def __init__(self, system: NonholonomicSystem,
                  axes: Mapping[str, str] | None = None) -> None:
-        mapping = dict(axes) if axes is not None else system.pose
-        if mapping is None:
-            raise ValueError(f"{system.name}: which coordinates are the pose's x, y, yaw is not "
-                             'known; give pose={...} to NonholonomicSystem.from_constraints '
-                             '(or axes to PoseMap)')
+        mapping = dict(axes) if axes is not None else system.pose or _by_name(system)
         if not set(mapping.values()) <= set(AXES) or len(set(mapping.values())) != len(mapping):
             raise ValueError(f'pose axes must be distinct members of {AXES}, got {mapping}')
         if 'x' not in mapping.values():

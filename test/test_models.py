@@ -125,6 +125,15 @@ def test_a_system_without_pose_axes_says_how_to_give_them():
         ['a', 'b'], lambda q: ca.SX.eye(2), name='plain')
     with pytest.raises(ValueError, match='give pose=.* to NonholonomicSystem.from_constraints'):
         PoseMap(plain)
+    knife = nht.NonholonomicSystem.from_constraints(  # its heading is called phi
+        ['x', 'y', 'phi'], lambda q: ca.SX.eye(3),
+        lambda q: ca.horzcat(ca.sin(q[2]), -ca.cos(q[2]), 0), angles=['phi'])
+    with pytest.raises(ValueError, match='heading is not clear'):
+        PoseMap(knife)  # never a heading silently hidden
+    cart = nht.NonholonomicSystem.from_constraints(  # unambiguous names need no pose=
+        ['x', 'y', 'theta'], lambda q: ca.SX.eye(3),
+        lambda q: ca.horzcat(ca.sin(q[2]), -ca.cos(q[2]), 0), angles=['theta'])
+    assert PoseMap(cart).rows == {'x': 0, 'y': 1, 'yaw': 2}
     with pytest.raises(ValueError, match="pose names \\['c'\\]"):
         nht.NonholonomicSystem.from_constraints(['a', 'b'], lambda q: ca.SX.eye(2),
                                                 pose={'c': 'x'})
