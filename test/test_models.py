@@ -118,6 +118,22 @@ def test_user_models_load_by_module_path_and_by_factory():
         nht.models.spec('user_robots:NOT_A_MODEL')
 
 
+def test_user_models_load_from_an_entry_point(monkeypatch):
+    """A package that registers ``car = user_robots:CAR`` in the group nh_tracking.models."""
+    from importlib.metadata import EntryPoint
+
+    import nh_tracking.models as registry
+
+    def entry_points(group):
+        assert group == 'nh_tracking.models'
+        return [EntryPoint(name='car', value='user_robots:CAR', group=group)]
+
+    monkeypatch.setattr(registry, 'entry_points', entry_points)
+    assert registry.create('car', L=0.7).parameters['L'] == 0.7
+    with pytest.raises(ValueError, match="from entry points: \\['car'\\]"):
+        registry.spec('truck')
+
+
 def test_a_system_without_pose_axes_says_how_to_give_them():
     from nh_tracking.poses import PoseMap
 
