@@ -99,11 +99,13 @@ def test_every_model_spec_matches_its_factory_and_declares_its_pose():
         assert len(q0) == system.n and len(v0) == system.k
 
 
-def test_user_models_load_by_module_path_and_by_factory():
+def test_user_models_load_by_module_path_and_by_factory(tmp_path, monkeypatch):
     """The car-like robot of test/user_robots.py, by ``package.module:attribute``.
 
     As a ModelSpec, and as a bare factory whose keyword defaults become its parameters.
     """
+    (tmp_path / 'user_robots_syntax.py').write_text('X = 1 / 0\n')
+    monkeypatch.syspath_prepend(str(tmp_path))
     car = nht.models.spec('user_robots:CAR')
     assert [p.name for p in car.parameters] == ['m', 'J', 'I_steer', 'L']
     system = nht.models.create('user_robots:CAR', L=0.8)
@@ -114,6 +116,10 @@ def test_user_models_load_by_module_path_and_by_factory():
         nht.models.spec('user_robots:nothing')
     with pytest.raises(ValueError, match="cannot load model 'no_such_module:X'"):
         nht.models.spec('no_such_module:X')
+    with pytest.raises(ValueError, match='its factory raised NameError'):
+        nht.models.create('user_robots:broken')
+    with pytest.raises(ValueError, match='cannot load model .*ZeroDivisionError'):
+        nht.models.spec('user_robots_syntax:X')  # a module that fails on import
     with pytest.raises(ValueError, match='neither a ModelSpec nor a factory'):
         nht.models.spec('user_robots:NOT_A_MODEL')
 

@@ -59,3 +59,8 @@ CAR = ModelSpec(
     'a car-like robot', start=((0.0, 0.0, 0.0, 0.0), (1.0, 0.0)))
 
 NOT_A_MODEL = 42
+
+
+def broken(m: float = 1.0) -> NonholonomicSystem:
+    """Build nothing: a factory with a mistake in it, as users make them."""
+    return undefined_name  # type: ignore[name-defined]  # noqa: F821

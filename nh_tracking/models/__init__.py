@@ -58,7 +58,7 @@ def spec(name: str) -> ModelSpec:
         module, _, attribute = name.partition(':')
         try:
             target = getattr(importlib.import_module(module), attribute)
-        except (ImportError, AttributeError, ValueError) as exc:
+        except Exception as exc:  # noqa: BLE001 - a user's module may fail in any way
             raise ValueError(f'cannot load model {name!r}: {type(exc).__name__}: {exc}') from None
         return _as_spec(name, target)
     raise ValueError(f'unknown model {name!r}; built-in: {sorted(MODELS)}, from entry points: '

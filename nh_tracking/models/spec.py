@@ -87,7 +87,19 @@ class ModelSpec:
         return {**self.defaults, **{k: known[k].check(v) for k, v in values.items()}}
 
     def create(self, **values: object) -> NonholonomicSystem:
-        return self.factory(**self.check(**values))
+        """Build the model, its parameters checked; any failure is a ValueError naming it."""
+        checked = self.check(**values)
+        try:
+            system = self.factory(**checked)
+        except ValueError:
+            raise
+        except Exception as exc:  # noqa: BLE001 - a user's factory may fail in any way
+            raise ValueError(f'model {self.name}: its factory raised '
+                             f'{type(exc).__name__}: {exc}') from None
+        if not isinstance(system, NonholonomicSystem):
+            raise ValueError(f'model {self.name}: its factory returned '
+                             f'{type(system).__name__}, not a NonholonomicSystem')
+        return system
 
     @classmethod
     def from_factory(cls, name: str, factory: Callable[..., NonholonomicSystem]) -> ModelSpec:

@@ -36,4 +36,5 @@ def planner_main(args=None) -> None:
 def sim_main(args=None) -> None:
     """``sim`` executable."""
     sys.exit(run(SimulatorNode, lambda: usage('sim', 'nh_tracking_sim',
-                                              simulator_node.PARAMETERS), args))
+                                              (simulator_node.INITIAL_STATE,
+                                               *simulator_node.PARAMETERS)), args))

@@ -111,7 +111,8 @@ def _increasing(times: np.ndarray, what: str) -> None:
         raise InputRejected(f'{what} needs at least 2 points, got {len(times)}')
     if np.any(np.diff(times) <= 0):
         i = int(np.argmax(np.diff(times) <= 0))
-        raise InputRejected(f'{what} times are not strictly increasing at point {i + 1}')
+        raise InputRejected(f'{what} times are not strictly increasing at point {i + 1} (each '
+                            'point needs its own time: the stamp at which it is to be reached)')
 
 
 # inputs ---------------------------------------------------------------------------------------

@@ -14,13 +14,12 @@
 
 """The planner node: reference + odometry in, optimal tracking plans out, as a lifecycle node.
 
-The numerics live in a :class:`~nh_tracking.session.TrackingSession` (ROS-free): its solver
-thread plans, its builder thread rebuilds after a parameter change while the plan in force
-keeps going. Executor callbacks only convert messages. Services run on a thread of their own
-(a companion node with its own executor), so a solve behind ``plan`` or ``replan`` never
-stops ``cmd_vel``. Lifecycle as in Nav2: configure builds the model and NLP, activate starts
-commanding, deactivate stops it with a zero ``cmd_vel``, cleanup frees; ``autostart`` (default
-true) goes to active at start-up, so no lifecycle manager is needed.
+The numerics live in a ROS-free :class:`~nh_tracking.session.TrackingSession`: its solver
+thread plans, its builder thread rebuilds after a parameter change while the plan in force keeps
+going. Executor callbacks only convert messages; services run on a thread of their own, so a
+solve behind ``plan`` or ``replan`` never stops ``cmd_vel``. Lifecycle as in Nav2: configure
+builds the model and NLP, activate commands, deactivate stops with a zero ``cmd_vel``, cleanup
+frees; ``autostart`` (default true) goes to active at start-up, no lifecycle manager needed.
 """
 from __future__ import annotations
 
@@ -60,11 +59,12 @@ class PlannerNode(SafeNode, LifecycleNode):
         self._entities: list = []
         self._service_host: PlannerServices | None = None
         self._last_reference: tuple[object, object] | None = None
+        self._configure_error = ''  # why the last configure failed
         self.add_on_set_parameters_callback(self._validate_parameters)
         self.add_post_set_parameters_callback(self._apply_parameters)
         if self.params['autostart']:
             if self.trigger_configure() != TransitionCallbackReturn.SUCCESS:
-                raise ValueError(f'configuring failed: {self.take_problem()}')
+                raise ValueError(f'configuring failed: {self._configure_error}')
             self.trigger_activate()
 
     @property
@@ -104,7 +104,8 @@ class PlannerNode(SafeNode, LifecycleNode):
                                       PlannerSettings(**self._settings_values()), self._now_ns,
                                       self.params['odom_timeout'], self._log)
             session.prepare()
-        except (ValueError, TypeError, RuntimeError) as exc:
+        except Exception as exc:  # noqa: BLE001 - a user's model may raise anything
+            self._configure_error = f'{type(exc).__name__}: {exc}'
             self.fail('configure', exc)
             return TransitionCallbackReturn.FAILURE
         self.session = session
@@ -158,8 +159,7 @@ class PlannerNode(SafeNode, LifecycleNode):
     def on_shutdown(self, state: LifecycleState) -> TransitionCallbackReturn:
         if self.session is not None and self.session.active:
             self.on_deactivate(state)
-        self._release()
-        return TransitionCallbackReturn.SUCCESS
+        return self.on_cleanup(state)
 
     def _release(self) -> None:
         if self._service_host is not None:

@@ -61,15 +61,23 @@ def run(make_node: Callable[[], Node], usage: Callable[[], str],
     except Exception as exc:  # noqa: BLE001 - malformed --ros-args: say so, in one line
         print(f'cannot start: bad command line: {str(exc).splitlines()[0]}', file=sys.stderr)
         return 2
+    # SIGTERM (what process managers and `kill` send) ends as cleanly as Ctrl-C, also while
+    # the node is still starting (building, maybe compiling, its solver)
+    signal.signal(signal.SIGTERM, lambda *_: rclpy.try_shutdown())
     try:
         node = make_node()
-    except (ValueError, TypeError, ParameterException) as exc:
-        print(f'cannot start: {str(exc).splitlines()[0]}', file=sys.stderr)
+    except KeyboardInterrupt:
         rclpy.try_shutdown()
+        return 0
+    except Exception as exc:  # noqa: BLE001 - start-up problems are one line, not a traceback
+        if not rclpy.ok():  # stopped while starting
+            return 0
+        rclpy.try_shutdown()
+        if not isinstance(exc, (ValueError, TypeError, ParameterException)):
+            raise
+        print(f'cannot start: {str(exc).splitlines()[0]}', file=sys.stderr)
         return 2
     responsive_threads()
-    # SIGTERM (what process managers and `kill` send) ends as cleanly as Ctrl-C
-    signal.signal(signal.SIGTERM, lambda *_: rclpy.try_shutdown())
     # Single-threaded on purpose: the solver runs in the planner's own worker thread, and
     # rclpy's MultiThreadedExecutor (7.1, Jazzy) starves timers when another node subscribes
     # to what they publish (ros2/rclpy#1223, #1452).

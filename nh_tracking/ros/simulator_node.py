@@ -37,6 +37,8 @@ from nh_tracking.ros.parameters import declare, declare_all, declare_model, plai
 from nh_tracking.ros.safety import guarded, SafeNode
 from nh_tracking.simulate import simulate
 
+INITIAL_STATE = plain('initial_state', [0.0], 'initial q then v (n + k numbers; zeros by '
+                      'default)')
 PARAMETERS = (
     plain('rate', 50.0, 'integration and odometry rate', 'Hz', (1.0, 2000.0), read_only=True),
     plain('control_timeout', 0.5, 'zero control after this long without commands', 's',
@@ -67,7 +69,7 @@ class SimulatorNode(SafeNode):
         initial = np.asarray(initial, dtype=float)
         if initial.size != n + k or not np.all(np.isfinite(initial)):
             raise ValueError(f'parameter initial_state needs {n + k} finite numbers '
-                             f'(q then v of {model}), got {list(initial)}')
+                             f'(q then v of {model}), got {initial.tolist()}')
         p = declare_all(self, PARAMETERS)
         self.rate, self.control_timeout, self.mode = p['rate'], p['control_timeout'], p['mode']
         self.frame, self.child_frame = p['frame_id'], p['child_frame_id']
