@@ -35,6 +35,7 @@ from nh_tracking.poses import PoseMap
 from nh_tracking.problem import Solution
 from nh_tracking.receding_horizon import PlannerSettings, PlanOutcome, RecedingHorizonPlanner
 from nh_tracking.settings import check_fields, setting
+from nh_tracking.system import NonholonomicSystem
 from nh_tracking.trajectory import Trajectory
 
 Clock = Callable[[], int]  # now, in integer nanoseconds
@@ -90,9 +91,9 @@ class TrackingSession:
         self.odom_timeout = odom_timeout
         self.log = log
         self.epoch_ns = clock()
-        self.system = models.create(model, **physical)
-        self.pose_map = PoseMap(self.system)
-        self.planner = RecedingHorizonPlanner(self.system, settings)
+        system = models.create(model, **physical)
+        self.pose_map = PoseMap(system)
+        self.planner = RecedingHorizonPlanner(system, settings)
         self.active = False  # plans are made only while active (the lifecycle's "active")
         self.stale = False
         self.outcome: PlanOutcome | None = None
@@ -109,6 +110,11 @@ class TrackingSession:
         self._on_plan: Callable[[PlanResult], None] = lambda result: None
         self._on_display: Callable[[PlanResult], None] = lambda result: None
 
+    @property
+    def system(self) -> NonholonomicSystem:
+        """Return the model the planner in force uses."""
+        return self.planner.system
+
     # time -------------------------------------------------------------------------------------
     def seconds(self, ns: int) -> float:
         """Seconds since the session's epoch (the planner's time axis)."""
@@ -118,10 +124,6 @@ class TrackingSession:
         return self.epoch_ns + int(round(seconds * 1e9))
 
     # threads ----------------------------------------------------------------------------------
-    def prepare(self) -> None:
-        """Build the solver now (blocking), so the first plan is not late."""
-        self.planner.prepare()
-
     def start(self, on_plan: Callable[[PlanResult], None],
               on_display: Callable[[PlanResult], None] = lambda result: None) -> None:
         """Start the solver and builder threads.
@@ -224,14 +226,12 @@ class TrackingSession:
             planner.reference, planner.stats = old.reference, old.stats
             if same_model:
                 planner.previous = old.previous  # the warm start survives a settings change
-            if not same_model:
-                self.system, self.pose_map = system, PoseMap(system)
+            else:
+                self.pose_map = PoseMap(system)
             self.planner = planner
         with self._lock:
-            if self._pending is build:
-                self._pending = None
-        self.log('info', f'new solver in force after {time.perf_counter() - started:.2f} s '
-                         f'of building: {build.settings}')
+            self._pending = None if self._pending is build else self._pending
+        self.log('info', f'rebuilt in {time.perf_counter() - started:.2f} s: {build.settings}')
 
     # planning ---------------------------------------------------------------------------------
     def replan(self) -> PlanResult:

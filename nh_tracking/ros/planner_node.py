@@ -103,7 +103,7 @@ class PlannerNode(SafeNode, LifecycleNode):
             session = TrackingSession(self.model, self.physical,
                                       PlannerSettings(**self._settings_values()), self._now_ns,
                                       self.params['odom_timeout'], self._log)
-            session.prepare()
+            session.planner.prepare()  # blocking: the first plan must not be late
         except Exception as exc:  # noqa: BLE001 - a user's model may raise anything
             self._configure_error = f'{type(exc).__name__}: {exc}'
             self.fail('configure', exc)
