@@ -20,7 +20,7 @@ the reference velocity plus the pose error projected onto D (which corrects only
 the error lying in D: a fallback that keeps such a system near the reference, no more).
 Either desired motion is turned into quasi-velocities v_d by the pose map, and a
 computed-torque loop on the quasi-velocities, u = -f(q, v, 0) + k_v (v_d - v), makes v
-follow it.
+follow it (for an underactuated system, as nearly as its inputs B u allow: least squares).
 """
 from __future__ import annotations
 
@@ -69,8 +69,13 @@ class TrackingLaw:
         return pm.velocity_from_world(q, np.array([c * speed, s * speed, rates_r[2], yaw_rate]))
 
     def __call__(self, t: float, q: np.ndarray, v: np.ndarray) -> np.ndarray:
-        _, drift = self.problem.system.dynamics(q, v)
-        return -drift + self.gains.k_v * (self.desired_velocity(t, q) - v)
+        system = self.problem.system
+        _, drift = system.dynamics(q, v)
+        wanted = -drift + self.gains.k_v * (self.desired_velocity(t, q) - v)
+        if system.fully_actuated:
+            return wanted
+        # underactuated: the controls whose effect B u comes closest to it
+        return np.linalg.lstsq(system.input_matrix(q), wanted, rcond=None)[0]
 
 
 def fallback_plan(problem: TrackingProblem, gains: KanayamaGains = KanayamaGains()) -> Solution:
@@ -95,7 +100,7 @@ def stop_plan(problem: TrackingProblem, reason: str) -> Solution:
     steps, k = problem.steps, problem.system.k
     q = np.tile(problem.q0, (steps + 1, 1))
     return Solution(
-        t=problem.grid, q=q, v=np.zeros((steps + 1, k)), u=np.zeros((steps, k)),
+        t=problem.grid, q=q, v=np.zeros((steps + 1, k)), u=np.zeros((steps, problem.system.r)),
         cost=float('nan'), success=False, iterations=0, solve_time=0.0,
         terminal_error=terminal_error(problem, q[-1], np.zeros(k)), method='fallback',
         message=f'not optimal: holding still ({reason})', route='stop',

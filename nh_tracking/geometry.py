@@ -23,10 +23,13 @@ is the nonholonomic bracket ``[[X, Y]] = P[X, Y]`` (P: G-orthogonal projection o
 """
 from __future__ import annotations
 
+from collections.abc import Sequence
 import itertools
 
 import casadi as ca
 import numpy as np
+
+from nh_tracking import regularity
 
 
 def directional_derivative(expr: ca.SX, q: ca.SX, direction: ca.SX) -> ca.SX:
@@ -161,3 +164,21 @@ def select_best_conditioned(
     for _ in range(k):
         chosen = max((chosen + (i,) for i in range(c) if i not in chosen), key=score)
     return chosen, score(chosen)
+
+
+def orthonormal_basis(q: ca.SX, g: ca.SX, mu: ca.SX, k: int, samples: np.ndarray,
+                      coordinates: Sequence[str]) -> tuple[ca.SX, float]:
+    """G-orthonormalise the k best-conditioned candidate fields, judged before (a ValueError).
+
+    Candidates are the smooth kernel fields of mu and the projected coordinate fields.
+    """
+    candidates = constraint_kernel_candidates(mu) + projected_coordinate_fields(g, mu)
+    w = ca.horzcat(*candidates)
+    gram_fn = ca.Function('gram', [q], [w.T @ g @ w])
+    gram = np.stack([np.array(gram_fn(s)) for s in samples])
+    chosen, _ = select_best_conditioned(gram, k)
+    fields = [candidates[i] for i in chosen]
+    condition = regularity.basis_condition(
+        regularity.numeric_map(q, ca.horzcat(*fields), g), samples, coordinates,
+        'the basis of D built from the constraints (pass basis= explicitly)')
+    return gram_schmidt(g, fields), condition

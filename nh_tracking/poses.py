@@ -162,4 +162,4 @@ class PoseMap:
         if self.hidden:
             rates = np.array([self.system.rho(qi)[self.hidden] @ vi for qi, vi in zip(q, v)])
             q[:, self.hidden] += cumulative_trapezoid(rates, times, axis=0, initial=0.0)
-        return Trajectory(t=times, q=q, v=v, u=np.zeros((len(times) - 1, self.system.k)))
+        return Trajectory(t=times, q=q, v=v, u=np.zeros((len(times) - 1, self.system.r)))

@@ -34,16 +34,19 @@ ReferenceFunction = Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]]
 Terminal = Literal['equality', 'cost']
 
 
-@dataclass
+@dataclass(frozen=True)
 class TrackingProblem:
     """Track ``reference`` from (q0, v0) over ``horizon`` seconds on ``steps`` intervals.
 
     ``reference`` is a :class:`Trajectory` (interpolated in time) or a function of a times
     array returning (q (len, n), v (len, k)); ``t0`` is where on the reference's clock the
-    problem starts (default: the reference's start). With ``wrap_angles`` (the default, what
-    a robot needs) angle coordinates of the reference are moved by whole turns onto q0's
-    branch, so heading errors are taken modulo 2 pi; ``wrap_angles=False`` subtracts angles as
-    numbers, the paper's literal formulation.
+    problem starts (default: the reference's start). Outside a Trajectory's time span the
+    reference holds its end configuration at rest (v_r = 0; before its start, its first
+    configuration): a robot asked to track past the end stops there. With ``wrap_angles``
+    (the default, what a robot needs) angle coordinates of the reference are moved by whole
+    turns onto q0's branch, so heading errors are taken modulo 2 pi; ``wrap_angles=False``
+    subtracts angles as numbers, the paper's literal formulation. A problem is immutable:
+    ``dataclasses.replace(problem, steps=100)`` makes a changed copy.
     """
 
     system: NonholonomicSystem
@@ -61,28 +64,44 @@ class TrackingProblem:
 
     def __post_init__(self) -> None:
         sys = self.system
-        self.q0 = sys.as_configuration(self.q0).copy()
-        self.v0 = sys.as_velocity(self.v0).copy()
-        if not (np.all(np.isfinite(self.q0)) and np.all(np.isfinite(self.v0))):
+        if not isinstance(sys, NonholonomicSystem):
+            raise TypeError(f'system must be a NonholonomicSystem, got {type(sys).__name__}')
+        if not (isinstance(self.reference, Trajectory) or callable(self.reference)):
+            raise TypeError('reference must be a Trajectory or a function of times, got '
+                            f'{type(self.reference).__name__}')
+        set_ = functools.partial(object.__setattr__, self)
+        set_('q0', sys.check_configuration(self.q0, 'q0').copy())
+        set_('v0', sys.as_velocity(self.v0).copy())
+        if not np.all(np.isfinite(self.v0)):
             raise ValueError('initial state (q0, v0) must be finite')
-        if not (np.isfinite(self.horizon) and self.horizon > 0):
-            raise ValueError(f'horizon must be a finite number > 0, got {self.horizon}')
-        if int(self.steps) != self.steps or self.steps < 2:
-            raise ValueError(f'steps must be an integer >= 2, got {self.steps}')
-        self.steps = int(self.steps)
-        for name in ('epsilon', 'omega'):
-            value = getattr(self, name)
+        for name in ('horizon', 'epsilon', 'omega'):
+            value = _number(name, getattr(self, name))
             if not (np.isfinite(value) and value > 0):
                 raise ValueError(f'{name} must be a finite number > 0, got {value}')
+            set_(name, value)
+        steps = _number('steps', self.steps)
+        if int(steps) != steps or steps < 2:
+            raise ValueError(f'steps must be an integer >= 2, got {self.steps}')
+        set_('steps', int(steps))
         if self.terminal not in ('equality', 'cost'):
             raise ValueError(f"terminal must be 'equality' or 'cost', got {self.terminal!r}")
         if self.t0 is None:
-            self.t0 = float(self.reference.t[0]) if isinstance(self.reference, Trajectory) else 0.0
-        self.angle_shift = np.zeros(sys.n)
+            set_('t0', float(self.reference.t[0]) if isinstance(self.reference, Trajectory)
+                 else 0.0)
+        t0 = _number('t0', self.t0)
+        if not np.isfinite(t0):
+            raise ValueError(f't0 must be finite, got {t0}')
+        set_('t0', t0)
+        if isinstance(self.reference, Trajectory):
+            widths = (self.reference.q.shape[1], self.reference.v.shape[1])
+            if widths != (sys.n, sys.k):
+                raise ValueError(f'reference has q and v of widths {widths}; {sys.name} needs '
+                                 f'({sys.n}, {sys.k}) (n configuration coordinates, k velocities)')
+        set_('angle_shift', np.zeros(sys.n))
         if self.wrap_angles and sys.angle_mask.any():
             q_ref0 = self._raw_reference(np.array([self.t0]))[0][0]
             turns = np.round((self.q0 - q_ref0) / (2 * np.pi))
-            self.angle_shift = np.where(sys.angle_mask, 2 * np.pi * turns, 0.0)
+            set_('angle_shift', np.where(sys.angle_mask, 2 * np.pi * turns, 0.0))
 
     @property
     def h(self) -> float:
@@ -118,20 +137,36 @@ class TrackingProblem:
         """(q_r, v_r) at one time, as 1-D arrays (fast path for ODE right-hand sides)."""
         if isinstance(self.reference, Trajectory):
             q, v = self.reference.at(time)
+            if not self.reference.t[0] <= time <= self.reference.t[-1]:
+                v = np.zeros_like(v)
             return q + self.angle_shift, v
         q, v = self.reference_at(time)
         return q[0], v[0]
 
     def _raw_reference(self, times: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        n, k = self.system.n, self.system.k
         if isinstance(self.reference, Trajectory):
             q, v = self.reference.sample(times)
+            outside = (times < self.reference.t[0]) | (times > self.reference.t[-1])
+            v[outside] = 0.0  # held at rest outside the reference's span
         else:
-            q, v = self.reference(times)
-        q = np.asarray(q, dtype=float).reshape(len(times), self.system.n)
-        v = np.asarray(v, dtype=float).reshape(len(times), self.system.k)
+            try:
+                q, v = self.reference(times)
+                q = np.asarray(q, dtype=float).reshape(len(times), n)
+                v = np.asarray(v, dtype=float).reshape(len(times), k)
+            except (TypeError, ValueError) as exc:
+                raise ValueError(f'reference(times) must return (q ({len(times)}, {n}), '
+                                 f'v ({len(times)}, {k})) arrays: {exc}') from None
         if not (np.all(np.isfinite(q)) and np.all(np.isfinite(v))):
             raise ValueError('reference has non-finite values on the horizon')
         return q, v
+
+
+def _number(name: str, value: object) -> float:
+    """Return ``value`` as a float, or raise a TypeError naming it (numpy would say 'ufunc')."""
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, float, np.number)):
+        raise TypeError(f'{name} must be a number, got {value!r}')
+    return float(value)
 
 
 def tracking_lagrangian(system: NonholonomicSystem) -> ca.Function:
@@ -141,7 +176,7 @@ def tracking_lagrangian(system: NonholonomicSystem) -> ca.Function:
     """
     q, qr = ca.SX.sym('q', system.n), ca.SX.sym('q_r', system.n)
     v, vr = ca.SX.sym('v', system.k), ca.SX.sym('v_r', system.k)
-    u, eps = ca.SX.sym('u', system.k), ca.SX.sym('eps')
+    u, eps = ca.SX.sym('u', system.r), ca.SX.sym('eps')
     value = 0.5 * (ca.sumsqr(q - qr) + ca.sumsqr(v - vr) + eps * ca.sumsqr(u))
     return ca.Function('L', [q, v, u, qr, vr, eps], [value],
                        ['q', 'v', 'u', 'q_r', 'v_r', 'eps'], ['L'])
@@ -157,13 +192,16 @@ def terminal_cost(problem: TrackingProblem, q_final: np.ndarray) -> float:
 
 @dataclass
 class Solution:
-    """A plan: knots t (N+1,), q (N+1, n), v (N+1, k); controls u (N, k) held per interval.
+    """A plan: knots t (N+1,), q (N+1, n), v (N+1, k); controls u (N, r) held per interval.
 
-    ``cost`` is the problem's cost as the method evaluates it (the discrete cost for the
-    variational method); ``route`` says how the method got there; ``costates`` holds
-    (lambda (N+1, n), mu (N+1, k)) where the method provides them; ``minima`` lists the
-    distinct local minima (cost, times found) of a multi-start search; ``details`` holds
-    method-specific figures (e.g. the discrete admissibility residual).
+    ``u`` held on each interval replays the plan on the continuous dynamics (to the method's
+    accuracy); where the optimal control is continuous in time (PMP), ``control_law(t)`` is
+    that law. ``cost`` is the problem's cost as the method evaluates it (the discrete cost for
+    the variational method); ``message`` the outcome in words; ``route`` says how the method
+    got there; ``costates`` holds (lambda (N+1, n), mu (N+1, k)) where the method provides
+    them; ``minima`` lists the distinct local minima (cost, times found) of a multi-start
+    search; ``details`` holds method-specific figures (e.g. the discrete admissibility
+    residual).
     """
 
     t: np.ndarray
@@ -181,6 +219,7 @@ class Solution:
     costates: tuple[np.ndarray, np.ndarray] | None = None
     minima: list[tuple[float, int]] = field(default_factory=list)
     details: dict[str, float] = field(default_factory=dict)
+    control_law: Callable[[float], np.ndarray] | None = field(default=None, repr=False)
 
     def trajectory(self) -> Trajectory:
         """Return the plan as a Trajectory (e.g. to use as a reference or to plot)."""

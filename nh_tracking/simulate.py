@@ -21,10 +21,17 @@ import numpy as np
 from numpy.typing import ArrayLike
 from scipy.integrate import solve_ivp
 
+from nh_tracking.numeric import NumericFunction
+from nh_tracking.regularity import describe
 from nh_tracking.system import NonholonomicSystem
 from nh_tracking.trajectory import Trajectory
 
 ControlLaw = Callable[[float, np.ndarray, np.ndarray], ArrayLike]
+MAX_EVALUATIONS = 500_000  # of the dynamics per simulation: past a singularity steps shrink
+
+
+class _Exhausted(Exception):
+    pass
 
 
 def simulate(
@@ -37,42 +44,66 @@ def simulate(
     rtol: float = 1e-10,
     atol: float = 1e-12,
     method: str = 'DOP853',
+    max_evaluations: int = MAX_EVALUATIONS,
 ) -> Trajectory:
     """Integrate from (q0, v0), reporting at the times ``t``.
 
-    ``u`` is None (free motion), an (len(t) - 1, k) array held constant on each interval
+    ``u`` is None (free motion), an (len(t) - 1, r) array held constant on each interval
     (zero-order hold: each interval is integrated separately, so the control's jumps are not
     smoothed over), or a feedback law ``u(t, q, v)``. Tolerances are tight by default because
-    simulations serve as the ground truth that plans and solvers are checked against.
+    simulations serve as the ground truth that plans and solvers are checked against. The work
+    is bounded (``max_evaluations`` of the dynamics) and the state must stay in the model's
+    domain: otherwise a RuntimeError says at which time the simulation stopped and why.
     """
     times = np.asarray(t, dtype=float).reshape(-1)
     if len(times) < 2 or np.any(np.diff(times) <= 0) or not np.all(np.isfinite(times)):
         raise ValueError('t must be finite, strictly increasing, with at least two times')
-    x0 = np.concatenate([system.as_configuration(q0), system.as_velocity(v0)])
+    x0 = np.concatenate([system.check_configuration(q0, 'q0'), system.as_velocity(v0)])
     if not np.all(np.isfinite(x0)):
         raise ValueError('initial state must be finite')
-    n, k = system.n, system.k
+    n, r = system.n, system.r
+    ode = NumericFunction(system.ode_fn)
+    reached = [times[0]]
+    budget = [int(max_evaluations)]
+    events = _domain_events(system)
 
     def rhs(control: Callable[[float, np.ndarray], np.ndarray]):
-        return lambda s, x: np.asarray(system.ode_fn(x, control(s, x))).ravel()
+        def f(s: float, x: np.ndarray) -> np.ndarray:
+            budget[0] -= 1
+            if budget[0] < 0:
+                raise _Exhausted()
+            reached[0] = s
+            return ode(x, control(s, x))[0]
+        return f
 
     def integrate(span: np.ndarray, x: np.ndarray, control) -> np.ndarray:
-        sol = solve_ivp(rhs(control), (span[0], span[-1]), x, method=method, t_eval=span,
-                        rtol=rtol, atol=atol)
+        try:
+            sol = solve_ivp(rhs(control), (span[0], span[-1]), x, method=method, t_eval=span,
+                            rtol=rtol, atol=atol, events=events)
+        except _Exhausted:
+            raise RuntimeError(f'integration stopped at t = {reached[0]:.6g}: '
+                               f'{max_evaluations} evaluations of the dynamics used up (a '
+                               'singularity ahead, or very stiff dynamics)') from None
+        if sol.status == 1:
+            t_out = sol.t_events[0][0] if len(sol.t_events[0]) else sol.t[-1]
+            state = sol.y_events[0][0] if len(sol.y_events[0]) else sol.y[:, -1]
+            where = describe(system.coordinates, state[:n])
+            raise RuntimeError(f'integration stopped at t = {t_out:.6g}: the state left the '
+                               f"model's domain ({where})")
         if not sol.success or not np.all(np.isfinite(sol.y)):
-            raise RuntimeError(f'integration failed at t = {sol.t[-1]:.6g}: {sol.message}')
+            raise RuntimeError(f'integration failed at t = {reached[0]:.6g}: {sol.message}')
         return sol.y.T
 
     if u is None or callable(u):
         law = u
-        control = (lambda s, x: np.zeros(k)) if law is None else (
-            lambda s, x: _control(law(s, x[:n], x[n:]), k))
+        control = (lambda s, x: np.zeros(r)) if law is None else (
+            lambda s, x: _control(law(s, x[:n], x[n:]), r))
         states = integrate(times, x0, control)
         controls = np.array([control(s, x) for s, x in zip(times[:-1], states[:-1])])
     else:
         controls = np.asarray(u, dtype=float)
-        if controls.shape != (len(times) - 1, k) or not np.all(np.isfinite(controls)):
-            raise ValueError(f'u must be a finite ({len(times) - 1}, {k}) array')
+        if controls.shape != (len(times) - 1, r) or not np.all(np.isfinite(controls)):
+            raise ValueError(f'u must be a finite ({len(times) - 1}, {r}) array')
         knots = [x0]
         for i, ui in enumerate(controls):
             knots.append(integrate(times[i:i + 2], knots[-1], lambda s, x, ui=ui: ui)[-1])
@@ -80,8 +111,44 @@ def simulate(
     return Trajectory(t=times, q=states[:, :n], v=states[:, n:], u=controls)
 
 
-def _control(value: ArrayLike, k: int) -> np.ndarray:
+def drive(system: NonholonomicSystem, q0: ArrayLike, v: ArrayLike, duration: float, *,
+          rtol: float = 1e-9, atol: float = 1e-11) -> np.ndarray:
+    """Move for ``duration`` at the constant quasi-velocities ``v``; return the configuration.
+
+    Kinematics only, qdot = rho(q) v: a velocity-controlled robot, whose drives hold the
+    commanded velocities whatever its actuation.
+    """
+    q0 = system.check_configuration(q0, 'q0')
+    v = system.as_velocity(v)
+    if duration <= 0:
+        return q0
+    rho = NumericFunction(system.rho_fn)
+    sol = solve_ivp(lambda s, q: rho(q)[0] @ v, (0.0, duration), q0, method='DOP853',
+                    rtol=rtol, atol=atol)
+    if not sol.success or not np.all(np.isfinite(sol.y)):
+        raise RuntimeError(f'kinematic integration failed: {sol.message}')
+    return sol.y[:, -1]
+
+
+def _domain_events(system: NonholonomicSystem) -> list[Callable[[float, np.ndarray], float]]:
+    """Stop the integration (a terminal event) where the state reaches the domain's edge."""
+    box = system.domain
+    bounded = np.isfinite(box.lower) | np.isfinite(box.upper)
+    if not bounded.any():
+        return []
+    lower, upper = box.lower[bounded], box.upper[bounded]
+    index = np.flatnonzero(bounded)
+
+    def edge(s: float, x: np.ndarray) -> float:
+        q = x[index]
+        return float(min(np.min(q - lower), np.min(upper - q)))
+
+    edge.terminal = True  # type: ignore[attr-defined]  # solve_ivp's event flag
+    return [edge]
+
+
+def _control(value: ArrayLike, r: int) -> np.ndarray:
     u = np.asarray(value, dtype=float).reshape(-1)
-    if u.size != k or not np.all(np.isfinite(u)):
-        raise ValueError(f'control law must return {k} finite values, got {value!r}')
+    if u.size != r or not np.all(np.isfinite(u)):
+        raise ValueError(f'control law must return {r} finite values, got {value!r}')
     return u

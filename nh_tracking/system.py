@@ -19,34 +19,40 @@ mu(q) qdot = 0, the potential V(q) and optionally a basis of D. Everything the s
 the adapted basis rho, the metric on D, the Christoffel symbols of the nonholonomic connection
 and the controlled dynamics
 
-    qdot = rho(q) v,    vdot = -Gamma(v, v) - G_D^{-1} rho^T dV/dq + u
+    qdot = rho(q) v,    vdot = -Gamma(v, v) - G_D^{-1} rho^T dV/dq + B(q) u
 
-— is derived here by automatic differentiation and compiled into CasADi Functions (for the
-solvers, which call them on symbols) with numpy wrappers (for users).
+with the input matrix B = G_D^{-1} rho^T F of the actuators' force directions F (n, r) projected
+onto D (fully actuated, the default: F = G rho, B = identity, r = k) — is derived here by
+automatic differentiation and compiled into CasADi Functions (for the solvers, which call them
+on symbols) with numpy wrappers (for users). The data is checked for regularity first
+(:mod:`nh_tracking.regularity`).
 """
 from __future__ import annotations
 
 from collections.abc import Callable, Mapping, Sequence
+import re
 from typing import Any
 
 import casadi as ca
 import numpy as np
 from numpy.typing import ArrayLike
 
-from nh_tracking import geometry
+from nh_tracking import geometry, regularity
+from nh_tracking.regularity import Domain
 
 SymbolicMap = Callable[[ca.SX], Any]
 
 POSE_AXES = ('x', 'y', 'z', 'yaw')  # of a ROS pose: position and heading
-_SAMPLES = 64  # configurations at which data is checked and a default basis is chosen
+NAME = re.compile(r'[A-Za-z][A-Za-z0-9_]*')  # a system's name names its CasADi functions
 
 
 class NonholonomicSystem:
-    """A fully actuated nonholonomic mechanical system in an adapted basis of its distribution.
+    """A nonholonomic mechanical system in an adapted basis of its distribution.
 
     Build one with :meth:`from_constraints` or take a model from :mod:`nh_tracking.models`.
-    ``n`` is dim Q, ``m`` the number of constraints, ``k = n - m`` the rank of D, which is also
-    the number of controls (one per basis field, acting as ``vdot = ... + u``).
+    ``n`` is dim Q, ``m`` the number of constraints, ``k = n - m`` the rank of D and ``r`` the
+    number of controls: ``r = k`` when fully actuated (one control per basis field, acting as
+    ``vdot = ... + u``), fewer for a system driven by ``actuators`` (e.g. shape torques).
     """
 
     def __init__(
@@ -65,33 +71,42 @@ class NonholonomicSystem:
         parameters: dict[str, float] | None = None,
         basis_condition: float = 1.0,
         pose: Mapping[str, str] | None = None,
+        actuators: ca.SX | None = None,
+        domain: Domain | None = None,
     ) -> None:
-        self.name = name
+        self.name = check_name(name)
         self.coordinates = tuple(coordinates)
         self.angles = tuple(angles)
         self.n = q.shape[0]
         self.k = rho.shape[1]
         self.m = constraints.shape[0]
+        self.r = self.k if actuators is None else actuators.shape[1]
+        self.fully_actuated = actuators is None
+        self.domain = domain or Domain.of(self.coordinates, None)
         self.angle_mask = np.array([c in self.angles for c in self.coordinates])
-        self.control_names = tuple(controls or (f'u{a + 1}' for a in range(self.k)))
+        self.control_names = tuple(controls or (f'u{a + 1}' for a in range(self.r)))
         self.velocity_names = tuple(velocities or (f'v{a + 1}' for a in range(self.k)))
         self.parameters = dict(parameters or {})
         self.basis_condition = basis_condition
         self.pose = _pose_axes(name, self.coordinates, pose)
-        if len(self.control_names) != self.k or len(self.velocity_names) != self.k:
-            raise ValueError(f'{name}: need {self.k} control and velocity names')
+        if len(self.control_names) != self.r or len(self.velocity_names) != self.k:
+            raise ValueError(f'{name}: need {self.r} control and {self.k} velocity names')
 
         v = ca.SX.sym('v', self.k)
-        u = ca.SX.sym('u', self.k)
+        u = ca.SX.sym('u', self.r)
         g_d = geometry.metric_on_distribution(metric, rho)
         gamma = geometry.christoffel(metric, rho, q)
+        forces = metric @ rho if actuators is None else actuators
+        inputs = ca.SX.eye(self.k) if actuators is None else ca.solve(g_d, rho.T @ actuators)
         qdot = rho @ v
         vdot = (
             -geometry.quadratic_christoffel(gamma, v)
             - geometry.potential_force(metric, rho, potential, q)
-            + u
+            + inputs @ u
         )
         x = ca.vertcat(q, v)
+        self.actuators_fn = ca.Function('actuators', [q], [forces], ['q'], ['F'])
+        self.input_matrix_fn = ca.Function('input_matrix', [q], [inputs], ['q'], ['B'])
         self.rho_fn = ca.Function('rho', [q], [rho], ['q'], ['rho'])
         self.metric_fn = ca.Function('metric', [q], [metric], ['q'], ['G'])
         self.constraints_fn = ca.Function('constraints', [q], [constraints], ['q'], ['mu'])
@@ -115,6 +130,8 @@ class NonholonomicSystem:
         potential: SymbolicMap | None = None,
         *,
         basis: SymbolicMap | None = None,
+        actuators: SymbolicMap | None = None,
+        domain: Mapping[str, tuple[float, float]] | None = None,
         angles: Sequence[str] = (),
         controls: Sequence[str] | None = None,
         velocities: Sequence[str] | None = None,
@@ -125,15 +142,18 @@ class NonholonomicSystem:
         """Build a system from its Lagrangian data; each argument maps a CasADi SX column q.
 
         ``metric(q)``: (n, n) kinetic-energy metric; ``constraints(q)``: (m, n) Pfaffian
-        constraints mu(q) qdot = 0 (None: holonomic); ``potential(q)``: scalar V (None: 0);
-        ``basis(q)``: (n, n - m) basis of D. Without a basis, a G-orthonormal one is built from
-        smooth kernel fields of mu, chosen to stay well conditioned over sampled configurations,
-        so costs written in v do not depend on an arbitrary choice of basis. Candidate fields are
-        the smooth kernel fields of mu and the projected coordinate fields; the k that stay
-        farthest from dependent over sampled configurations are kept (``basis_condition``).
-        Such a basis can still degenerate somewhere unsampled: pass ``basis`` for global use.
+        constraints mu(q) qdot = 0 with independent rows (None: holonomic); ``potential(q)``:
+        scalar V (None: 0); ``basis(q)``: (n, n - m) basis of D. Without a basis, a G-orthonormal
+        one is built from the smooth kernel fields of mu and the projected coordinate fields:
+        the k that stay farthest from dependent over sampled configurations are kept
+        (``basis_condition``), so costs written in v do not depend on an arbitrary choice.
+        ``actuators(q)``: (n, r) generalised force directions (joint torques, wheel forces) —
+        None means one control per basis field. ``domain``: open intervals of the coordinates
+        where the model is valid, e.g. ``{"phi": (-pi/2, pi/2)}``; states outside are refused.
         ``pose`` says which coordinates a ROS pose shows, e.g. ``{"x1": "x", "x2": "y",
-        "theta": "yaw"}`` (axes x, y, z, yaw); the others are hidden from it.
+        "theta": "yaw"}`` (axes x, y, z, yaw); the others are hidden from it. Irregular data
+        (non-finite, dependent constraint rows, a degenerate basis) is refused with the
+        coordinates near the trouble named.
         """
         coordinates = tuple(coordinates)
         n = len(coordinates)
@@ -142,24 +162,48 @@ class NonholonomicSystem:
         unknown = set(angles) - set(coordinates)
         if unknown:
             raise ValueError(f'angles {sorted(unknown)} are not coordinates {coordinates}')
+        check_name(name)
+        box = Domain.of(coordinates, domain)
         q = ca.SX.sym('q', n)
         g = _as_sx(metric(q), (n, n), 'metric')
         mu = _as_sx(constraints(q), None, 'constraints') if constraints else ca.SX(0, n)
         if mu.shape[1] != n or mu.shape[0] >= n:
             raise ValueError(f'constraints must be (m, {n}) with m < {n}, got {mu.shape}')
         pot = _as_sx(potential(q), (1, 1), 'potential') if potential else ca.SX(0)
-        samples = _sample_configurations(coordinates, angles)
-        _check_metric(ca.Function('G', [q], [g]), samples)
+        samples = regularity.sample_configurations(coordinates, angles, box)
+        data = regularity.numeric_map(q, g, mu, pot, ca.gradient(pot, q))
+        regularity.check_finite('metric(q)', lambda x: data(x)[:1], samples, coordinates)
+        regularity.check_finite('constraints(q)', lambda x: data(x)[1:2], samples, coordinates)
+        regularity.check_finite('potential(q) or its gradient', lambda x: data(x)[2:], samples,
+                                coordinates)
+        regularity.check_metric(lambda x: data(x)[0], samples, coordinates)
+        regularity.check_constraint_rank(lambda x: data(x)[1].reshape(-1, n), samples,
+                                         coordinates)
         k = n - mu.shape[0]
         if basis is not None:
             rho = _as_sx(basis(q), (n, k), 'basis')
-            condition = _check_basis(ca.Function('check', [q], [rho, mu, g]), samples)
+            regularity.check_in_distribution(regularity.numeric_map(q, rho, mu), samples,
+                                             coordinates)
+            condition = regularity.basis_condition(
+                regularity.numeric_map(q, rho, g), samples, coordinates, 'basis(q)')
         else:
-            rho, condition = _orthonormal_basis(q, g, mu, k, samples)
+            rho, condition = geometry.orthonormal_basis(q, g, mu, k, samples, coordinates)
+        forces = None
+        if actuators is not None:
+            forces = _as_sx(actuators(q), None, 'actuators')
+            if forces.shape[0] != n or not 1 <= forces.shape[1] <= k:
+                raise ValueError(f'actuators(q) must be ({n}, r) with 1 <= r <= k = {k}, got '
+                                 f'{forces.shape}')
+            projected = ca.solve(rho.T @ g @ rho, rho.T @ forces)
+            regularity.basis_condition(
+                regularity.numeric_map(q, projected, ca.SX.eye(k)), samples, coordinates,
+                'the actuators projected onto D (an actuator that only pushes against the '
+                'constraints, or two that act alike?)')
         return cls(
             name=name, coordinates=coordinates, q=q, metric=g, constraints=mu, potential=pot,
             rho=rho, angles=angles, controls=controls, velocities=velocities,
-            parameters=parameters, basis_condition=condition, pose=pose,
+            parameters=parameters, basis_condition=condition, pose=pose, actuators=forces,
+            domain=box,
         )
 
     # numpy interface -------------------------------------------------------------------------
@@ -197,8 +241,12 @@ class NonholonomicSystem:
         return float(self.energy_fn(self.as_configuration(q), self.as_velocity(v)))
 
     def generalized_force(self, q: ArrayLike, u: ArrayLike) -> np.ndarray:
-        """Return the force in full coordinates, G rho u, that the control u stands for."""
-        return self.metric(q) @ self.rho(q) @ self.as_control(u)
+        """Return the force in full coordinates, F u (G rho u when fully actuated)."""
+        return np.array(self.actuators_fn(self.as_configuration(q))) @ self.as_control(u)
+
+    def input_matrix(self, q: ArrayLike) -> np.ndarray:
+        """(k, r) B(q): how the controls move the quasi-velocities, vdot = ... + B u."""
+        return np.array(self.input_matrix_fn(self.as_configuration(q))).reshape(self.k, self.r)
 
     def velocity_coordinates(self, q: ArrayLike, qdot: ArrayLike) -> np.ndarray:
         """V with rho v = P qdot: the quasi-velocities of qdot's G-orthogonal projection on D."""
@@ -208,7 +256,7 @@ class NonholonomicSystem:
     def __repr__(self) -> str:
         return (
             f'NonholonomicSystem({self.name!r}, q={self.coordinates}, n={self.n}, k={self.k}, '
-            f'parameters={self.parameters})'
+            f'r={self.r}, parameters={self.parameters})'
         )
 
     def as_configuration(self, q: ArrayLike) -> np.ndarray:
@@ -218,7 +266,13 @@ class NonholonomicSystem:
         return _vector(v, self.k, 'v')
 
     def as_control(self, u: ArrayLike | None) -> np.ndarray:
-        return np.zeros(self.k) if u is None else _vector(u, self.k, 'u')
+        return np.zeros(self.r) if u is None else _vector(u, self.r, 'u')
+
+    def check_configuration(self, q: ArrayLike, what: str = 'q') -> np.ndarray:
+        """``q`` as an array, or a ValueError if it is not finite or outside the domain."""
+        q = self.as_configuration(q)
+        self.domain.check(q, what)
+        return q
 
 
 def _vector(x: ArrayLike, size: int, what: str) -> np.ndarray:
@@ -235,55 +289,12 @@ def _as_sx(value: Any, shape: tuple[int, int] | None, what: str) -> ca.SX:
     return sx
 
 
-def _sample_configurations(coordinates: Sequence[str], angles: Sequence[str]) -> np.ndarray:
-    """Deterministic spread of configurations: angles over the whole circle, others ~ N(0, 1)."""
-    rng = np.random.default_rng(0)
-    samples = rng.normal(size=(_SAMPLES, len(coordinates)))
-    for i, c in enumerate(coordinates):
-        if c in angles:
-            samples[:, i] = rng.uniform(-np.pi, np.pi, _SAMPLES)
-    return samples
-
-
-def _check_metric(metric_fn: ca.Function, samples: np.ndarray) -> None:
-    for q in samples:
-        g = np.array(metric_fn(q))
-        if not np.allclose(g, g.T) or np.linalg.eigvalsh(0.5 * (g + g.T))[0] <= 0:
-            raise ValueError(f'metric(q) is not symmetric positive definite at q = {q}')
-
-
-def _check_basis(fn: ca.Function, samples: np.ndarray) -> float:
-    """Reject a basis that leaves D or loses rank at sampled configurations."""
-    worst = np.inf
-    for q in samples:
-        rho, mu, g = (np.array(a) for a in fn(q))
-        if mu.size and np.abs(mu @ rho).max() > 1e-9 * max(1.0, np.abs(mu).max()):
-            raise ValueError(f'basis(q) is not in the constraint distribution at q = {q}')
-        gram = rho.T @ g @ rho
-        d = np.sqrt(np.diag(gram))
-        if d.min() <= 0:
-            raise ValueError(f'basis(q) has a zero field at q = {q}')
-        worst = min(worst, np.linalg.eigvalsh(gram / np.outer(d, d))[0])
-    if worst < 1e-9:
-        raise ValueError('basis(q) loses rank at a sampled configuration')
-    return float(worst)
-
-
-def _orthonormal_basis(
-    q: ca.SX, g: ca.SX, mu: ca.SX, k: int, samples: np.ndarray
-) -> tuple[ca.SX, float]:
-    candidates = (geometry.constraint_kernel_candidates(mu)
-                  + geometry.projected_coordinate_fields(g, mu))
-    w = ca.horzcat(*candidates)
-    gram_fn = ca.Function('gram', [q], [w.T @ g @ w])
-    gram = np.stack([np.array(gram_fn(s)) for s in samples])
-    chosen, condition = geometry.select_best_conditioned(gram, k)
-    if condition < 1e-6:
-        raise ValueError(
-            'no smooth basis of D found from the constraints at the sampled configurations; '
-            'pass basis= explicitly'
-        )
-    return geometry.gram_schmidt(g, [candidates[i] for i in chosen]), condition
+def check_name(name: object) -> str:
+    """Refuse names CasADi cannot take as a function name (they fail deep inside it)."""
+    if not isinstance(name, str) or not NAME.fullmatch(name) or '__' in name:
+        raise ValueError(f'system name must be letters, digits and single underscores, '
+                         f'starting with a letter; got {name!r}')
+    return name
 
 
 def _pose_axes(name: str, coordinates: tuple[str, ...],

@@ -26,7 +26,7 @@ from scipy.interpolate import CubicSpline
 class Trajectory:
     """Samples (t, q, v) of a curve on D, with the controls u held on each interval.
 
-    ``t`` (N+1,) strictly increasing, ``q`` (N+1, n), ``v`` (N+1, k), ``u`` (N, k). Angles are
+    ``t`` (N+1,) strictly increasing, ``q`` (N+1, n), ``v`` (N+1, k), ``u`` (N, r). Angles are
     kept continuous (unwrapped) along the curve so that interpolation is meaningful.
     """
 
@@ -40,11 +40,13 @@ class Trajectory:
         t = np.asarray(self.t, dtype=float).reshape(-1)
         q = np.atleast_2d(np.asarray(self.q, dtype=float))
         v = np.atleast_2d(np.asarray(self.v, dtype=float))
-        u = np.asarray(self.u, dtype=float).reshape(max(len(t) - 1, 0), v.shape[1])
+        u = np.asarray(self.u, dtype=float)
+        u = u.reshape(max(len(t) - 1, 0), -1) if u.ndim < 2 and u.size else np.atleast_2d(u)
         if len(t) < 2 or np.any(np.diff(t) <= 0):
             raise ValueError('trajectory times must be strictly increasing, at least two')
-        if q.shape[0] != len(t) or v.shape[0] != len(t):
-            raise ValueError(f'q {q.shape} and v {v.shape} must have {len(t)} rows like t')
+        if q.shape[0] != len(t) or v.shape[0] != len(t) or u.shape[0] != len(t) - 1:
+            raise ValueError(f'q {q.shape} and v {v.shape} must have {len(t)} rows like t, '
+                             f'u {u.shape} {len(t) - 1}')
         for name, arr in (('t', t), ('q', q), ('v', v), ('u', u)):
             if not np.all(np.isfinite(arr)):
                 raise ValueError(f'trajectory {name} has non-finite values')

@@ -32,9 +32,9 @@ class Faulty(Method):
     def prepare(self, system, structure) -> None:
         self.real.prepare(system, structure)
 
-    def solve(self, problem, guess=None, deadline=None):
+    def solve_until(self, problem, guess, stop):
         if self.fault == 'raise':
             raise RuntimeError('injected solver fault')
-        sol = self.real.solve(problem, guess, deadline)
+        sol = self.real.solve_until(problem, guess, stop)
         sol.q[3:] = float('nan')  # as if the dynamics had produced NaN
         return sol

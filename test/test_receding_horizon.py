@@ -132,24 +132,24 @@ def test_bad_settings_are_refused(bad):
 
 
 def test_nan_from_the_dynamics_gives_a_finite_stop_plan():
-    """A knife edge whose potential is NaN for x < 0 (sqrt).
+    """A knife edge whose potential is NaN for x < -50 (sqrt), far from where it was checked.
 
-    From x = -1 the solver and the tracking law both meet NaN; the planner still returns a finite
-    plan (stop) and says so.
+    From x = -51 the solver and the tracking law both meet NaN; the planner still returns a
+    finite plan (stop) and says so.
     """
     import casadi as ca
 
     knife = nht.NonholonomicSystem.from_constraints(
         ['x', 'y', 'theta'], lambda q: ca.SX.eye(3),
         lambda q: ca.horzcat(ca.sin(q[2]), -ca.cos(q[2]), 0),
-        potential=lambda q: -ca.sqrt(q[0]), angles=['theta'], name='nan_knife')
+        potential=lambda q: -ca.sqrt(q[0] + 50), angles=['theta'], name='nan_knife')
     ref = nht.Trajectory(t=[0.0, 10.0], q=[[1.0, 0.0, 0.0], [2.0, 0.0, 0.0]],
                          v=[[0.1, 0.0], [0.1, 0.0]], u=[[0.0, 0.0]])
     planner = rh.RecedingHorizonPlanner(knife, rh.PlannerSettings(steps=10, horizon=1.0))
     planner.set_reference(ref)
-    out = planner.plan(0.0, [-1.0, 0.0, 0.0], [0.2, 0.0])
+    out = planner.plan(0.0, [-51.0, 0.0, 0.0], [0.2, 0.0])
     assert out.status == rh.PlanStatus.STOP and out.message.startswith('stopping')
     assert not out.plan.success  # a stop plan is no solution, and says so
     assert np.all(np.isfinite(out.plan.q)) and np.all(out.plan.v == 0) and np.all(out.plan.u == 0)
-    again = planner.plan(0.1, [-1.0, 0.0, 0.0], [0.2, 0.0])  # still failing: shifted stop plan
+    again = planner.plan(0.1, [-51.0, 0.0, 0.0], [0.2, 0.0])  # still failing: shifted stop plan
     assert again.status == 'shifted' and np.all(np.isfinite(again.plan.u))

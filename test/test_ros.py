@@ -414,3 +414,45 @@ def test_a_user_model_drives_the_planner_and_simulator_by_its_module_path(graph)
     assert xy[-1, 0] > 1.0  # it drove
     assert cross_track_error(xy, reference.q[:, :2]).max() < 0.05
     assert planner.planner.stats.optimal > 10 and planner.errors == 0 and sim.errors == 0
+
+
+def test_an_underactuated_snakeboard_runs_through_the_nodes(graph):
+    """The planner's control sequence carries the r = 2 torques, which the simulator applies.
+
+    The reference is a path the snakeboard makes with its own rotor and steering torques; the
+    shape (psi, phi) is not in a Path, so the planner takes it at the reference's start
+    values: the robot must still move along it under the planned torques alone.
+    """
+    import nh_tracking as nht
+
+    ns = unique_namespace()
+    board = nht.models.create('snakeboard')
+
+    def gait(s, q, v):  # rotor and steering torques making psi, phi follow out-of-phase waves
+        psi, phi = np.sin(np.pi * s), 0.4 * np.sin(np.pi * s + 1.2)
+        dpsi, dphi = np.pi * np.cos(np.pi * s), 0.4 * np.pi * np.cos(np.pi * s + 1.2)
+        return [8 * (psi - q[3]) + (dpsi - v[1]), 2 * (phi - q[4]) + 0.3 * (dphi - v[2])]
+
+    t = np.linspace(0.0, 30.0, 301)
+    reference = nht.simulate(board, np.zeros(5), [0.5, 0.0, 0.0], t, gait, rtol=1e-8)
+    sim = graph.add(SimulatorNode, namespace=ns, parameter_overrides=parameters(
+        model='snakeboard', initial_state=[0.0] * 5 + [0.5, 0.0, 0.0]))
+    planner = graph.add(PlannerNode, namespace=ns, parameter_overrides=parameters(
+        model='snakeboard', horizon=2.0, steps=20))
+    probe = graph.plain_node('probe', ns)
+    sequences, odom = [], []
+    probe.create_subscription(JointTrajectory, 'control_sequence', sequences.append, 10)
+    probe.create_subscription(Odometry, 'odom', odom.append, 100)
+    pub = probe.create_publisher(Path, 'reference_path', 10)
+    assert wait_until(lambda: pub.get_subscription_count() > 0, 10.0)
+    msg = cv.reference_message(reference, planner.pose_map, 0.0, 'path')
+    msg.header.stamp = cv.time_msg(0)
+    pub.publish(msg)
+    assert wait_until(lambda: len(sequences) > 20, 60.0)
+    assert sequences[-1].joint_names == ['rotor_torque', 'steering_torque']
+    efforts = np.array([p.effort for m in sequences for p in m.points])
+    assert efforts.shape[1] == 2 and np.all(np.isfinite(efforts)) and np.abs(efforts).max() > 0
+    xy = np.array([[m.pose.pose.position.x, m.pose.pose.position.y] for m in odom])
+    assert xy[-1, 0] > 0.5  # it moved along the path (0.07 m off it at most, measured)
+    assert cross_track_error(xy, reference.q[:, :2]).max() < 0.2
+    assert planner.planner.stats.optimal > 10 and planner.errors == 0 and sim.errors == 0

@@ -149,7 +149,7 @@ def test_pmp_recovers_where_shooting_from_zero_blows_up():
     sol = nht.solve(problem, 'pmp')
     assert sol.success
     assert sol.message.startswith('zero-costates -> ')  # plain shooting failed first
-    assert sol.route in ('variational-costates', 'multiple-shooting-pmp')
+    assert sol.route.startswith(('variational-costates', 'multiple-shooting-pmp'))
     assert abs(sol.cost - 42.369) / 42.369 < 5e-3
 
 

@@ -64,7 +64,7 @@ def cold_solve(log: Callable[[str], None]) -> dict:
     for solver, compiled in (('fatrop', True), ('fatrop', False), ('ipopt', False)):
         name = f'variational_{solver}' + ('_compiled' if compiled else '')
         start = time.perf_counter()
-        transcription(problem.system, problem.steps, problem.terminal, None, solver, compiled)
+        transcription(problem.system, problem.steps, problem.terminal, False, solver, compiled)
         build = time.perf_counter() - start
         median, sol = _median_time(partial(solve_variational, problem, solver=solver,
                                            compiled=compiled))
@@ -109,7 +109,7 @@ def _dompc_solve(do_mpc, problem: TrackingProblem) -> tuple[float, float, float]
     model = do_mpc.model.Model('continuous', 'SX')
     q = model.set_variable('_x', 'q', (n, 1))
     v = model.set_variable('_x', 'v', (k, 1))
-    u = model.set_variable('_u', 'u', (k, 1))
+    u = model.set_variable('_u', 'u', (system.r, 1))
     q_r = model.set_variable('_tvp', 'q_r', (n, 1))
     v_r = model.set_variable('_tvp', 'v_r', (k, 1))
     qdot, vdot = system.dynamics_fn(q, v, u)

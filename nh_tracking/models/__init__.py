@@ -28,19 +28,22 @@ from importlib.metadata import entry_points
 from nh_tracking.models import chaplygin_sleigh as _sleigh
 from nh_tracking.models import nonholonomic_particle as _particle
 from nh_tracking.models import rolling_disk as _disk
+from nh_tracking.models import snakeboard as _snakeboard
 from nh_tracking.models import unicycle as _unicycle
 from nh_tracking.models.chaplygin_sleigh import chaplygin_sleigh
 from nh_tracking.models.nonholonomic_particle import nonholonomic_particle
 from nh_tracking.models.rolling_disk import rolling_disk
+from nh_tracking.models.snakeboard import snakeboard
 from nh_tracking.models.spec import ModelSpec, PhysicalParameter
 from nh_tracking.models.unicycle import unicycle
 from nh_tracking.system import NonholonomicSystem
 
 __all__ = ['MODELS', 'ModelSpec', 'PhysicalParameter', 'chaplygin_sleigh', 'create',
-           'model_parameters', 'nonholonomic_particle', 'rolling_disk', 'spec', 'unicycle']
+           'model_parameters', 'nonholonomic_particle', 'rolling_disk', 'snakeboard', 'spec',
+           'unicycle']
 
 MODELS: dict[str, ModelSpec] = {m.SPEC.name: m.SPEC for m in (_sleigh, _particle, _unicycle,
-                                                              _disk)}
+                                                              _disk, _snakeboard)}
 ENTRY_POINTS = 'nh_tracking.models'
 
 

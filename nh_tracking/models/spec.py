@@ -68,11 +68,12 @@ class ModelSpec:
     start: tuple[tuple[float, ...], tuple[float, ...]] | None = None
 
     def __post_init__(self) -> None:
-        accepted = set(inspect.signature(self.factory).parameters)
+        arguments = inspect.signature(self.factory).parameters
+        required = {n for n, a in arguments.items() if a.default is inspect.Parameter.empty}
         declared = {p.name for p in self.parameters}
-        if declared != accepted:
+        if not required <= declared <= set(arguments):
             raise ValueError(f'model {self.name}: parameters {sorted(declared)} do not match '
-                             f"the factory's arguments {sorted(accepted)}")
+                             f"the factory's arguments {sorted(arguments)}")
 
     @property
     def defaults(self) -> dict[str, float]:

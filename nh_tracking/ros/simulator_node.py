@@ -35,7 +35,7 @@ from nh_tracking.poses import PoseMap
 from nh_tracking.ros import conversions as cv
 from nh_tracking.ros.parameters import declare, declare_all, declare_model, plain
 from nh_tracking.ros.safety import guarded, SafeNode
-from nh_tracking.simulate import simulate
+from nh_tracking.simulate import drive, simulate
 
 INITIAL_STATE = plain('initial_state', [0.0], 'initial q then v (n + k numbers; zeros by '
                       'default)')
@@ -149,7 +149,7 @@ class SimulatorNode(SafeNode):
 
         Zero outside it and from the instant the control timeout expires (a cut in the step).
         """
-        zero = np.zeros(self.system.k)
+        zero = np.zeros(self.system.r)
         expiry = self._command_ns + int(round(self.control_timeout * 1e9))
         if self._controls is None or t0 >= expiry:
             return [(t0, t1, zero)]
@@ -185,9 +185,11 @@ class SimulatorNode(SafeNode):
             # The dynamics are autonomous: integrate each piece from 0 over its length in
             # integer nanoseconds. Wall-clock stamps (~1.8e18 ns) times 1e-9 would collapse
             # pieces a few ns long to nothing.
-            law = (lambda s, qq, vv: -self.system.dynamics(qq, vv)[1]) if u is None else None
-            traj = simulate(self.system, q, v, [0.0, (b - a) * 1e-9],
-                            law if u is None else u[None, :], rtol=1e-9, atol=1e-11)
+            if u is None:
+                q = drive(self.system, q, v, (b - a) * 1e-9)
+                continue
+            traj = simulate(self.system, q, v, [0.0, (b - a) * 1e-9], u[None, :],
+                            rtol=1e-9, atol=1e-11)
             q, v = traj.q[-1], traj.v[-1]
         with self._lock:
             self._q, self._v = q, v

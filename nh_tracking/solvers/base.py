@@ -25,36 +25,22 @@ from __future__ import annotations
 from abc import ABC, abstractmethod
 import dataclasses
 from dataclasses import dataclass
-from typing import Any, ClassVar
+from typing import ClassVar
 
 import numpy as np
 
 from nh_tracking.problem import Solution, Terminal, TrackingProblem
+from nh_tracking.solvers.nlp import deadline_after
 from nh_tracking.system import NonholonomicSystem
 
-Guess = tuple[np.ndarray, np.ndarray, np.ndarray]  # q (N+1, n), v (N+1, k), u (N, k)
-
-IPOPT_OPTIONS: dict[str, Any] = {
-    'ipopt.print_level': 0,
-    'ipopt.sb': 'yes',
-    'print_time': False,
-    'ipopt.tol': 1e-10,
-    'ipopt.constr_viol_tol': 1e-12,
-    'ipopt.max_iter': 500,
-}
-
-
-def ipopt_options(max_time: float | None) -> dict[str, Any]:
-    """IPOPT settings; ``max_time`` bounds the wall time of one solve (a replanning deadline)."""
-    return IPOPT_OPTIONS if max_time is None else {**IPOPT_OPTIONS,
-                                                   'ipopt.max_wall_time': float(max_time)}
+Guess = tuple[np.ndarray, np.ndarray, np.ndarray | None]  # q (N+1, n), v (N+1, k), u (N, r)
 
 
 @dataclass(frozen=True)
 class Structure:
     """The shape of a problem, which is what an NLP is built for: intervals, terminal kind.
 
-    And the deadline [s] its solves run against (replanning), or None.
+    And the time limit [s] its solves run against (replanning), or None.
     """
 
     steps: int
@@ -75,10 +61,16 @@ class Method(ABC):
     def prepare(self, system: NonholonomicSystem, structure: Structure) -> None:
         """Build what solves of this structure need, so the first one is not slow."""
 
-    @abstractmethod
     def solve(self, problem: TrackingProblem, guess: Guess | None = None,
               deadline: float | None = None) -> Solution:
         """Solve ``problem`` from ``guess`` (default: the reference).
 
-        ``deadline`` [s] bounds the solve's wall time (it then stops and reports failure).
+        ``deadline`` [s, > 0] bounds the solve's wall time, every route included (it then
+        stops and reports failure).
         """
+        return self.solve_until(problem, guess, deadline_after(deadline))
+
+    @abstractmethod
+    def solve_until(self, problem: TrackingProblem, guess: Guess | None,
+                    stop: float | None) -> Solution:
+        """:meth:`solve` against an absolute stop time (``time.perf_counter`` clock) or None."""

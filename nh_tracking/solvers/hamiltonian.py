@@ -53,13 +53,14 @@ def _build(system: NonholonomicSystem) -> PontryaginFlow:
     n, k = system.n, system.k
     q, v = ca.SX.sym('q', n), ca.SX.sym('v', k)
     lam, mu = ca.SX.sym('lambda', n), ca.SX.sym('mu', k)
-    u = ca.SX.sym('u', k)
+    u = ca.SX.sym('u', system.r)
     qr, vr, eps = ca.SX.sym('q_r', n), ca.SX.sym('v_r', k), ca.SX.sym('eps')
     running = tracking_lagrangian(system)(q, v, u, qr, vr, eps)
     qdot, vdot = system.dynamics_fn(q, v, u)
     hamiltonian = running + lam.T @ qdot + mu.T @ vdot
-    # H is quadratic in u: one Newton step from u = 0 is its exact minimiser.
-    grad0 = ca.substitute(ca.gradient(hamiltonian, u), u, ca.DM.zeros(k))
+    # H is quadratic in u: one Newton step from u = 0 is its exact minimiser (for an
+    # underactuated system, u* = -B^T mu / eps with the input matrix B).
+    grad0 = ca.substitute(ca.gradient(hamiltonian, u), u, ca.DM.zeros(system.r))
     u_star = -ca.solve(ca.hessian(hamiltonian, u)[0], grad0)
     h_star = ca.substitute(hamiltonian, u, u_star)
     x, p = ca.vertcat(q, v), ca.vertcat(lam, mu)

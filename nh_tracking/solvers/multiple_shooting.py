@@ -28,8 +28,9 @@ import numpy as np
 
 from nh_tracking.problem import (Solution, terminal_cost, terminal_error, tracking_lagrangian,
                                  TrackingProblem)
-from nh_tracking.solvers.base import Guess, ipopt_options, Method, Structure
+from nh_tracking.solvers.base import Guess, Method, Structure
 from nh_tracking.solvers.cache import PerSystemCache
+from nh_tracking.solvers.nlp import BoundedNlp, deadline_after
 from nh_tracking.system import NonholonomicSystem
 
 SUBSTEPS = 2  # RK4 steps per control interval
@@ -39,7 +40,7 @@ SUBSTEPS = 2  # RK4 steps per control interval
 class ShootingTranscription:
     system: NonholonomicSystem
     steps: int
-    solver: ca.Function
+    nlp: BoundedNlp
     running_cost: ca.Function  # (w, p) -> integrated running cost
 
     def parameters(self, problem: TrackingProblem) -> np.ndarray:
@@ -53,14 +54,14 @@ _CACHE: PerSystemCache[ShootingTranscription] = PerSystemCache()
 
 
 def shooting_transcription(system: NonholonomicSystem, steps: int, terminal: str,
-                           max_time: float | None = None) -> ShootingTranscription:
-    return _CACHE.get(system, (steps, terminal, max_time),
-                      lambda: _build(system, steps, terminal, max_time))
+                           bounded: bool = False) -> ShootingTranscription:
+    return _CACHE.get(system, (steps, terminal, bool(bounded)),
+                      lambda: _build(system, steps, terminal, bool(bounded)))
 
 
 def _build(system: NonholonomicSystem, steps: int, terminal: str,
-           max_time: float | None) -> ShootingTranscription:
-    n, k = system.n, system.k
+           bounded: bool) -> ShootingTranscription:
+    n, k, r = system.n, system.k, system.r
     nx = n + k
     points = 2 * SUBSTEPS * steps + 1  # reference at every RK4 stage time
     q_ref, v_ref = ca.SX.sym('q_r', n, points), ca.SX.sym('v_r', k, points)
@@ -72,9 +73,9 @@ def _build(system: NonholonomicSystem, steps: int, terminal: str,
         xdot = system.ode_fn(x, u)
         return xdot, lagrangian(x[:n], x[n:], u, q_ref[:, j], v_ref[:, j], eps)
 
-    w = ca.SX.sym('w', nx * (steps + 1) + k * steps)  # stage-wise x_0, u_0, x_1, ..., x_N
-    xs = [w[i * (nx + k):i * (nx + k) + nx] for i in range(steps + 1)]
-    us = [w[i * (nx + k) + nx:(i + 1) * (nx + k)] for i in range(steps)]
+    w = ca.SX.sym('w', nx * (steps + 1) + r * steps)  # stage-wise x_0, u_0, x_1, ..., x_N
+    xs = [w[i * (nx + r):i * (nx + r) + nx] for i in range(steps + 1)]
+    us = [w[i * (nx + r) + nx:(i + 1) * (nx + r)] for i in range(steps)]
     running, gaps = ca.SX(0), []
     dt = h / SUBSTEPS
     for i in range(steps):
@@ -91,26 +92,29 @@ def _build(system: NonholonomicSystem, steps: int, terminal: str,
     objective = running
     if terminal == 'cost':
         objective += 0.5 * omega * ca.sumsqr(xs[-1][:n] - q_ref[:, -1])
-    solver = ca.nlpsol(f'multiple_shooting_{system.name}_{steps}', 'ipopt',
-                       {'x': w, 'p': p, 'f': objective, 'g': ca.vertcat(*gaps)},
-                       ipopt_options(max_time))
-    return ShootingTranscription(system=system, steps=steps, solver=solver,
+    nlp = BoundedNlp(f'multiple_shooting_{system.name}_{steps}', 'ipopt',
+                     {'x': w, 'p': p, 'f': objective, 'g': ca.vertcat(*gaps)}, {}, bounded)
+    return ShootingTranscription(system=system, steps=steps, nlp=nlp,
                                  running_cost=ca.Function('running', [w, p], [running]))
 
 
 def solve_multiple_shooting(problem: TrackingProblem, initial_guess: Guess | None = None,
                             max_time: float | None = None) -> Solution:
-    """Solve the baseline NLP; ``initial_guess`` is (q (N+1, n), v (N+1, k), u (N, k))."""
+    """Solve the baseline NLP; ``initial_guess`` is (q (N+1, n), v (N+1, k), u (N, r))."""
+    return _solve_until(problem, initial_guess, deadline_after(max_time))
+
+
+def _solve_until(problem: TrackingProblem, initial_guess: Guess | None,
+                 stop: float | None) -> Solution:
     sys, big_n = problem.system, problem.steps
-    n, k = sys.n, sys.k
-    tr = shooting_transcription(sys, big_n, problem.terminal, max_time)
+    n, k, r = sys.n, sys.k, sys.r
+    tr = shooting_transcription(sys, big_n, problem.terminal, stop is not None)
     p = tr.parameters(problem)
-    if initial_guess is None:
-        q_g, v_g = problem.reference_samples[:2]
-        u_g = np.zeros((big_n, k))
-    else:
-        q_g, v_g, u_g = initial_guess
-    q_g, v_g = q_g.copy(), v_g.copy()
+    q_g, v_g = problem.reference_samples[:2] if initial_guess is None else initial_guess[:2]
+    u_g = None if initial_guess is None else initial_guess[2]
+    if u_g is None:
+        u_g = np.zeros((big_n, r))
+    q_g, v_g = np.array(q_g, dtype=float), np.array(v_g, dtype=float)
     q_g[0], v_g[0] = problem.q0, problem.v0
     x_g = np.hstack([q_g, v_g])
     w0 = np.concatenate([np.concatenate([x_g[i], u_g[i]]) for i in range(big_n)] + [x_g[-1]])
@@ -121,20 +125,19 @@ def solve_multiple_shooting(problem: TrackingProblem, initial_guess: Guess | Non
         lbw[-(n + k):] = ubw[-(n + k):] = w0[-(n + k):] = np.concatenate([q_knots[-1],
                                                                           v_knots[-1]])
     start = time.perf_counter()
-    result = tr.solver(x0=w0, p=p, lbx=lbw, ubx=ubw, lbg=0, ubg=0)
+    outcome = tr.nlp.solve(stop, x0=w0, p=p, lbx=lbw, ubx=ubw, lbg=0, ubg=0)
     elapsed = time.perf_counter() - start
-    stats = tr.solver.stats()
-    w = np.array(result['x']).ravel()
-    stage = w[:-(n + k)].reshape(big_n, n + 2 * k)
+    w = np.array(outcome.result['x']).ravel()
+    stage = w[:-(n + k)].reshape(big_n, n + k + r)
     x = np.vstack([stage[:, :n + k], w[-(n + k):]])
     q, v, u = x[:, :n], x[:, n:], stage[:, n + k:]
     cost = float(tr.running_cost(w, p)) + terminal_cost(problem, q[-1])
     return Solution(
         t=problem.grid, q=q, v=v, u=u, cost=cost,
-        success=bool(stats['success']) and bool(np.all(np.isfinite(w))),
-        iterations=int(stats['iter_count']), solve_time=elapsed,
+        success=outcome.success and bool(np.all(np.isfinite(w))),
+        iterations=outcome.iterations, solve_time=elapsed,
         terminal_error=terminal_error(problem, q[-1], v[-1]), method='multiple_shooting',
-        message=stats['return_status'], route='ipopt',
+        message=outcome.message, route='ipopt',
     )
 
 
@@ -148,8 +151,9 @@ class MultipleShooting(Method):
     name: ClassVar[str] = 'multiple_shooting'
 
     def prepare(self, system: NonholonomicSystem, structure: Structure) -> None:
-        shooting_transcription(system, structure.steps, structure.terminal, structure.deadline)
+        shooting_transcription(system, structure.steps, structure.terminal,
+                               structure.deadline is not None)
 
-    def solve(self, problem: TrackingProblem, guess: Guess | None = None,
-              deadline: float | None = None) -> Solution:
-        return solve_multiple_shooting(problem, guess, deadline)
+    def solve_until(self, problem: TrackingProblem, guess: Guess | None,
+                    stop: float | None) -> Solution:
+        return _solve_until(problem, guess, stop)

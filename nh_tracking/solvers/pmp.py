@@ -23,7 +23,12 @@ Shooting on the initial costates from zero, as in the paper, is fragile: the flo
 up in finite time before T. So every integration is guarded (bounded state, bounded work, a
 deadline), and when plain shooting fails the solver restarts from the variational solution's
 discrete costates, then from a multiple-shooting PMP seeded with the whole variational
-solution. The route that succeeded is reported.
+solution. The route that succeeded is reported. Given a guess (a plan), the variational
+solution from that guess supplies the costates to start from.
+
+The optimal control is continuous in time: :attr:`Solution.u` holds the piecewise-constant
+controls that replay the plan on the continuous dynamics (:mod:`.replay`), and
+``Solution.control_law(t)`` the continuous law itself.
 """
 from __future__ import annotations
 
@@ -33,213 +38,62 @@ import time
 from typing import ClassVar
 
 import numpy as np
-from scipy.integrate import solve_ivp
-from scipy.optimize import root
 
-from nh_tracking.numeric import NumericFunction
 from nh_tracking.problem import Solution, terminal_cost, terminal_error, TrackingProblem
 from nh_tracking.solvers.base import Guess, Method, Structure
 from nh_tracking.solvers.hamiltonian import pontryagin_flow
+from nh_tracking.solvers.nlp import deadline_after
+from nh_tracking.solvers.replay import held_controls
+from nh_tracking.solvers.shooting import (Diverged, mu_knots, multiple_shooting, OutOfTime,
+                                          Shooter, single_shooting)
 from nh_tracking.solvers.variational import Variational
 from nh_tracking.system import NonholonomicSystem
 
-BLOW_UP = 1e6  # |state, costate| beyond this ends an integration as diverged
-MAX_RHS_EVALS = 40_000  # per integration: bounded work, so a stiff blow-up cannot hang
-RESIDUAL_TOL = 1e-7
-
-
-class _Diverged(Exception):
-    pass
-
-
-class _OutOfTime(Exception):
-    pass
-
-
-@dataclass
-class _Arc:
-    """One integrated piece of the flow: end state, its sensitivity, running cost, samples."""
-
-    z_end: np.ndarray
-    sensitivity: np.ndarray
-    cost: float
-    t: np.ndarray
-    z: np.ndarray
-    dense: Callable[[float], np.ndarray]  # the continuous solution of solve_ivp
-
-
-class _Shooter:
-    """Integrates the flow over pieces of the horizon, guarded against blow-up and hangs."""
-
-    def __init__(self, problem: TrackingProblem, deadline: float, rtol: float = 1e-10,
-                 atol: float = 1e-10) -> None:
-        self.problem = problem
-        self.flow = pontryagin_flow(problem.system)
-        self.rhs = NumericFunction(self.flow.rhs)
-        self.deadline = deadline
-        self.rtol, self.atol = rtol, atol
-        self.n, self.k = problem.system.n, problem.system.k
-        self.dim = self.flow.dim
-        n, k = self.n, self.k
-        # d(terminal residual)/d z(T): constant for both terminal kinds.
-        jac = np.zeros((n + k, self.dim))
-        if problem.terminal == 'cost':
-            jac[:n, :n] = -problem.omega * np.eye(n)
-            jac[:, n + k:] = np.eye(n + k)
-        else:
-            jac[:, :n + k] = np.eye(n + k)
-        self.terminal_jacobian = jac
-
-    def integrate(self, z0: np.ndarray, t_span: tuple[float, float],
-                  t_eval: np.ndarray | None = None) -> _Arc:
-        if time.perf_counter() > self.deadline:
-            raise _OutOfTime()
-        count = [0]
-        eps, dim = self.problem.epsilon, self.dim
-
-        def rhs(t: float, y: np.ndarray) -> np.ndarray:
-            count[0] += 1
-            if count[0] > MAX_RHS_EVALS:
-                raise _Diverged()
-            q_r, v_r = self.problem.reference_point(t)
-            zdot, cost_rate, jac = self.rhs(y[:dim], q_r, v_r, eps)
-            phi_dot = jac @ y[dim + 1:].reshape(dim, dim)
-            return np.concatenate([zdot, cost_rate, phi_dot.ravel()])
-
-        def blow_up(t: float, y: np.ndarray) -> float:
-            return BLOW_UP - np.abs(y[:dim]).max()
-
-        blow_up.terminal = True  # type: ignore[attr-defined]  # solve_ivp's event flag
-        y0 = np.concatenate([z0, [0.0], np.eye(dim).ravel()])
-        try:
-            sol = solve_ivp(rhs, t_span, y0, method='DOP853', rtol=self.rtol, atol=self.atol,
-                            events=blow_up, t_eval=t_eval, dense_output=t_eval is not None)
-        except (_Diverged, FloatingPointError):
-            raise _Diverged() from None
-        if sol.status != 0 or not np.all(np.isfinite(sol.y)):
-            raise _Diverged()
-        end = sol.y[:, -1]
-        return _Arc(z_end=end[:dim], sensitivity=end[dim + 1:].reshape(dim, dim),
-                    cost=float(end[dim]), t=sol.t, z=sol.y[:dim].T, dense=sol.sol)
-
-    def terminal_residual(self, z_end: np.ndarray) -> np.ndarray:
-        n, k, prob = self.n, self.k, self.problem
-        q_ref, v_ref = prob.reference_samples[0][-1], prob.reference_samples[1][-1]
-        if prob.terminal == 'cost':  # transversality, docs/theory.md C5
-            return np.concatenate([z_end[n + k:2 * n + k] - prob.omega * (z_end[:n] - q_ref),
-                                   z_end[2 * n + k:]])
-        return np.concatenate([z_end[:n] - q_ref, z_end[n:n + k] - v_ref])
-
-
-def _solve_root(fun, w0: np.ndarray) -> tuple[np.ndarray, bool]:
-    """Newton-type root finding with exact Jacobians; a diverged flow counts as a failure."""
-    try:
-        result = root(fun, w0, jac=True, method='hybr', options={'xtol': 1e-13, 'maxfev': 100})
-        return result.x, bool(np.linalg.norm(fun(result.x)[0]) < RESIDUAL_TOL)
-    except _Diverged:
-        return w0, False
-
-
-def _single_shooting(shooter: _Shooter, p0: np.ndarray) -> tuple[list[np.ndarray], bool]:
-    """Root of the terminal conditions in the initial costates p(t0)."""
-    prob = shooter.problem
-    x0 = np.concatenate([prob.q0, prob.v0])
-    span = (prob.grid[0], prob.grid[-1])
-    nx = x0.size
-
-    def fun(p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        arc = shooter.integrate(np.concatenate([x0, p]), span)
-        return (shooter.terminal_residual(arc.z_end),
-                shooter.terminal_jacobian @ arc.sensitivity[:, nx:])
-
-    p, ok = _solve_root(fun, p0)
-    return [np.concatenate([x0, p])], ok
-
-
-def _multiple_shooting(shooter: _Shooter, guess: Solution, nodes: np.ndarray
-                       ) -> tuple[list[np.ndarray], bool]:
-    """PMP boundary-value problem on segments between ``nodes`` (knot indices).
-
-    Unknowns are p(t0) and the full z at interior nodes; residuals are the matching and terminal
-    conditions. Each segment is short, so the unstable directions of the flow cannot blow up.
-    """
-    prob = shooter.problem
-    n, k, dim = shooter.n, shooter.k, shooter.dim
-    times = prob.grid[nodes]
-    assert guess.costates is not None  # a Variational solution's
-    lam, mu = guess.costates
-    z_guess = np.hstack([guess.q, guess.v, np.vstack([lam, lam[-1]]), mu_knots(mu)])
-    x0 = np.concatenate([prob.q0, prob.v0])
-    segments = len(nodes) - 1
-    w0 = np.concatenate([z_guess[0, n + k:]] + [z_guess[i] for i in nodes[1:-1]])
-
-    def starts(w: np.ndarray) -> list[np.ndarray]:
-        return [np.concatenate([x0, w[:n + k]])] + list(w[n + k:].reshape(-1, dim))
-
-    def fun(w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        z0s = starts(w)
-        res, jac = np.zeros(w.size), np.zeros((w.size, w.size))
-        for i, z0 in enumerate(z0s):
-            arc = shooter.integrate(z0, (times[i], times[i + 1]))
-            rows = slice(i * dim, i * dim + (dim if i + 1 < segments else n + k))
-            cols = (slice(0, n + k) if i == 0
-                    else slice(n + k + (i - 1) * dim, n + k + i * dim))
-            sens = arc.sensitivity[:, n + k:] if i == 0 else arc.sensitivity
-            if i + 1 < segments:
-                res[rows] = arc.z_end - z0s[i + 1]
-                jac[rows, cols] = sens
-                jac[rows, n + k + i * dim:n + k + (i + 1) * dim] = -np.eye(dim)
-            else:
-                res[rows] = shooter.terminal_residual(arc.z_end)
-                jac[rows, cols] = shooter.terminal_jacobian @ sens
-        return res, jac
-
-    w, ok = _solve_root(fun, w0)
-    return starts(w), ok
-
-
-def mu_knots(mu_intervals: np.ndarray) -> np.ndarray:
-    """Costates mu at the N+1 knots from per-interval values (linear extrapolation at ends)."""
-    inner = 0.5 * (mu_intervals[1:] + mu_intervals[:-1])
-    first = 1.5 * mu_intervals[0] - 0.5 * mu_intervals[1]
-    last = 1.5 * mu_intervals[-1] - 0.5 * mu_intervals[-2]
-    return np.vstack([first, inner, last])
+SEGMENTS = 10  # of the first multiple-shooting PMP; then one per interval
 
 
 def solve_pmp(problem: TrackingProblem, max_time: float = 60.0,
               initial_costates: np.ndarray | None = None,
-              fallback: Method = Variational()) -> Solution:
+              fallback: Method = Variational(), guess: Guess | None = None) -> Solution:
     """Shoot from zero costates (or ``initial_costates``); fall back as the module says.
 
-    With the costates of ``fallback``'s solution (a method that returns costates).
+    With the costates of ``fallback``'s solution (a method that returns costates), solved from
+    ``guess`` if given — then shooting starts there, not from zero.
     """
+    stop = deadline_after(max_time)
+    assert stop is not None
     start = time.perf_counter()
-    shooter = _Shooter(problem, deadline=start + max_time)
+    shooter = Shooter(problem, deadline=stop)
     n, k = problem.system.n, problem.system.k
     p0 = np.zeros(n + k) if initial_costates is None else np.asarray(initial_costates, float)
     attempts: list[str] = []
     nodes = np.array([0, problem.steps])
     starts, ok = [np.concatenate([problem.q0, problem.v0, p0])], False
     try:
-        attempts.append('zero-costates' if initial_costates is None else 'given-costates')
-        starts, ok = _single_shooting(shooter, p0)
+        if guess is None or initial_costates is not None:
+            attempts.append('zero-costates' if initial_costates is None else 'given-costates')
+            starts, ok = single_shooting(shooter, p0)
         if not ok:
-            variational = fallback.solve(problem)
+            variational = fallback.solve_until(problem, guess, stop)
             assert variational.costates is not None  # the fallback is Variational
             lam, mu = variational.costates
             attempts.append('variational-costates')
-            starts, ok = _single_shooting(shooter, np.concatenate([lam[0], mu_knots(mu)[0]]))
-            if not ok and variational.success:
-                nodes = np.unique(np.linspace(0, problem.steps, 11).round().astype(int))
-                attempts.append('multiple-shooting-pmp')
-                starts, ok = _multiple_shooting(shooter, variational, nodes)
-    except _OutOfTime:
+            starts, ok = single_shooting(shooter, np.concatenate([lam[0], mu_knots(mu)[0]]))
+            # a few segments, then one per interval for a strongly unstable flow (between
+            # the two, root finding fails slowly: the snakeboard's 20 segments took 45 s)
+            for segments in sorted({min(SEGMENTS, problem.steps), problem.steps}):
+                if ok or not variational.success:
+                    break
+                nodes = np.unique(np.linspace(0, problem.steps, segments + 1).round().astype(int))
+                attempts.append(f'multiple-shooting-pmp ({segments} segments)')
+                starts, ok = multiple_shooting(shooter, variational, nodes)
+    except OutOfTime:
         attempts.append(f'deadline of {max_time:g} s reached')
         ok = False
     return _solution(problem, shooter, starts, nodes, ok, time.perf_counter() - start, attempts)
 
 
-def _solution(problem: TrackingProblem, shooter: _Shooter, starts: list[np.ndarray],
+def _solution(problem: TrackingProblem, shooter: Shooter, starts: list[np.ndarray],
               nodes: np.ndarray, ok: bool, elapsed: float, attempts: list[str]) -> Solution:
     """Read the plan out segment by segment.
 
@@ -249,8 +103,9 @@ def _solution(problem: TrackingProblem, shooter: _Shooter, starts: list[np.ndarr
     grid, mids = problem.grid, problem.grid[:-1] + 0.5 * problem.h
     shooter.deadline = np.inf  # the read-out always runs
     z = np.tile(starts[0], (len(grid), 1))
-    u = np.zeros((problem.steps, k))
+    u = np.zeros((problem.steps, problem.system.r))
     cost, residual = 0.0, np.inf
+    arcs: list[tuple[float, float, Callable[[float], np.ndarray]]] = []
     try:
         for i, z0 in enumerate(starts):
             a, b = nodes[i], nodes[i + 1]
@@ -259,19 +114,35 @@ def _solution(problem: TrackingProblem, shooter: _Shooter, starts: list[np.ndarr
             u[a:b] = [np.asarray(shooter.flow.control(arc.dense(t)[:shooter.dim],
                                                       problem.epsilon)).ravel()
                       for t in mids[a:b]]
+            arcs.append((grid[a], grid[b], arc.dense))
             cost += arc.cost
         residual = float(np.linalg.norm(shooter.terminal_residual(z[-1])))
-    except _Diverged:
+    except Diverged:
         ok = False
     q, v = z[:, :n], z[:, n:n + k]
+    law = _control_law(shooter, arcs, problem.epsilon) if ok else None
+    if ok:
+        u = held_controls(problem.system, grid, q, v, u)
     return Solution(
         t=grid, q=q, v=v, u=u, cost=cost + terminal_cost(problem, q[-1]) if ok else np.inf,
         success=bool(ok), iterations=len(attempts), solve_time=elapsed,
         terminal_error=terminal_error(problem, q[-1], v[-1]), method='pmp',
         message=' -> '.join(attempts), route=attempts[-1] if ok else 'failed',
         costates=(z[:, n + k:2 * n + k], z[:, 2 * n + k:]),
-        details={'shooting_residual': residual},
+        details={'shooting_residual': residual}, control_law=law,
     )
+
+
+def _control_law(shooter: Shooter, arcs: list[tuple[float, float, Callable]],
+                 epsilon: float) -> Callable[[float], np.ndarray]:
+    """u*(t) along the shooting arcs: the continuous optimal control."""
+    def law(t: float) -> np.ndarray:
+        for a, b, dense in arcs:
+            if t <= b:
+                break
+        z = dense(min(max(t, a), b))[:shooter.dim]
+        return np.asarray(shooter.flow.control(z, epsilon)).ravel()
+    return law
 
 
 @dataclass(frozen=True)
@@ -279,8 +150,8 @@ class Pontryagin(Method):
     """Pontryagin's principle by shooting (§4).
 
     ``budget`` [s] bounds a solve that has no deadline; ``fallback`` supplies costates to restart
-    from when plain shooting fails. Shooting starts from costates, not from a plan, so a (q, v, u)
-    guess is not used.
+    from when plain shooting fails. A (q, v, u) guess is used through the fallback: its
+    solution from the guess supplies the costates that shooting starts from.
     """
 
     budget: float = 60.0
@@ -298,7 +169,7 @@ class Pontryagin(Method):
         pontryagin_flow(system)
         self.fallback.prepare(system, Structure(structure.steps, structure.terminal))
 
-    def solve(self, problem: TrackingProblem, guess: Guess | None = None,
-              deadline: float | None = None) -> Solution:
-        return solve_pmp(problem, self.budget if deadline is None else deadline,
-                         fallback=self.fallback)
+    def solve_until(self, problem: TrackingProblem, guess: Guess | None,
+                    stop: float | None) -> Solution:
+        remaining = self.budget if stop is None else stop - time.perf_counter()
+        return solve_pmp(problem, max(remaining, 1e-9), fallback=self.fallback, guess=guess)

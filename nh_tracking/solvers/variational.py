@@ -17,7 +17,10 @@
 Unknowns are the knots x_k = (q_k, v_k), k = 1..N, of a curve on D. The discrete Lagrangian
 is h L(q_{k+1/2}, v_{k+1/2}, v_{k,k+1}) — L written in (q, v, vdot) by eliminating the control,
 u = vdot + Gamma(v, v) + grad V — and the discrete admissibility constraint is the corrected
-Psi_d (docs/theory.md C13): (q_{k+1} - q_k)/h = rho(q_{k+1/2}) v_{k+1/2}, k = 0..N-1.
+Psi_d (docs/theory.md C13): (q_{k+1} - q_k)/h = rho(q_{k+1/2}) v_{k+1/2}, k = 0..N-1. An
+underactuated system (r < k controls) cannot eliminate u: it stays an unknown of each interval,
+with the discrete dynamics v_{k+1} - v_k = h (f(q_{k+1/2}, v_{k+1/2}) + B(q_{k+1/2}) u_k) as a
+constraint.
 
 The NLP is built once per (system, N, terminal kind); everything that changes between solves
 (initial state, reference samples, h, eps, omega) is a parameter, so replanning only updates
@@ -36,14 +39,12 @@ import numpy as np
 from nh_tracking.numeric import NumericFunction
 from nh_tracking.problem import (Solution, terminal_cost, terminal_error, tracking_lagrangian,
                                  TrackingProblem)
-from nh_tracking.solvers.base import Guess, ipopt_options, Method, Structure
+from nh_tracking.solvers.base import Guess, Method, Structure
 from nh_tracking.solvers.cache import PerSystemCache
-from nh_tracking.solvers.compiled import compiled_library
+from nh_tracking.solvers.nlp import BoundedNlp, DEADLINE, deadline_after
 from nh_tracking.system import NonholonomicSystem
 
 BACKENDS = ('fatrop', 'ipopt')
-FATROP_OPTIONS = {'print_level': 0, 'tol': 1e-10, 'max_iter': 500}
-FATROP_DEADLINE_ITERATIONS = 50  # fatrop has no wall-time limit: under a deadline, this bound
 CONTINUATION_MIN_STEPS = 100  # cold solves with this many intervals or more start coarse
 COARSE_STEPS = 50
 
@@ -53,20 +54,22 @@ class Transcription:
     """The compiled NLP of one structure, and functions to read a solution back.
 
     Stage-wise unknowns w = [x_0, u_0, ..., x_{N-1}, u_{N-1}, x_N] with x_k = (q_k, v_k) and
-    u_k = (v_{k+1}, z_k): z_k is the midpoint q_{k+1/2}, so the dynamics are explicit,
+    u_k = (v_{k+1}, z_k[, u_k]): z_k is the midpoint q_{k+1/2}, so the dynamics are explicit,
     x_{k+1} = (2 z_k - q_k, v_{k+1}), and the discrete admissibility constraint becomes the
     stage equality z_k - q_k = h/2 rho(z_k) v_{k+1/2} — the same discrete problem, in the
-    form a structure-exploiting OCP solver (fatrop) takes.
+    form a structure-exploiting OCP solver (fatrop) takes. The control u_k is an unknown only
+    for an underactuated system.
     """
 
     system: NonholonomicSystem
     steps: int
     terminal: str
-    solver: ca.Function
-    # (w, p) -> q (n, N+1), v (k, N+1), u (k, N), max |Psi_d| (from the knots), running cost:
+    nlp: BoundedNlp
+    # (w, p) -> q (n, N+1), v (k, N+1), u (r, N), max |Psi_d| (from the knots), running cost:
     # one buffered call, since separate calls cost more than a warm solve's iteration
     readout: NumericFunction
     admissibility_rows: np.ndarray  # indices in g of the constraints z - q - h/2 rho v = 0
+    dynamics_rows: np.ndarray  # underactuated: of v_{k+1} - v_k - h (f + B u) = 0
 
     def parameters(self, problem: TrackingProblem) -> np.ndarray:
         q_knots, v_knots, q_mid, v_mid = problem.reference_samples
@@ -75,40 +78,38 @@ class Transcription:
             [problem.h, problem.epsilon, problem.omega],
         ])
 
-    def pack(self, q: np.ndarray, v: np.ndarray) -> np.ndarray:
-        """Stage-wise unknowns from knots q (N+1, n), v (N+1, k)."""
+    def pack(self, q: np.ndarray, v: np.ndarray, u: np.ndarray | None) -> np.ndarray:
+        """Stage-wise unknowns from knots q (N+1, n), v (N+1, k) and controls u (N, r)."""
         mid = 0.5 * (q[1:] + q[:-1])
-        stages = np.hstack([q[:-1], v[:-1], v[1:], mid])
-        return np.concatenate([stages.ravel(), q[-1], v[-1]])
+        parts = [q[:-1], v[:-1], v[1:], mid]
+        if not self.system.fully_actuated:
+            parts.append(np.zeros((self.steps, self.system.r)) if u is None else u)
+        return np.concatenate([np.hstack(parts).ravel(), q[-1], v[-1]])
 
 
 _CACHE: PerSystemCache[Transcription] = PerSystemCache()
 
 
 def transcription(system: NonholonomicSystem, steps: int, terminal: str,
-                  max_time: float | None = None, solver: str = 'fatrop',
+                  bounded: bool = False, solver: str = 'fatrop',
                   compiled: bool = False) -> Transcription:
-    """Return the NLP for this structure (solver, time limit, compiled or interpreted).
+    """Return the NLP for this structure (backend, deadlines or not, compiled or interpreted).
 
     Built on first use and cached.
     """
     if solver not in BACKENDS:
         raise ValueError(f'unknown NLP solver {solver!r}; choose one of {BACKENDS}')
-    # IPOPT takes the wall-time limit itself, so it is part of its NLP; fatrop only needs to
-    # know whether its iterations are bounded
-    wall_time = max_time if solver == 'ipopt' else None
-    bounded = max_time is not None
-    return _CACHE.get(system, (steps, terminal, solver, compiled, wall_time, bounded),
-                      lambda: _build(system, steps, terminal, solver, compiled, wall_time,
-                                     bounded))
+    return _CACHE.get(system, (steps, terminal, solver, compiled, bool(bounded)),
+                      lambda: _build(system, steps, terminal, solver, compiled, bool(bounded)))
 
 
 def _build(system: NonholonomicSystem, steps: int, terminal: str, solver: str,
-           compiled: bool, wall_time: float | None, bounded: bool) -> Transcription:
-    n, k, big_n = system.n, system.k, steps
+           compiled: bool, bounded: bool) -> Transcription:
+    n, k, r, big_n = system.n, system.k, system.r, steps
+    eliminated = system.fully_actuated
     nx = n + k
     xs = [ca.SX.sym(f'x{i}', nx) for i in range(big_n + 1)]
-    us = [ca.SX.sym(f'u{i}', k + n) for i in range(big_n)]
+    us = [ca.SX.sym(f'u{i}', k + n + (0 if eliminated else r)) for i in range(big_n)]
     q0, v0 = ca.SX.sym('q0', n), ca.SX.sym('v0', k)
     q_mid, v_mid = ca.SX.sym('q_r', n * big_n), ca.SX.sym('v_r', k * big_n)
     q_end, v_end = ca.SX.sym('q_rT', n), ca.SX.sym('v_rT', k)
@@ -116,19 +117,21 @@ def _build(system: NonholonomicSystem, steps: int, terminal: str, solver: str,
     p = ca.vertcat(q0, v0, q_mid, v_mid, q_end, v_end, h, eps, omega)
 
     lagrangian = tracking_lagrangian(system)
-    zero = ca.DM.zeros(k)
+    zero = ca.DM.zeros(r)
     w: list[ca.SX] = []
     g: list[ca.SX] = []
     residuals: list[ca.SX] = []
     controls: list[ca.SX] = []
     adm_rows: list[int] = []
+    dyn_rows: list[int] = []
     running = ca.SX(0)
     rows = 0
     for i in range(big_n):
         q, v = xs[i][:n], xs[i][n:]
-        v_next, z = us[i][:k], us[i][k:]
+        v_next, z = us[i][:k], us[i][k:k + n]
         vm = 0.5 * (v + v_next)
-        u = (v_next - v) / h - system.dynamics_fn(z, vm, zero)[1]
+        drift = system.dynamics_fn(z, vm, zero)[1]
+        u = (v_next - v) / h - drift if eliminated else us[i][k + n:]
         running += h * lagrangian(z, vm, u, q_mid[i * n:(i + 1) * n], v_mid[i * k:(i + 1) * k],
                                   eps)
         controls.append(u)
@@ -137,9 +140,15 @@ def _build(system: NonholonomicSystem, steps: int, terminal: str, solver: str,
         if i == 0:
             stage.append(xs[0] - ca.vertcat(q0, v0))
         stage.append(z - q - 0.5 * h * system.rho_fn(z) @ vm)
+        if not eliminated:
+            stage.append(v_next - v - h * (drift + system.input_matrix_fn(z) @ u))
         for c in stage:
             rows += c.shape[0]
-        adm_rows.extend(range(rows - n, rows))
+        if eliminated:
+            adm_rows.extend(range(rows - n, rows))
+        else:
+            adm_rows.extend(range(rows - n - k, rows - k))
+            dyn_rows.extend(range(rows - k, rows))
         g += stage
         q_next = xs[i + 1][:n]
         qm = 0.5 * (q + q_next)
@@ -152,29 +161,21 @@ def _build(system: NonholonomicSystem, steps: int, terminal: str, solver: str,
         g.append(xs[-1] - ca.vertcat(q_end, v_end))
     unknowns, constraints = ca.vertcat(*w), ca.vertcat(*g)
     nlp = {'x': unknowns, 'p': p, 'f': objective, 'g': constraints}
-    name = f'variational_{system.name}_{big_n}'
-    if solver == 'fatrop':
-        fatrop = dict(FATROP_OPTIONS)
-        if bounded:
-            fatrop['max_iter'] = FATROP_DEADLINE_ITERATIONS
-        options: dict[str, Any] = {
-            'structure_detection': 'auto', 'equality': [True] * constraints.shape[0],
-            'print_time': False, 'fatrop': fatrop}
-    else:
-        options = ipopt_options(wall_time)
-    options['show_eval_warnings'] = False  # failures are reported in the Solution instead
-    nlp_solver = ca.nlpsol(name, solver, nlp, options)
-    library = compiled_library(nlp_solver) if compiled else None
-    if library is not None:
-        nlp_solver = ca.nlpsol(name, solver, str(library), options)
+    options: dict[str, Any] = {'print_time': False, 'show_eval_warnings': False}  # failures
+    if solver == 'fatrop':  # are reported in the Solution
+        options.update({'structure_detection': 'auto',
+                        'equality': [True] * constraints.shape[0]})
+    bounded_nlp = BoundedNlp(f'variational_{system.name}_{big_n}', solver, nlp, options,
+                             bounded, compiled)
     knots_q = ca.horzcat(*[x[:n] for x in xs])
     knots_v = ca.horzcat(*[x[n:] for x in xs])
     readout = ca.Function('readout', [unknowns, p],
                           [knots_q, knots_v, ca.horzcat(*controls),
                            ca.mmax(ca.fabs(ca.horzcat(*residuals))), running])
     return Transcription(
-        system=system, steps=big_n, terminal=terminal, solver=nlp_solver,
-        readout=NumericFunction(readout), admissibility_rows=np.array(adm_rows),
+        system=system, steps=big_n, terminal=terminal, nlp=bounded_nlp,
+        readout=NumericFunction(readout), admissibility_rows=np.array(adm_rows, dtype=int),
+        dynamics_rows=np.array(dyn_rows, dtype=int),
     )
 
 
@@ -185,70 +186,83 @@ def default_guess(problem: TrackingProblem) -> tuple[np.ndarray, np.ndarray]:
     return q, v
 
 
-def solve_variational(problem: TrackingProblem,
-                      initial_guess: tuple[np.ndarray, np.ndarray] | None = None,
+def solve_variational(problem: TrackingProblem, initial_guess: Guess | None = None,
                       max_time: float | None = None, solver: str = 'fatrop',
                       compiled: bool = False) -> Solution:
-    """Solve the discrete variational NLP from knots (q (N+1, n), v (N+1, k)) as the guess.
+    """Solve the discrete variational NLP from (q (N+1, n), v (N+1, k)[, u (N, r)]) as guess.
 
-    Without a time limit, a fatrop failure is retried with IPOPT (the route says so). A cold
-    solve on a fine grid starts from the plan of a coarse grid, interpolated (grid
-    continuation): from the reference alone, fine grids spend most iterations backtracking.
+    ``max_time`` [s] bounds the wall time of the whole solve, every route included. A fatrop
+    failure is retried with IPOPT while time remains (the route says so). A cold solve on a
+    fine grid starts from the plan of a coarse grid, interpolated (grid continuation): from the
+    reference alone, fine grids spend most iterations backtracking.
     """
+    return solve_variational_until(problem, initial_guess, deadline_after(max_time), solver,
+                                   compiled)
+
+
+def solve_variational_until(problem: TrackingProblem, initial_guess: Guess | None,
+                            stop: float | None, solver: str = 'fatrop',
+                            compiled: bool = False) -> Solution:
+    """:func:`solve_variational` with an absolute stop time (perf_counter clock) or None."""
     coarse_time = 0.0
     if initial_guess is None and problem.steps >= CONTINUATION_MIN_STEPS:
         coarse = dataclasses.replace(problem, steps=COARSE_STEPS)
-        coarse_plan = solve_variational(coarse, None, max_time, solver, compiled)
+        coarse_plan = solve_variational_until(coarse, None, stop, solver, compiled)
         coarse_time = coarse_plan.solve_time
         if coarse_plan.success:
-            initial_guess = coarse_plan.trajectory().sample(problem.grid)
-    result = _solve_with(problem, initial_guess, max_time, solver, compiled)
+            q, v = coarse_plan.trajectory().sample(problem.grid)
+            initial_guess = (q, v, None)
+    result = _solve_with(problem, initial_guess, stop, solver, compiled)
     result.solve_time += coarse_time
-    if not result.success and solver == 'fatrop' and max_time is None:
-        retry = _solve_with(problem, initial_guess, None, 'ipopt')
+    if not result.success and solver == 'fatrop' and result.message != DEADLINE and (
+            stop is None or time.perf_counter() < stop):
+        retry = _solve_with(problem, initial_guess, stop, 'ipopt')
         retry.route = f'fatrop failed ({result.message}) -> ipopt'
         retry.solve_time += result.solve_time
         return retry
     return result
 
 
-def _solve_with(problem: TrackingProblem, initial_guess, max_time: float | None,
+def _solve_with(problem: TrackingProblem, initial_guess: Guess | None, stop: float | None,
                 solver: str, compiled: bool = False) -> Solution:
-    tr = transcription(problem.system, problem.steps, problem.terminal, max_time, solver,
+    sys = problem.system
+    tr = transcription(sys, problem.steps, problem.terminal, stop is not None, solver,
                        compiled)
-    q_g, v_g = default_guess(problem) if initial_guess is None else initial_guess
+    q_g, v_g = default_guess(problem) if initial_guess is None else initial_guess[:2]
+    u_g = None if initial_guess is None else initial_guess[2]
     q_g, v_g = np.array(q_g, dtype=float), np.array(v_g, dtype=float)
     q_g[0], v_g[0] = problem.q0, problem.v0
     if problem.terminal == 'equality':
         q_g[-1], v_g[-1] = problem.reference_samples[0][-1], problem.reference_samples[1][-1]
     p = tr.parameters(problem)
     start = time.perf_counter()
-    w0 = tr.pack(q_g, v_g)
+    w0 = tr.pack(q_g, v_g, u_g)
     if not all(np.all(np.isfinite(a)) for a in tr.readout(w0, p)):
         # fatrop never returns from a non-finite starting point (its line search cannot
         # recover): refuse to start, and say why
         return _failed(problem, q_g, v_g, time.perf_counter() - start, solver,
                        'the NLP is not finite at the initial guess (the dynamics or cost give '
                        'NaN or Inf there)')
-    result = tr.solver(x0=w0, p=p, lbg=0, ubg=0)
+    outcome = tr.nlp.solve(stop, x0=w0, p=p, lbg=0, ubg=0)
     elapsed = time.perf_counter() - start
-    stats = tr.solver.stats()
-    w = np.array(result['x']).ravel()
+    w = np.array(outcome.result['x']).ravel()
     q, v, u, residual, running = tr.readout(w, p)
     q, v, u, max_residual = q.T.copy(), v.T.copy(), u.T.copy(), float(residual[0])
-    lam_g = np.array(result['lam_g']).ravel()
+    lam_g = np.array(outcome.result['lam_g']).ravel()
     # The paper's multipliers are lambda^k = (h/2) c_k (c_k: multiplier of the stage form of
-    # the admissibility constraint); the reported costates are lambda = -lambda^k / h.
-    lam = -0.5 * lam_g[tr.admissibility_rows].reshape(problem.steps, problem.system.n)
+    # the admissibility constraint); the reported costates are lambda = -lambda^k / h. For
+    # mu: u* = -B^T mu / eps, so mu = -eps u fully actuated, else minus the multiplier of
+    # the discrete dynamics (written in h-scaled form).
+    lam = -0.5 * lam_g[tr.admissibility_rows].reshape(problem.steps, sys.n)
+    mu = (-problem.epsilon * u if sys.fully_actuated
+          else -lam_g[tr.dynamics_rows].reshape(problem.steps, sys.k))
     cost = float(running[0]) + terminal_cost(problem, q[-1])
-    success = bool(stats['success']) and bool(np.all(np.isfinite(w)))
+    success = outcome.success and bool(np.all(np.isfinite(w)))
     return Solution(
         t=problem.grid, q=q, v=v, u=u, cost=cost, success=success,
-        iterations=int(stats.get('iter_count', -1)), solve_time=elapsed,
+        iterations=outcome.iterations, solve_time=elapsed,
         terminal_error=terminal_error(problem, q[-1], v[-1]), method='variational',
-        message=str(stats.get('return_status', 'Solve_Succeeded' if success else 'failed')),
-        route=solver,
-        costates=(lam, -problem.epsilon * u),
+        message=outcome.message, route=solver, costates=(lam, mu),
         details={'admissibility_residual': max_residual},
     )
 
@@ -256,7 +270,7 @@ def _solve_with(problem: TrackingProblem, initial_guess, max_time: float | None,
 def _failed(problem: TrackingProblem, q: np.ndarray, v: np.ndarray, elapsed: float,
             solver: str, message: str) -> Solution:
     return Solution(
-        t=problem.grid, q=q, v=v, u=np.zeros((problem.steps, problem.system.k)),
+        t=problem.grid, q=q, v=v, u=np.zeros((problem.steps, problem.system.r)),
         cost=float('inf'), success=False, iterations=0, solve_time=elapsed,
         terminal_error=float('inf'), method='variational', message=message, route=solver)
 
@@ -283,9 +297,8 @@ class Variational(Method):
 
     def prepare(self, system: NonholonomicSystem, structure: Structure) -> None:
         transcription(system, structure.steps, structure.terminal,
-                      structure.deadline, self.backend, self.compiled)
+                      structure.deadline is not None, self.backend, self.compiled)
 
-    def solve(self, problem: TrackingProblem, guess: Guess | None = None,
-              deadline: float | None = None) -> Solution:
-        return solve_variational(problem, None if guess is None else guess[:2], deadline,
-                                 self.backend, self.compiled)
+    def solve_until(self, problem: TrackingProblem, guess: Guess | None,
+                    stop: float | None) -> Solution:
+        return solve_variational_until(problem, guess, stop, self.backend, self.compiled)

@@ -1,0 +1,161 @@
+# Copyright 2026 nh_tracking maintainers
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+
+"""One NLP solve under a wall-time limit, whatever the backend, with a status in words.
+
+IPOPT is stopped by an iteration callback that reads the deadline of the solve in progress
+(so one NLP serves every time limit). fatrop calls no callback: under a deadline it runs in
+chunks of :data:`FATROP_CHUNK` iterations, each warm-started from the last, until it converges,
+fails for another reason, or the time is up — overrunning the limit by at most one chunk.
+"""
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+import math
+import time
+from typing import Any
+
+import casadi as ca
+
+from nh_tracking.solvers.compiled import compiled_library
+
+MAX_ITERATIONS = 500
+FATROP_CHUNK = 10
+FATROP_OPTIONS = {'print_level': 0, 'tol': 1e-10, 'max_iter': MAX_ITERATIONS}
+IPOPT_OPTIONS: dict[str, Any] = {
+    'ipopt.print_level': 0,
+    'ipopt.sb': 'yes',
+    'print_time': False,
+    'ipopt.tol': 1e-10,
+    'ipopt.constr_viol_tol': 1e-12,
+    'ipopt.max_iter': MAX_ITERATIONS,
+}
+FATROP_STATUS = ('converged', 'maximum iterations reached', 'stopped at a tiny step',
+                 'converged to the acceptable level', 'locally infeasible',
+                 'feasible point found', 'diverging iterates', 'error in the step computation',
+                 'invalid option', 'internal error')
+DEADLINE = 'deadline reached'
+
+
+def deadline_after(max_time: float | None) -> float | None:
+    """Absolute stop time (perf_counter clock) of a solve allowed ``max_time`` seconds."""
+    if max_time is None:
+        return None
+    if isinstance(max_time, bool) or not isinstance(max_time, (int, float)) or not (
+            max_time > 0 and math.isfinite(max_time)):
+        raise ValueError(f'max_time must be a finite number of seconds > 0, got {max_time!r}')
+    return time.perf_counter() + float(max_time)
+
+
+def words(status: object) -> str:
+    """Put a solver's status in words: fatrop says 0, 1, ..., IPOPT 'Solve_Succeeded'."""
+    text = str(status)
+    if text.isdigit():
+        code = int(text)
+        return FATROP_STATUS[code] if code < len(FATROP_STATUS) else f'status {code}'
+    if text == 'User_Requested_Stop':
+        return DEADLINE
+    return 'converged' if text == 'Solve_Succeeded' else text.replace('_', ' ').lower()
+
+
+class _Deadline(ca.Callback):
+    """IPOPT's iteration callback: asks it to stop once the solve's deadline has passed."""
+
+    def __init__(self, nx: int, ng: int, np_: int) -> None:
+        ca.Callback.__init__(self)
+        self.sizes = {'x': nx, 'lam_x': nx, 'g': ng, 'lam_g': ng, 'lam_p': np_, 'f': 1}
+        self.deadline = math.inf
+        self.construct('deadline', {})
+
+    def get_n_in(self) -> int:
+        return ca.nlpsol_n_out()
+
+    def get_n_out(self) -> int:
+        return 1
+
+    def get_name_in(self, i: int) -> str:
+        return ca.nlpsol_out(i)
+
+    def get_name_out(self, i: int) -> str:
+        return 'stop'
+
+    def get_sparsity_in(self, i: int) -> ca.Sparsity:
+        return ca.Sparsity.dense(self.sizes.get(ca.nlpsol_out(i), 0), 1)
+
+    def eval(self, arg: Sequence[ca.DM]) -> list[ca.DM]:  # noqa: A003 - CasADi's name
+        return [ca.DM(1.0 if time.perf_counter() > self.deadline else 0.0)]
+
+
+@dataclass
+class Outcome:
+    result: dict[str, ca.DM]
+    success: bool
+    iterations: int
+    message: str
+
+
+class BoundedNlp:
+    """An NLP solver whose every solve can be given a deadline."""
+
+    def __init__(self, name: str, backend: str, nlp: dict[str, ca.SX], options: dict[str, Any],
+                 bounded: bool, compiled: bool = False) -> None:
+        """``bounded``: solves will be given deadlines; ``compiled``: NLP functions as C."""
+        self.backend = backend
+        self._callback: _Deadline | None = None
+        self._chunk: ca.Function | None = None
+        if backend == 'ipopt':
+            options = {**IPOPT_OPTIONS, **options}
+            if bounded:
+                sizes = (nlp['x'].numel(), nlp['g'].numel(), nlp['p'].numel())
+                self._callback = _Deadline(*sizes)
+                options['iteration_callback'] = self._callback
+        else:
+            options = {**options, 'fatrop': dict(FATROP_OPTIONS)}
+        source: dict[str, ca.SX] | str = nlp
+        self.solver = ca.nlpsol(name, backend, nlp, options)
+        library = compiled_library(self.solver) if compiled else None
+        if library is not None:
+            source = str(library)
+            self.solver = ca.nlpsol(name, backend, source, options)
+        if bounded and backend == 'fatrop':
+            chunked = {**options, 'fatrop': {**FATROP_OPTIONS, 'max_iter': FATROP_CHUNK}}
+            self._chunk = ca.nlpsol(name + '_chunk', backend, source, chunked)
+
+    def solve(self, deadline: float | None, **args: Any) -> Outcome:
+        if self._chunk is not None and deadline is not None:
+            return self._chunks(deadline, args)
+        if self._callback is not None:
+            self._callback.deadline = math.inf if deadline is None else deadline
+        result = self.solver(**args)
+        stats = self.solver.stats()
+        message = words(stats.get('return_status', 'failed'))
+        return Outcome(result, bool(stats['success']), int(stats.get('iter_count', -1)),
+                       message)
+
+    def _chunks(self, deadline: float, args: dict[str, Any]) -> Outcome:
+        assert self._chunk is not None
+        iterations = 0
+        while True:
+            result = self._chunk(**args)
+            stats = self._chunk.stats()
+            iterations += int(stats.get('iter_count', 0))
+            message = words(stats.get('return_status', 'failed'))
+            if stats['success'] or message != FATROP_STATUS[1]:
+                return Outcome(result, bool(stats['success']), iterations, message)
+            if iterations >= MAX_ITERATIONS:
+                return Outcome(result, False, iterations, message)
+            if time.perf_counter() > deadline:
+                return Outcome(result, False, iterations, DEADLINE)
+            args = {**args, 'x0': result['x'], 'lam_g0': result['lam_g']}

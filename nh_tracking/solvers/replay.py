@@ -1,0 +1,97 @@
+# Copyright 2026 nh_tracking maintainers
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+
+"""Controls held on each interval that replay a plan on the continuous dynamics.
+
+A plan whose control varies within an interval (PMP's continuous optimal control) drifts when
+its samples are held piecewise constant: on an unstable flow the O(h^2) per-interval errors
+grow along the horizon. Here each interval's held control is fitted (Gauss–Newton on an RK4
+step with sensitivities) so the dynamics carry the *replayed* state to the plan's next knot —
+errors are corrected interval by interval instead of accumulating.
+"""
+from __future__ import annotations
+
+import casadi as ca
+import numpy as np
+
+from nh_tracking.numeric import NumericFunction
+from nh_tracking.solvers.cache import PerSystemCache
+from nh_tracking.system import NonholonomicSystem
+
+SUBSTEPS = 8  # RK4 steps per interval: their error is far below the fit's
+ITERATIONS = 4
+
+_CACHE: PerSystemCache[NumericFunction] = PerSystemCache()
+
+
+def _step(system: NonholonomicSystem) -> NumericFunction:
+    """(x, u, h) -> (x after h with u held, d x_end / d u, d x_end / d x)."""
+    def build() -> NumericFunction:
+        x = ca.SX.sym('x', system.n + system.k)
+        u, h = ca.SX.sym('u', system.r), ca.SX.sym('h')
+        end, dt = x, h / SUBSTEPS
+        for _ in range(SUBSTEPS):
+            k1 = system.ode_fn(end, u)
+            k2 = system.ode_fn(end + dt / 2 * k1, u)
+            k3 = system.ode_fn(end + dt / 2 * k2, u)
+            k4 = system.ode_fn(end + dt * k3, u)
+            end = end + dt / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
+        return NumericFunction(ca.Function('held_step', [x, u, h],
+                                           [end, ca.jacobian(end, u), ca.jacobian(end, x)]))
+    return _CACHE.get(system, 'step', build)
+
+
+def held_controls(system: NonholonomicSystem, t: np.ndarray, q: np.ndarray, v: np.ndarray,
+                  u: np.ndarray) -> np.ndarray:
+    """Fit controls (N, r), one held per interval of ``t``, replaying the knots (q, v), from u.
+
+    Receding fit: at each interval the next few controls (enough to reach every state
+    coordinate) are fitted to the next few knots from the replayed state, and the first is
+    kept — so an error in the configuration, which the controls reach only through the
+    velocities, is worked off over the following intervals instead of accumulating.
+    """
+    step = _step(system)
+    knots = np.hstack([q, v])
+    fitted = np.array(u, dtype=float)
+    r, big_n = system.r, len(t) - 1
+    window = -(-knots.shape[1] // r) + 1  # ceil((n + k) / r) + 1 intervals ahead
+    x = knots[0].copy()
+    for i in range(big_n):
+        span = range(i, min(i + window, big_n))
+        for _ in range(ITERATIONS):
+            gaps, jac = _window(step, x, fitted, t, knots, span)
+            if not (np.all(np.isfinite(gaps)) and np.all(np.isfinite(jac))):
+                break
+            delta = np.linalg.lstsq(jac, gaps, rcond=None)[0].reshape(len(span), r)
+            fitted[i:i + len(span)] += delta
+            if np.abs(delta).max() <= 1e-12 * (1 + np.abs(fitted[i]).max()):
+                break
+        x = step(x, fitted[i], t[i + 1] - t[i])[0]
+    return fitted
+
+
+def _window(step: NumericFunction, x: np.ndarray, u: np.ndarray, t: np.ndarray,
+            knots: np.ndarray, span: range) -> tuple[np.ndarray, np.ndarray]:
+    """Gaps to the knots after each interval of ``span`` from x, and their Jacobian in u."""
+    dim, r = len(x), u.shape[1]
+    gaps = np.zeros(len(span) * dim)
+    jac = np.zeros((len(span) * dim, len(span) * r))
+    sens = np.zeros((dim, 0))  # d x / d (controls so far)
+    for j, i in enumerate(span):
+        end, d_u, d_x = step(x, u[i], t[i + 1] - t[i])
+        sens = np.hstack([d_x @ sens, d_u])
+        gaps[j * dim:(j + 1) * dim] = knots[i + 1] - end
+        jac[j * dim:(j + 1) * dim, :sens.shape[1]] = sens
+        x = end
+    return gaps, jac
