@@ -26,7 +26,9 @@ from typing import Literal
 
 import casadi as ca
 import numpy as np
+from numpy.typing import ArrayLike
 
+from nh_tracking.limits import BoundsLike, Limits
 from nh_tracking.system import NonholonomicSystem
 from nh_tracking.trajectory import Trajectory
 
@@ -45,8 +47,14 @@ class TrackingProblem:
     configuration): a robot asked to track past the end stops there. With ``wrap_angles``
     (the default, what a robot needs) angle coordinates of the reference are moved by whole
     turns onto q0's branch, so heading errors are taken modulo 2 pi; ``wrap_angles=False``
-    subtracts angles as numbers, the paper's literal formulation. A problem is immutable:
-    ``dataclasses.replace(problem, steps=100)`` makes a changed copy.
+    subtracts angles as numbers, the paper's literal formulation.
+
+    Limits (:mod:`nh_tracking.limits`): ``control_bounds`` and ``velocity_bounds`` are (lo, hi)
+    pairs (scalars or one value per control/velocity, +-inf allowed) held on every interval's
+    control and every knot's velocity; ``obstacles`` are discs (x, y, r) in the plane of the
+    pose's position that the robot, a disc of ``robot_radius``, keeps clear of at every knot
+    and interval midpoint. A problem is immutable: ``dataclasses.replace(problem, steps=100)``
+    makes a changed copy.
     """
 
     system: NonholonomicSystem
@@ -60,7 +68,12 @@ class TrackingProblem:
     omega: float = 1.0
     wrap_angles: bool = True
     t0: float | None = None
+    control_bounds: BoundsLike = None
+    velocity_bounds: BoundsLike = None
+    obstacles: ArrayLike = ()
+    robot_radius: float = 0.0
     angle_shift: np.ndarray = field(init=False, repr=False)
+    limits: Limits = field(init=False, repr=False)
 
     def __post_init__(self) -> None:
         sys = self.system
@@ -97,6 +110,8 @@ class TrackingProblem:
             if widths != (sys.n, sys.k):
                 raise ValueError(f'reference has q and v of widths {widths}; {sys.name} needs '
                                  f'({sys.n}, {sys.k}) (n configuration coordinates, k velocities)')
+        set_('limits', Limits.of(sys, self.control_bounds, self.velocity_bounds, self.obstacles,
+                                 self.robot_radius))
         set_('angle_shift', np.zeros(sys.n))
         if self.wrap_angles and sys.angle_mask.any():
             q_ref0 = self._raw_reference(np.array([self.t0]))[0][0]

@@ -37,8 +37,8 @@ class PontryaginFlow:
     """
 
     system: NonholonomicSystem
-    rhs: ca.Function  # (z, q_r, v_r, eps) -> (zdot, running cost, d zdot/dz)
-    control: ca.Function  # (z, eps) -> u*
+    rhs: ca.Function  # (z, q_r, v_r, eps, u_lo, u_hi) -> (zdot, running cost, d zdot/dz)
+    control: ca.Function  # (z, eps, u_lo, u_hi) -> u*
     dim: int  # len(z) = 2 (n + k)
 
 
@@ -59,9 +59,11 @@ def _build(system: NonholonomicSystem) -> PontryaginFlow:
     qdot, vdot = system.dynamics_fn(q, v, u)
     hamiltonian = running + lam.T @ qdot + mu.T @ vdot
     # H is quadratic in u: one Newton step from u = 0 is its exact minimiser (for an
-    # underactuated system, u* = -B^T mu / eps with the input matrix B).
+    # underactuated system, u* = -B^T mu / eps with the input matrix B). Its Hessian is
+    # eps I, so under box bounds the minimiser is that one clipped channel by channel.
+    lo, hi = ca.SX.sym('u_lo', system.r), ca.SX.sym('u_hi', system.r)
     grad0 = ca.substitute(ca.gradient(hamiltonian, u), u, ca.DM.zeros(system.r))
-    u_star = -ca.solve(ca.hessian(hamiltonian, u)[0], grad0)
+    u_star = ca.fmin(ca.fmax(-ca.solve(ca.hessian(hamiltonian, u)[0], grad0), lo), hi)
     h_star = ca.substitute(hamiltonian, u, u_star)
     x, p = ca.vertcat(q, v), ca.vertcat(lam, mu)
     z = ca.vertcat(x, p)
@@ -69,8 +71,8 @@ def _build(system: NonholonomicSystem) -> PontryaginFlow:
     zdot = ca.vertcat(ca.gradient(h_star, p), -ca.gradient(h_star, x))
     return PontryaginFlow(
         system=system,
-        rhs=ca.Function('pmp_rhs', [z, qr, vr, eps],
+        rhs=ca.Function('pmp_rhs', [z, qr, vr, eps, lo, hi],
                         [zdot, ca.substitute(running, u, u_star), ca.jacobian(zdot, z)]),
-        control=ca.Function('pmp_control', [z, eps], [u_star]),
+        control=ca.Function('pmp_control', [z, eps, lo, hi], [u_star]),
         dim=dim,
     )

@@ -26,10 +26,13 @@ from typing import ClassVar
 import casadi as ca
 import numpy as np
 
+from nh_tracking.limits import plane
 from nh_tracking.problem import (Solution, terminal_cost, terminal_error, tracking_lagrangian,
                                  TrackingProblem)
 from nh_tracking.solvers.base import Guess, Method, Structure
 from nh_tracking.solvers.cache import PerSystemCache
+from nh_tracking.solvers.inequalities import (Rows, Shape, soft_bounds, soften, start_violation,
+                                              VIOLATION_TOL)
 from nh_tracking.solvers.nlp import BoundedNlp, deadline_after
 from nh_tracking.system import NonholonomicSystem
 
@@ -42,31 +45,36 @@ class ShootingTranscription:
     steps: int
     nlp: BoundedNlp
     running_cost: ca.Function  # (w, p) -> integrated running cost
+    limits: Rows
+    rows: int  # of the hard NLP's g
+    soft_index: np.ndarray | None  # softened: the inequality rows given slacks
 
     def parameters(self, problem: TrackingProblem) -> np.ndarray:
         fine = problem.start + np.linspace(0.0, problem.horizon, 2 * SUBSTEPS * problem.steps + 1)
         q_ref, v_ref = problem.reference_at(fine)
         return np.concatenate([q_ref.ravel(), v_ref.ravel(),
-                               [problem.h, problem.epsilon, problem.omega]])
+                               [problem.h, problem.epsilon, problem.omega],
+                               self.limits.parameters(problem.limits)])
 
 
 _CACHE: PerSystemCache[ShootingTranscription] = PerSystemCache()
 
 
 def shooting_transcription(system: NonholonomicSystem, steps: int, terminal: str,
-                           bounded: bool = False) -> ShootingTranscription:
-    return _CACHE.get(system, (steps, terminal, bool(bounded)),
-                      lambda: _build(system, steps, terminal, bool(bounded)))
+                           bounded: bool = False, shape: Shape = Shape()) -> ShootingTranscription:
+    return _CACHE.get(system, (steps, terminal, bool(bounded), shape),
+                      lambda: _build(system, steps, terminal, bool(bounded), shape))
 
 
 def _build(system: NonholonomicSystem, steps: int, terminal: str,
-           bounded: bool) -> ShootingTranscription:
+           bounded: bool, shape: Shape) -> ShootingTranscription:
     n, k, r = system.n, system.k, system.r
     nx = n + k
     points = 2 * SUBSTEPS * steps + 1  # reference at every RK4 stage time
     q_ref, v_ref = ca.SX.sym('q_r', n, points), ca.SX.sym('v_r', k, points)
     h, eps, omega = ca.SX.sym('h'), ca.SX.sym('eps'), ca.SX.sym('omega')
-    p = ca.vertcat(ca.vec(q_ref), ca.vec(v_ref), h, eps, omega)
+    limits = Rows(shape, plane(system) if shape.slots else None)
+    p = ca.vertcat(ca.vec(q_ref), ca.vec(v_ref), h, eps, omega, limits.obstacles)
     lagrangian = tracking_lagrangian(system)
 
     def rate(x, u, j):
@@ -76,11 +84,21 @@ def _build(system: NonholonomicSystem, steps: int, terminal: str,
     w = ca.SX.sym('w', nx * (steps + 1) + r * steps)  # stage-wise x_0, u_0, x_1, ..., x_N
     xs = [w[i * (nx + r):i * (nx + r) + nx] for i in range(steps + 1)]
     us = [w[i * (nx + r) + nx:(i + 1) * (nx + r)] for i in range(steps)]
-    running, gaps = ca.SX(0), []
+    running, g = ca.SX(0), []
+
+    def rows() -> int:
+        return sum(c.shape[0] for c in g)
+
     dt = h / SUBSTEPS
     for i in range(steps):
         x = xs[i]
+        if i > 0:  # the start is data, not a decision
+            g.extend(limits.velocity(x[n:], rows()))
+            g.extend(limits.clearance(x[:n], rows()))
+        g.extend(limits.control(us[i], rows()))
         for s in range(SUBSTEPS):
+            if 2 * s == SUBSTEPS:  # the interval's midpoint
+                g.extend(limits.clearance(x[:n], rows()))
             j = 2 * (i * SUBSTEPS + s)
             k1, l1 = rate(x, us[i], j)
             k2, l2 = rate(x + dt / 2 * k1, us[i], j + 1)
@@ -88,14 +106,20 @@ def _build(system: NonholonomicSystem, steps: int, terminal: str,
             k4, l4 = rate(x + dt * k3, us[i], j + 2)
             x = x + dt / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
             running += dt / 6 * (l1 + 2 * l2 + 2 * l3 + l4)
-        gaps.append(x - xs[i + 1])
+        g.append(x - xs[i + 1])
+    g.extend(limits.velocity(xs[-1][n:], rows()))
+    g.extend(limits.clearance(xs[-1][:n], rows()))
     objective = running
     if terminal == 'cost':
         objective += 0.5 * omega * ca.sumsqr(xs[-1][:n] - q_ref[:, -1])
-    nlp = BoundedNlp(f'multiple_shooting_{system.name}_{steps}', 'ipopt',
-                     {'x': w, 'p': p, 'f': objective, 'g': ca.vertcat(*gaps)}, {}, bounded)
-    return ShootingTranscription(system=system, steps=steps, nlp=nlp,
-                                 running_cost=ca.Function('running', [w, p], [running]))
+    nlp = {'x': w, 'p': p, 'f': objective, 'g': ca.vertcat(*g)}
+    soft_index = None
+    if shape.soft:
+        nlp, soft_index = soften(nlp, limits)
+    solver = BoundedNlp(f'multiple_shooting_{system.name}_{steps}', 'ipopt', nlp, {}, bounded)
+    return ShootingTranscription(system=system, steps=steps, nlp=solver,
+                                 running_cost=ca.Function('running', [w, p], [running]),
+                                 limits=limits, rows=rows(), soft_index=soft_index)
 
 
 def solve_multiple_shooting(problem: TrackingProblem, initial_guess: Guess | None = None,
@@ -108,7 +132,9 @@ def _solve_until(problem: TrackingProblem, initial_guess: Guess | None,
                  stop: float | None) -> Solution:
     sys, big_n = problem.system, problem.steps
     n, k, r = sys.n, sys.k, sys.r
-    tr = shooting_transcription(sys, big_n, problem.terminal, stop is not None)
+    soft = start_violation(problem) > VIOLATION_TOL
+    tr = shooting_transcription(sys, big_n, problem.terminal, stop is not None,
+                                Shape.of(problem.limits, soft))
     p = tr.parameters(problem)
     q_g, v_g = problem.reference_samples[:2] if initial_guess is None else initial_guess[:2]
     u_g = None if initial_guess is None else initial_guess[2]
@@ -124,20 +150,33 @@ def _solve_until(problem: TrackingProblem, initial_guess: Guess | None,
         q_knots, v_knots = problem.reference_samples[:2]
         lbw[-(n + k):] = ubw[-(n + k):] = w0[-(n + k):] = np.concatenate([q_knots[-1],
                                                                           v_knots[-1]])
+    lbg, ubg = tr.limits.bounds(tr.rows, problem.limits)
+    if tr.soft_index is not None:
+        lbg, ubg = soft_bounds(lbg, ubg, tr.soft_index)
+        slacks = len(tr.soft_index)
+        w0, lbw, ubw = (np.concatenate([a, np.full(slacks, b)])
+                        for a, b in ((w0, 0.0), (lbw, 0.0), (ubw, np.inf)))
     start = time.perf_counter()
-    outcome = tr.nlp.solve(stop, x0=w0, p=p, lbx=lbw, ubx=ubw, lbg=0, ubg=0)
+    outcome = tr.nlp.solve(stop, x0=w0, p=p, lbx=lbw, ubx=ubw, lbg=lbg, ubg=ubg)
     elapsed = time.perf_counter() - start
-    w = np.array(outcome.result['x']).ravel()
+    slacks = 0 if tr.soft_index is None else len(tr.soft_index)
+    w = np.array(outcome.result['x']).ravel()[:len(w0) - slacks]
     stage = w[:-(n + k)].reshape(big_n, n + k + r)
     x = np.vstack([stage[:, :n + k], w[-(n + k):]])
     q, v, u = x[:, :n], x[:, n:], stage[:, n + k:]
     cost = float(tr.running_cost(w, p)) + terminal_cost(problem, q[-1])
+    violation = problem.limits.violation(q, v, u)  # midpoints: between RK4 stages
+    message = outcome.message
+    if tr.soft_index is not None:
+        message = f'{message}; least-violating plan: limits broken by {violation:.3g}'
     return Solution(
         t=problem.grid, q=q, v=v, u=u, cost=cost,
-        success=outcome.success and bool(np.all(np.isfinite(w))),
+        success=(outcome.success and bool(np.all(np.isfinite(w)))
+                 and violation <= VIOLATION_TOL),
         iterations=outcome.iterations, solve_time=elapsed,
         terminal_error=terminal_error(problem, q[-1], v[-1]), method='multiple_shooting',
-        message=outcome.message, route='ipopt',
+        message=message, route='ipopt' if tr.soft_index is None else 'ipopt (soft limits)',
+        details={'violation': violation},
     )
 
 

@@ -111,37 +111,36 @@ def _solution(problem: TrackingProblem, shooter: Shooter, starts: list[np.ndarra
             a, b = nodes[i], nodes[i + 1]
             arc = shooter.integrate(z0, (grid[a], grid[b]), t_eval=grid[a:b + 1])
             z[a:b + 1] = arc.z
-            u[a:b] = [np.asarray(shooter.flow.control(arc.dense(t)[:shooter.dim],
-                                                      problem.epsilon)).ravel()
-                      for t in mids[a:b]]
+            u[a:b] = [shooter.control(arc.dense(t)) for t in mids[a:b]]
             arcs.append((grid[a], grid[b], arc.dense))
             cost += arc.cost
         residual = float(np.linalg.norm(shooter.terminal_residual(z[-1])))
     except Diverged:
         ok = False
     q, v = z[:, :n], z[:, n:n + k]
-    law = _control_law(shooter, arcs, problem.epsilon) if ok else None
+    law = _control_law(shooter, arcs) if ok else None
     if ok:
-        u = held_controls(problem.system, grid, q, v, u)
+        u = held_controls(problem.system, grid, q, v, u, problem.limits.controls)
     return Solution(
         t=grid, q=q, v=v, u=u, cost=cost + terminal_cost(problem, q[-1]) if ok else np.inf,
         success=bool(ok), iterations=len(attempts), solve_time=elapsed,
         terminal_error=terminal_error(problem, q[-1], v[-1]), method='pmp',
         message=' -> '.join(attempts), route=attempts[-1] if ok else 'failed',
         costates=(z[:, n + k:2 * n + k], z[:, 2 * n + k:]),
-        details={'shooting_residual': residual}, control_law=law,
+        details={'shooting_residual': residual,
+                 'violation': problem.limits.violation(q, v, u)},
+        control_law=law,
     )
 
 
-def _control_law(shooter: Shooter, arcs: list[tuple[float, float, Callable]],
-                 epsilon: float) -> Callable[[float], np.ndarray]:
+def _control_law(shooter: Shooter,
+                 arcs: list[tuple[float, float, Callable]]) -> Callable[[float], np.ndarray]:
     """u*(t) along the shooting arcs: the continuous optimal control."""
     def law(t: float) -> np.ndarray:
         for a, b, dense in arcs:
             if t <= b:
                 break
-        z = dense(min(max(t, a), b))[:shooter.dim]
-        return np.asarray(shooter.flow.control(z, epsilon)).ravel()
+        return shooter.control(dense(min(max(t, a), b)))
     return law
 
 
@@ -171,5 +170,10 @@ class Pontryagin(Method):
 
     def solve_until(self, problem: TrackingProblem, guess: Guess | None,
                     stop: float | None) -> Solution:
+        limits = problem.limits
+        if limits.bounded_velocities or len(limits.obstacles):
+            raise ValueError('pmp takes control bounds only (the optimal control saturates); '
+                             'velocity bounds and obstacles need variational or '
+                             'multiple_shooting')
         remaining = self.budget if stop is None else stop - time.perf_counter()
         return solve_pmp(problem, max(remaining, 1e-9), fallback=self.fallback, guess=guess)

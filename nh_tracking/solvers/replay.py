@@ -53,13 +53,14 @@ def _step(system: NonholonomicSystem) -> NumericFunction:
 
 
 def held_controls(system: NonholonomicSystem, t: np.ndarray, q: np.ndarray, v: np.ndarray,
-                  u: np.ndarray) -> np.ndarray:
+                  u: np.ndarray, bounds: np.ndarray | None = None) -> np.ndarray:
     """Fit controls (N, r), one held per interval of ``t``, replaying the knots (q, v), from u.
 
     Receding fit: at each interval the next few controls (enough to reach every state
     coordinate) are fitted to the next few knots from the replayed state, and the first is
     kept — so an error in the configuration, which the controls reach only through the
-    velocities, is worked off over the following intervals instead of accumulating.
+    velocities, is worked off over the following intervals instead of accumulating. The
+    controls stay within ``bounds`` ((2, r) lo; hi).
     """
     step = _step(system)
     knots = np.hstack([q, v])
@@ -75,6 +76,8 @@ def held_controls(system: NonholonomicSystem, t: np.ndarray, q: np.ndarray, v: n
                 break
             delta = np.linalg.lstsq(jac, gaps, rcond=None)[0].reshape(len(span), r)
             fitted[i:i + len(span)] += delta
+            if bounds is not None:
+                fitted[i:i + len(span)] = np.clip(fitted[i:i + len(span)], *bounds)
             if np.abs(delta).max() <= 1e-12 * (1 + np.abs(fitted[i]).max()):
                 break
         x = step(x, fitted[i], t[i + 1] - t[i])[0]

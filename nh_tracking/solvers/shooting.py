@@ -85,13 +85,14 @@ class Shooter:
             raise OutOfTime()
         count = [0]
         eps, dim = self.problem.epsilon, self.dim
+        bounds = self.problem.limits.controls
 
         def rhs(t: float, y: np.ndarray) -> np.ndarray:
             count[0] += 1
             if count[0] > MAX_RHS_EVALS:
                 raise Diverged()
             q_r, v_r = self.problem.reference_point(t)
-            zdot, cost_rate, jac = self.rhs(y[:dim], q_r, v_r, eps)
+            zdot, cost_rate, jac = self.rhs(y[:dim], q_r, v_r, eps, *bounds)
             phi_dot = jac @ y[dim + 1:].reshape(dim, dim)
             return np.concatenate([zdot, cost_rate, phi_dot.ravel()])
 
@@ -110,6 +111,11 @@ class Shooter:
         end = sol.y[:, -1]
         return Arc(z_end=end[:dim], sensitivity=end[dim + 1:].reshape(dim, dim),
                    cost=float(end[dim]), t=sol.t, z=sol.y[:dim].T, dense=sol.sol)
+
+    def control(self, z: np.ndarray) -> np.ndarray:
+        """Return the optimal control u*(z), saturated at the problem's control bounds."""
+        lo, hi = self.problem.limits.controls
+        return np.asarray(self.flow.control(z[:self.dim], self.problem.epsilon, lo, hi)).ravel()
 
     def terminal_residual(self, z_end: np.ndarray) -> np.ndarray:
         n, k, prob = self.n, self.k, self.problem

@@ -36,11 +36,14 @@ from typing import Any, ClassVar, Literal
 import casadi as ca
 import numpy as np
 
+from nh_tracking.limits import plane
 from nh_tracking.numeric import NumericFunction
 from nh_tracking.problem import (Solution, terminal_cost, terminal_error, tracking_lagrangian,
                                  TrackingProblem)
 from nh_tracking.solvers.base import Guess, Method, Structure
 from nh_tracking.solvers.cache import PerSystemCache
+from nh_tracking.solvers.inequalities import (Rows, Shape, soft_bounds, soften, start_violation,
+                                              VIOLATION_TOL)
 from nh_tracking.solvers.nlp import BoundedNlp, DEADLINE, deadline_after
 from nh_tracking.system import NonholonomicSystem
 
@@ -70,13 +73,26 @@ class Transcription:
     readout: NumericFunction
     admissibility_rows: np.ndarray  # indices in g of the constraints z - q - h/2 rho v = 0
     dynamics_rows: np.ndarray  # underactuated: of v_{k+1} - v_k - h (f + B u) = 0
+    limits: Rows  # the rows of the problem's limits
+    rows: int  # of the hard NLP's g
+    unknowns: int  # of the hard NLP's x
+    soft_index: np.ndarray | None  # softened: the inequality rows given slacks
 
     def parameters(self, problem: TrackingProblem) -> np.ndarray:
         q_knots, v_knots, q_mid, v_mid = problem.reference_samples
         return np.concatenate([
             problem.q0, problem.v0, q_mid.ravel(), v_mid.ravel(), q_knots[-1], v_knots[-1],
-            [problem.h, problem.epsilon, problem.omega],
+            [problem.h, problem.epsilon, problem.omega], self.limits.parameters(problem.limits),
         ])
+
+    def bounds(self, problem: TrackingProblem) -> dict[str, np.ndarray]:
+        """lbg, ubg (and the slacks' lbx) of a solve: the limits' values go in here."""
+        lower, upper = self.limits.bounds(self.rows, problem.limits)
+        if self.soft_index is None:
+            return {'lbg': lower, 'ubg': upper}
+        lbg, ubg = soft_bounds(lower, upper, self.soft_index)
+        lbx = np.concatenate([np.full(self.unknowns, -np.inf), np.zeros(len(self.soft_index))])
+        return {'lbg': lbg, 'ubg': ubg, 'lbx': lbx}
 
     def pack(self, q: np.ndarray, v: np.ndarray, u: np.ndarray | None) -> np.ndarray:
         """Stage-wise unknowns from knots q (N+1, n), v (N+1, k) and controls u (N, r)."""
@@ -92,19 +108,23 @@ _CACHE: PerSystemCache[Transcription] = PerSystemCache()
 
 def transcription(system: NonholonomicSystem, steps: int, terminal: str,
                   bounded: bool = False, solver: str = 'fatrop',
-                  compiled: bool = False) -> Transcription:
-    """Return the NLP for this structure (backend, deadlines or not, compiled or interpreted).
+                  compiled: bool = False, shape: Shape = Shape()) -> Transcription:
+    """Return the NLP for this structure (backend, deadlines or not, compiled or interpreted.
 
-    Built on first use and cached.
+    And the shape of its limits); built on first use and cached. A soft shape is always
+    solved by IPOPT: its slacks break the stage structure fatrop needs.
     """
     if solver not in BACKENDS:
         raise ValueError(f'unknown NLP solver {solver!r}; choose one of {BACKENDS}')
-    return _CACHE.get(system, (steps, terminal, solver, compiled, bool(bounded)),
-                      lambda: _build(system, steps, terminal, solver, compiled, bool(bounded)))
+    if shape.soft:
+        solver, compiled = 'ipopt', False
+    return _CACHE.get(system, (steps, terminal, solver, compiled, bool(bounded), shape),
+                      lambda: _build(system, steps, terminal, solver, compiled, bool(bounded),
+                                     shape))
 
 
 def _build(system: NonholonomicSystem, steps: int, terminal: str, solver: str,
-           compiled: bool, bounded: bool) -> Transcription:
+           compiled: bool, bounded: bool, shape: Shape) -> Transcription:
     n, k, r, big_n = system.n, system.k, system.r, steps
     eliminated = system.fully_actuated
     nx = n + k
@@ -114,7 +134,8 @@ def _build(system: NonholonomicSystem, steps: int, terminal: str, solver: str,
     q_mid, v_mid = ca.SX.sym('q_r', n * big_n), ca.SX.sym('v_r', k * big_n)
     q_end, v_end = ca.SX.sym('q_rT', n), ca.SX.sym('v_rT', k)
     h, eps, omega = ca.SX.sym('h'), ca.SX.sym('eps'), ca.SX.sym('omega')
-    p = ca.vertcat(q0, v0, q_mid, v_mid, q_end, v_end, h, eps, omega)
+    limits = Rows(shape, plane(system) if shape.slots else None)
+    p = ca.vertcat(q0, v0, q_mid, v_mid, q_end, v_end, h, eps, omega, limits.obstacles)
 
     lagrangian = tracking_lagrangian(system)
     zero = ca.DM.zeros(r)
@@ -125,7 +146,14 @@ def _build(system: NonholonomicSystem, steps: int, terminal: str, solver: str,
     adm_rows: list[int] = []
     dyn_rows: list[int] = []
     running = ca.SX(0)
-    rows = 0
+
+    def rows() -> int:
+        return sum(c.shape[0] for c in g)
+
+    def knot_limits(x: ca.SX) -> None:
+        g.extend(limits.velocity(x[n:], rows()))
+        g.extend(limits.clearance(x[:n], rows()))
+
     for i in range(big_n):
         q, v = xs[i][:n], xs[i][n:]
         v_next, z = us[i][:k], us[i][k:k + n]
@@ -136,24 +164,23 @@ def _build(system: NonholonomicSystem, steps: int, terminal: str, solver: str,
                                   eps)
         controls.append(u)
         w += [xs[i], us[i]]
-        stage = [xs[i + 1] - ca.vertcat(2 * z - q, v_next)]  # dynamics first (fatrop)
+        g.append(xs[i + 1] - ca.vertcat(2 * z - q, v_next))  # dynamics first (fatrop)
         if i == 0:
-            stage.append(xs[0] - ca.vertcat(q0, v0))
-        stage.append(z - q - 0.5 * h * system.rho_fn(z) @ vm)
+            g.append(xs[0] - ca.vertcat(q0, v0))
+        adm_rows.extend(range(rows(), rows() + n))
+        g.append(z - q - 0.5 * h * system.rho_fn(z) @ vm)
         if not eliminated:
-            stage.append(v_next - v - h * (drift + system.input_matrix_fn(z) @ u))
-        for c in stage:
-            rows += c.shape[0]
-        if eliminated:
-            adm_rows.extend(range(rows - n, rows))
-        else:
-            adm_rows.extend(range(rows - n - k, rows - k))
-            dyn_rows.extend(range(rows - k, rows))
-        g += stage
+            dyn_rows.extend(range(rows(), rows() + k))
+            g.append(v_next - v - h * (drift + system.input_matrix_fn(z) @ u))
+        if i > 0:  # the start is data, not a decision
+            knot_limits(xs[i])
+        g.extend(limits.clearance(z, rows()))  # the midpoint, where L is evaluated
+        g.extend(limits.control(u, rows()))
         q_next = xs[i + 1][:n]
         qm = 0.5 * (q + q_next)
         residuals.append((q_next - q) / h - system.rho_fn(qm) @ (0.5 * (v + xs[i + 1][n:])))
     w.append(xs[-1])
+    knot_limits(xs[-1])
     objective = running
     if terminal == 'cost':
         objective += 0.5 * omega * ca.sumsqr(xs[-1][:n] - q_end)
@@ -161,10 +188,13 @@ def _build(system: NonholonomicSystem, steps: int, terminal: str, solver: str,
         g.append(xs[-1] - ca.vertcat(q_end, v_end))
     unknowns, constraints = ca.vertcat(*w), ca.vertcat(*g)
     nlp = {'x': unknowns, 'p': p, 'f': objective, 'g': constraints}
+    soft_index = None
+    if shape.soft:
+        nlp, soft_index = soften(nlp, limits)
     options: dict[str, Any] = {'print_time': False, 'show_eval_warnings': False}  # failures
     if solver == 'fatrop':  # are reported in the Solution
         options.update({'structure_detection': 'auto',
-                        'equality': [True] * constraints.shape[0]})
+                        'equality': list(~limits.inequality_mask(constraints.shape[0]))})
     bounded_nlp = BoundedNlp(f'variational_{system.name}_{big_n}', solver, nlp, options,
                              bounded, compiled)
     knots_q = ca.horzcat(*[x[:n] for x in xs])
@@ -175,7 +205,8 @@ def _build(system: NonholonomicSystem, steps: int, terminal: str, solver: str,
     return Transcription(
         system=system, steps=big_n, terminal=terminal, nlp=bounded_nlp,
         readout=NumericFunction(readout), admissibility_rows=np.array(adm_rows, dtype=int),
-        dynamics_rows=np.array(dyn_rows, dtype=int),
+        dynamics_rows=np.array(dyn_rows, dtype=int), limits=limits,
+        rows=constraints.shape[0], unknowns=unknowns.shape[0], soft_index=soft_index,
     )
 
 
@@ -212,22 +243,32 @@ def solve_variational_until(problem: TrackingProblem, initial_guess: Guess | Non
         if coarse_plan.success:
             q, v = coarse_plan.trajectory().sample(problem.grid)
             initial_guess = (q, v, None)
-    result = _solve_with(problem, initial_guess, stop, solver, compiled)
+    soft = start_violation(problem) > VIOLATION_TOL  # only the least-violating plan exists
+    result = _solve_with(problem, initial_guess, stop, solver, compiled, soft)
     result.solve_time += coarse_time
-    if not result.success and solver == 'fatrop' and result.message != DEADLINE and (
-            stop is None or time.perf_counter() < stop):
+
+    def time_left(previous: Solution) -> bool:
+        return previous.message != DEADLINE and (stop is None or time.perf_counter() < stop)
+
+    if not result.success and solver == 'fatrop' and not soft and time_left(result):
         retry = _solve_with(problem, initial_guess, stop, 'ipopt')
         retry.route = f'fatrop failed ({result.message}) -> ipopt'
         retry.solve_time += result.solve_time
-        return retry
+        result = retry
+    if not result.success and problem.limits.active and not soft and time_left(result):
+        # e.g. a terminal state inside an obstacle: the least-violating plan, reported so
+        relaxed = _solve_with(problem, initial_guess, stop, solver, compiled, True)
+        relaxed.route = f'{result.route} failed ({result.message}) -> soft limits'
+        relaxed.solve_time += result.solve_time
+        result = relaxed
     return result
 
 
 def _solve_with(problem: TrackingProblem, initial_guess: Guess | None, stop: float | None,
-                solver: str, compiled: bool = False) -> Solution:
+                solver: str, compiled: bool = False, soft: bool = False) -> Solution:
     sys = problem.system
     tr = transcription(sys, problem.steps, problem.terminal, stop is not None, solver,
-                       compiled)
+                       compiled, Shape.of(problem.limits, soft))
     q_g, v_g = default_guess(problem) if initial_guess is None else initial_guess[:2]
     u_g = None if initial_guess is None else initial_guess[2]
     q_g, v_g = np.array(q_g, dtype=float), np.array(v_g, dtype=float)
@@ -243,9 +284,11 @@ def _solve_with(problem: TrackingProblem, initial_guess: Guess | None, stop: flo
         return _failed(problem, q_g, v_g, time.perf_counter() - start, solver,
                        'the NLP is not finite at the initial guess (the dynamics or cost give '
                        'NaN or Inf there)')
-    outcome = tr.nlp.solve(stop, x0=w0, p=p, lbg=0, ubg=0)
+    bounds = tr.bounds(problem)
+    slacks = 0 if tr.soft_index is None else len(tr.soft_index)
+    outcome = tr.nlp.solve(stop, x0=np.concatenate([w0, np.zeros(slacks)]), p=p, **bounds)
     elapsed = time.perf_counter() - start
-    w = np.array(outcome.result['x']).ravel()
+    w = np.array(outcome.result['x']).ravel()[:tr.unknowns]
     q, v, u, residual, running = tr.readout(w, p)
     q, v, u, max_residual = q.T.copy(), v.T.copy(), u.T.copy(), float(residual[0])
     lam_g = np.array(outcome.result['lam_g']).ravel()
@@ -257,13 +300,19 @@ def _solve_with(problem: TrackingProblem, initial_guess: Guess | None, stop: flo
     mu = (-problem.epsilon * u if sys.fully_actuated
           else -lam_g[tr.dynamics_rows].reshape(problem.steps, sys.k))
     cost = float(running[0]) + terminal_cost(problem, q[-1])
-    success = outcome.success and bool(np.all(np.isfinite(w)))
+    violation = problem.limits.violation(np.vstack([q, 0.5 * (q[1:] + q[:-1])]), v, u)
+    success = (outcome.success and bool(np.all(np.isfinite(w)))
+               and violation <= VIOLATION_TOL)
+    message = outcome.message
+    if tr.soft_index is not None:
+        message = f'{message}; least-violating plan: limits broken by {violation:.3g}'
     return Solution(
         t=problem.grid, q=q, v=v, u=u, cost=cost, success=success,
         iterations=outcome.iterations, solve_time=elapsed,
         terminal_error=terminal_error(problem, q[-1], v[-1]), method='variational',
-        message=outcome.message, route=solver, costates=(lam, mu),
-        details={'admissibility_residual': max_residual},
+        message=message, route=solver if tr.soft_index is None else 'ipopt (soft limits)',
+        costates=(lam, mu),
+        details={'admissibility_residual': max_residual, 'violation': violation},
     )
 
 

@@ -1,0 +1,121 @@
+# Copyright 2026 nh_tracking maintainers
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+
+"""What a plan may not do: actuator and velocity bounds, and discs it must keep clear of.
+
+Bounds are (lo, hi) pairs, scalars or one value per channel, +-inf allowed; obstacles are discs
+(x, y, r) in the plane of the model's pose position, to be cleared by the robot's radius. Each
+input is checked once, here, and a ValueError names the argument.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import ArrayLike
+
+from nh_tracking.system import NonholonomicSystem
+
+BoundsLike = tuple[ArrayLike, ArrayLike] | None
+
+
+def bounds(value: BoundsLike, size: int, name: str) -> np.ndarray:
+    """(2, size) array [lo; hi] from a (lo, hi) pair of scalars or length-``size`` arrays."""
+    if value is None:
+        return np.vstack([np.full(size, -np.inf), np.full(size, np.inf)])
+    try:
+        lo, hi = value
+        pair = np.vstack([np.broadcast_to(np.asarray(b, dtype=float), (size,)) for b in (lo, hi)])
+    except (TypeError, ValueError):
+        raise ValueError(f'{name} must be a (lo, hi) pair of numbers or arrays of length '
+                         f'{size}, got {value!r}') from None
+    if np.isnan(pair).any():
+        raise ValueError(f'{name} has NaN: {value!r}')
+    if np.any(pair[0] > pair[1]):
+        raise ValueError(f'{name} has lo > hi: {pair[0].tolist()} > {pair[1].tolist()}')
+    return pair
+
+
+def obstacle_discs(value: ArrayLike, name: str = 'obstacles') -> np.ndarray:
+    """(M, 3) array of discs (x, y, r): finite centres, finite radii >= 0."""
+    discs = np.asarray(value, dtype=float)
+    if discs.size == 0:
+        return np.zeros((0, 3))
+    if discs.ndim != 2 or discs.shape[1] != 3:
+        raise ValueError(f'{name} must be a list of (x, y, r) discs, got shape {discs.shape}')
+    if not np.all(np.isfinite(discs)):
+        raise ValueError(f'{name} must have finite centres and radii')
+    if np.any(discs[:, 2] < 0):
+        raise ValueError(f'{name} radii must be >= 0, got {discs[:, 2].tolist()}')
+    return discs
+
+
+def plane(system: NonholonomicSystem) -> tuple[int, int]:
+    """Return the indices in q of the pose's x and y: where obstacles are."""
+    axes = {axis: system.coordinates.index(c) for c, axis in (system.pose or {}).items()}
+    if 'x' not in axes or 'y' not in axes:
+        raise ValueError(f'{system.name} declares no pose x and y (pose=...): obstacles '
+                         'need to know where the robot is in the plane')
+    return axes['x'], axes['y']
+
+
+@dataclass(frozen=True)
+class Limits:
+    """The bounds and obstacles of one problem, checked and in arrays."""
+
+    controls: np.ndarray  # (2, r)
+    velocities: np.ndarray  # (2, k)
+    obstacles: np.ndarray  # (M, 3): x, y, and r + the robot's radius
+    plane: tuple[int, int] | None
+
+    @classmethod
+    def of(cls, system: NonholonomicSystem, control_bounds: BoundsLike,
+           velocity_bounds: BoundsLike, obstacles: ArrayLike,
+           robot_radius: float) -> Limits:
+        if isinstance(robot_radius, bool) or not isinstance(robot_radius, (int, float)) or not (
+                np.isfinite(robot_radius) and robot_radius >= 0):
+            raise ValueError(f'robot_radius must be a finite number >= 0, got {robot_radius!r}')
+        discs = obstacle_discs(obstacles).copy()
+        discs[:, 2] += robot_radius
+        return cls(bounds(control_bounds, system.r, 'control_bounds'),
+                   bounds(velocity_bounds, system.k, 'velocity_bounds'), discs,
+                   plane(system) if len(discs) else None)
+
+    @property
+    def bounded_controls(self) -> bool:
+        return bool(np.isfinite(self.controls).any())
+
+    @property
+    def bounded_velocities(self) -> bool:
+        return bool(np.isfinite(self.velocities).any())
+
+    @property
+    def active(self) -> bool:
+        return self.bounded_controls or self.bounded_velocities or len(self.obstacles) > 0
+
+    def clearance(self, q: np.ndarray) -> np.ndarray:
+        """Distance to each obstacle's edge (grown by the robot's radius) at configurations q."""
+        if self.plane is None:
+            return np.zeros((len(np.atleast_2d(q)), 0))
+        p = np.atleast_2d(q)[:, list(self.plane)]
+        gaps = p[:, None, :] - self.obstacles[None, :, :2]
+        return np.linalg.norm(gaps, axis=2) - self.obstacles[None, :, 2]
+
+    def violation(self, q: np.ndarray, v: np.ndarray, u: np.ndarray | None = None) -> float:
+        """Largest amount by which states q (., n), v (., k) and controls u break a limit."""
+        worst = [0.0, float(np.max(-self.clearance(q), initial=0.0))]
+        for value, (lo, hi) in ((v, self.velocities), (u, self.controls)):
+            if value is not None and len(value):
+                worst.append(float(np.max(np.maximum(lo - value, value - hi), initial=0.0)))
+        return max(worst)

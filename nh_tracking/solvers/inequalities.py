@@ -1,0 +1,146 @@
+# Copyright 2026 nh_tracking maintainers
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+
+"""A problem's limits as NLP rows: bounds given per solve, obstacles as parameters.
+
+An NLP is built for a *shape* of limits — which kinds are bounded, how many obstacle slots —
+so replanning with new bound values or moving obstacles only changes numbers. Obstacle slots
+come in powers of two (at least 4): unused ones are switched off by a parameter, so a changing
+number of obstacles rarely rebuilds anything. Clearance is written squared, |p - c|^2 - R^2 >= 0,
+which is smooth.
+
+Soft form, for a start that itself breaks a limit (inside an obstacle, faster than a bound):
+each row gets a slack s >= 0 (lo - s <= g <= hi + s) and the cost an exact L1 penalty
+W sum(s) — the least-violating plan instead of an infeasible NLP.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import casadi as ca
+import numpy as np
+
+from nh_tracking.limits import Limits
+from nh_tracking.problem import TrackingProblem
+
+SOFT_WEIGHT = 1e4  # per unit of violation: above the multipliers of any sane tracking cost
+VIOLATION_TOL = 1e-6  # a plan breaking a limit by more is no success
+
+
+def obstacle_slots(count: int) -> int:
+    return 0 if count == 0 else max(4, 1 << (count - 1).bit_length())
+
+
+@dataclass(frozen=True)
+class Shape:
+    """What an NLP's limit rows are built for."""
+
+    controls: bool = False
+    velocities: bool = False
+    slots: int = 0
+    soft: bool = False
+
+    @classmethod
+    def of(cls, limits: Limits, soft: bool = False) -> Shape:
+        return cls(limits.bounded_controls, limits.bounded_velocities,
+                   obstacle_slots(len(limits.obstacles)), soft)
+
+
+@dataclass
+class Rows:
+    """Inequality rows of an NLP under construction, in the order they enter g."""
+
+    shape: Shape
+    plane: tuple[int, int] | None
+    obstacles: ca.SX = field(init=False)  # parameters: (x, y, R, on) per slot
+    kinds: list[tuple[int, int, str]] = field(default_factory=list)  # (first row, size, kind)
+
+    def __post_init__(self) -> None:
+        self.obstacles = ca.SX.sym('obstacles', 4 * self.shape.slots)
+
+    def control(self, u: ca.SX, start: int) -> list[ca.SX]:
+        return self._add(u, start, 'u') if self.shape.controls else []
+
+    def velocity(self, v: ca.SX, start: int) -> list[ca.SX]:
+        return self._add(v, start, 'v') if self.shape.velocities else []
+
+    def clearance(self, q: ca.SX, start: int) -> list[ca.SX]:
+        if not self.shape.slots or self.plane is None:
+            return []
+        p = ca.vertcat(q[self.plane[0]], q[self.plane[1]])
+        rows = []
+        for j in range(self.shape.slots):
+            c, radius, on = self.obstacles[4 * j:4 * j + 2], self.obstacles[4 * j + 2], \
+                self.obstacles[4 * j + 3]
+            rows.append(on * (ca.sumsqr(p - c) - radius**2))
+        return self._add(ca.vertcat(*rows), start, 'clear')
+
+    def _add(self, expr: ca.SX, start: int, kind: str) -> list[ca.SX]:
+        self.kinds.append((start, expr.shape[0], kind))
+        return [expr]
+
+    def parameters(self, limits: Limits) -> np.ndarray:
+        values = np.zeros((self.shape.slots, 4))
+        count = len(limits.obstacles)
+        values[:count, :3] = limits.obstacles
+        values[:count, 3] = 1.0
+        return values.ravel()
+
+    def bounds(self, rows: int, limits: Limits) -> tuple[np.ndarray, np.ndarray]:
+        """Lower and upper bounds of all ``rows`` of g: 0 for equalities, the limits else."""
+        lower, upper = np.zeros(rows), np.zeros(rows)
+        for start, size, kind in self.kinds:
+            lo, hi = {'u': limits.controls, 'v': limits.velocities,
+                      'clear': (np.zeros(size), np.full(size, np.inf))}[kind]
+            lower[start:start + size], upper[start:start + size] = lo, hi
+        return lower, upper
+
+    def inequality_mask(self, rows: int) -> np.ndarray:
+        mask = np.zeros(rows, dtype=bool)
+        for start, size, _ in self.kinds:
+            mask[start:start + size] = True
+        return mask
+
+
+def soften(nlp: dict[str, ca.SX], rows: Rows) -> tuple[dict[str, ca.SX], np.ndarray]:
+    """Return the NLP with slacks on every inequality row, and the rows' order for bounds.
+
+    Each inequality g_j (lo_j <= g_j <= hi_j) becomes g_j + s_j >= lo_j and g_j - s_j <= hi_j
+    with s_j >= 0 (the slacks are appended to x; g_j's row keeps its place as g_j + s_j and
+    the g_j - s_j rows are appended at the end, in the same order).
+    """
+    g = nlp['g']
+    mask = rows.inequality_mask(g.shape[0])
+    index = np.flatnonzero(mask)
+    slack = ca.SX.sym('slack', len(index))
+    plus = ca.SX(g)
+    for j, i in enumerate(index):
+        plus[int(i)] = g[int(i)] + slack[j]
+    minus = ca.vertcat(*[g[int(i)] - slack[j] for j, i in enumerate(index)])
+    soft = {'x': ca.vertcat(nlp['x'], slack), 'p': nlp['p'],
+            'f': nlp['f'] + SOFT_WEIGHT * ca.sum1(slack), 'g': ca.vertcat(plus, minus)}
+    return soft, index
+
+
+def soft_bounds(lower: np.ndarray, upper: np.ndarray,
+                index: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Bounds of a softened NLP's g from the hard ones (see :func:`soften`)."""
+    lo, hi = lower.copy(), upper.copy()
+    hi[index] = np.inf  # g + s >= lo
+    return np.concatenate([lo, np.full(len(index), -np.inf)]), np.concatenate([hi, upper[index]])
+
+
+def start_violation(problem: TrackingProblem) -> float:
+    """How much the start itself breaks a limit: then only a soft NLP has a solution."""
+    return problem.limits.violation(problem.q0[None], problem.v0[None])

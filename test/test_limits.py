@@ -1,0 +1,121 @@
+# Copyright 2026 nh_tracking maintainers
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+
+"""Plans a real robot can fly: control and velocity bounds, and obstacles, in every method."""
+import dataclasses
+
+import numpy as np
+import pytest
+
+import nh_tracking as nht
+from nh_tracking.examples.experiments import sleigh_problem
+
+TOL = 1e-6
+
+
+@pytest.fixture(scope='module')
+def saturated():
+    """Bound the paper's sleigh (wrapped, omega = 10) to |u| <= half its unbounded peak."""
+    free_problem = dataclasses.replace(sleigh_problem(wrap_angles=True, terminal='cost'),
+                                       omega=10.0)
+    free = nht.solve(free_problem, second_look=False)
+    u_max = 0.5 * np.abs(free.u).max()
+    problem = dataclasses.replace(free_problem, control_bounds=(-u_max, u_max))
+    plans = {m: nht.solve(problem, m, second_look=False)
+             for m in ('variational', 'multiple_shooting', 'pmp')}
+    return free, u_max, plans
+
+
+def test_control_bounds_hold_in_every_method_and_they_agree(saturated):
+    free, u_max, plans = saturated
+    for method, plan in plans.items():
+        slack = 1e-5 if method == 'pmp' else TOL
+        assert plan.success, (method, plan.message)
+        assert np.abs(plan.u).max() <= u_max + slack, method
+        assert plan.details['violation'] <= slack, method
+    var = plans['variational']
+    assert np.mean(np.abs(np.abs(var.u) - u_max) < 1e-5) > 0.05  # the bound is active
+    assert var.cost > free.cost * 1.01  # and it costs something
+    assert abs(plans['pmp'].cost - var.cost) / var.cost < 0.01
+    assert abs(plans['multiple_shooting'].cost - var.cost) / var.cost < 0.03
+    law = plans['pmp'].control_law  # the continuous law saturates too
+    assert max(np.abs(law(t)).max() for t in np.linspace(0.0, 5.0, 101)) <= u_max + 1e-9
+
+
+@pytest.fixture(scope='module')
+def disc():
+    """Ask a unicycle to drive along y = 0 at 1 m/s, a disc lying (almost) on the line."""
+    unicycle = nht.models.unicycle(m=2.0, J=0.3)
+    t = np.linspace(0.0, 8.0, 81)
+    line = nht.Trajectory(t=t, q=np.c_[t, 0 * t, 0 * t], v=np.c_[np.ones_like(t), 0 * t],
+                          u=np.zeros((80, 2)))
+    return nht.TrackingProblem(unicycle, line, [0, 0, 0], [1, 0], 6.0, 60, terminal='cost',
+                               omega=10.0, obstacles=[(3.0, 0.05, 0.5)], robot_radius=0.2)
+
+
+@pytest.mark.parametrize('method', ['variational', 'multiple_shooting'])
+def test_the_plan_keeps_clear_of_a_disc_and_gets_past_it(disc, method):
+    plan = nht.solve(disc, method)
+    assert plan.success, plan.message
+    clearance = disc.limits.clearance(plan.q)
+    assert clearance.min() >= -TOL  # |p - c| >= r + robot radius at every knot
+    if method == 'variational':  # ... and midpoint, where the Lagrangian is evaluated
+        assert disc.limits.clearance(0.5 * (plan.q[1:] + plan.q[:-1])).min() >= -TOL
+    assert plan.q[-1, 0] > 3.0 + 0.7 and abs(plan.q[-1, 1]) < 0.1  # past it, back on line
+    unbounded = nht.solve(dataclasses.replace(disc, obstacles=()), method)
+    assert disc.limits.clearance(unbounded.q).min() < -0.5  # the line goes through it
+
+
+def test_velocity_bounds_hold_at_every_knot():
+    problem = dataclasses.replace(sleigh_problem(wrap_angles=True, terminal='cost'),
+                                  velocity_bounds=([-0.5, -0.3], [0.5, 1.0]))
+    for method in ('variational', 'multiple_shooting'):
+        plan = nht.solve(problem, method, second_look=False)
+        assert plan.success, (method, plan.message)
+        assert np.all(plan.v[1:] >= [-0.5 - TOL, -0.3 - TOL])
+        assert np.all(plan.v[1:] <= [0.5 + TOL, 1.0 + TOL])
+        assert plan.v[1:, 1].min() < -0.3 + 1e-4 or plan.v[1:, 0].max() > 0.5 - 1e-4  # active
+
+
+@pytest.mark.parametrize('method', ['variational', 'multiple_shooting'])
+def test_a_start_that_breaks_a_limit_gets_the_least_violating_plan(disc, method):
+    inside = dataclasses.replace(disc, q0=np.array([3.0, 0.2, 0.0]))  # in the disc
+    plan = nht.solve(inside, method, second_look=False)
+    assert not plan.success and 'least-violating' in plan.message
+    assert 0 < plan.details['violation'] < 0.7 and np.all(np.isfinite(plan.q))
+    assert plan.q[-1, 0] > 4.0  # it still leaves the disc and carries on
+    fast = dataclasses.replace(disc, obstacles=(), v0=np.array([2.0, 0.0]),
+                               velocity_bounds=(-1.2, 1.2))
+    plan = nht.solve(fast, method, second_look=False)
+    assert not plan.success and plan.details['violation'] > 0.1
+    assert np.abs(plan.v[-1]).max() <= 1.2 + TOL
+
+
+def test_pmp_refuses_what_it_cannot_do(disc):
+    with pytest.raises(ValueError, match='pmp takes control bounds only.*variational'):
+        nht.solve(disc, 'pmp')
+
+
+@pytest.mark.parametrize('change, message', [
+    ({'control_bounds': (1.0, -1.0)}, 'control_bounds has lo > hi'),
+    ({'control_bounds': ([0, 0, 0], 1.0)}, 'control_bounds must be a'),
+    ({'velocity_bounds': (np.nan, 1.0)}, 'velocity_bounds has NaN'),
+    ({'obstacles': [(1.0, 2.0, -0.1)]}, 'obstacles radii must be >= 0'),
+    ({'obstacles': [(np.inf, 2.0, 0.1)]}, 'obstacles must have finite'),
+    ({'obstacles': [(1.0, 2.0)]}, r'obstacles must be a list of \(x, y, r\)'),
+    ({'robot_radius': -0.2}, 'robot_radius must be'),
+])
+def test_inconsistent_limits_are_refused_naming_the_argument(disc, change, message):
+    with pytest.raises(ValueError, match=message):
+        dataclasses.replace(disc, **change)
