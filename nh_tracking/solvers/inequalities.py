@@ -101,9 +101,9 @@ class Rows:
         """Lower and upper bounds of all ``rows`` of g: 0 for equalities, the limits else."""
         lower, upper = np.zeros(rows), np.zeros(rows)
         for start, size, kind in self.kinds:
-            lo, hi = {'u': limits.controls, 'v': limits.velocities,
-                      'clear': (np.zeros(size), np.full(size, np.inf))}[kind]
-            lower[start:start + size], upper[start:start + size] = lo, hi
+            pair = {'u': limits.controls, 'v': limits.velocities,
+                    'clear': np.vstack([np.zeros(size), np.full(size, np.inf)])}[kind]
+            lower[start:start + size], upper[start:start + size] = pair[0], pair[1]
         return lower, upper
 
     def inequality_mask(self, rows: int) -> np.ndarray:

@@ -84,7 +84,7 @@ def _build(system: NonholonomicSystem, steps: int, terminal: str,
     w = ca.SX.sym('w', nx * (steps + 1) + r * steps)  # stage-wise x_0, u_0, x_1, ..., x_N
     xs = [w[i * (nx + r):i * (nx + r) + nx] for i in range(steps + 1)]
     us = [w[i * (nx + r) + nx:(i + 1) * (nx + r)] for i in range(steps)]
-    running, g = ca.SX(0), []
+    running, g = ca.SX(0), list[ca.SX]()
 
     def rows() -> int:
         return sum(c.shape[0] for c in g)
