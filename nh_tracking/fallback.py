@@ -72,10 +72,9 @@ class TrackingLaw:
         system = self.problem.system
         _, drift = system.dynamics(q, v)
         wanted = -drift + self.gains.k_v * (self.desired_velocity(t, q) - v)
-        if system.fully_actuated:
-            return wanted
-        # underactuated: the controls whose effect B u comes closest to it
-        return np.linalg.lstsq(system.input_matrix(q), wanted, rcond=None)[0]
+        if not system.fully_actuated:  # the controls whose effect B u comes closest to it
+            wanted = np.linalg.lstsq(system.input_matrix(q), wanted, rcond=None)[0]
+        return np.clip(wanted, *self.problem.limits.controls)  # the actuators' limits
 
 
 def fallback_plan(problem: TrackingProblem, gains: KanayamaGains = KanayamaGains()) -> Solution:

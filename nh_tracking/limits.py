@@ -119,3 +119,51 @@ class Limits:
             if value is not None and len(value):
                 worst.append(float(np.max(np.maximum(lo - value, value - hi), initial=0.0)))
         return max(worst)
+
+
+def cover(cells: np.ndarray, cell_size: float, centre: np.ndarray, reach: float,
+          count: int, size: float) -> np.ndarray:
+    """At most ``count`` discs (x, y, r) covering occupied cells near ``centre``, nearest first.
+
+    ``cells``: (K, 2) centres of occupied square cells of side ``cell_size``. Cells farther than
+    ``reach`` are ignored; each disc takes the nearest uncovered cell and every uncovered cell
+    within ``size`` of it, and is the smallest disc about their mean holding them whole (a
+    costmap turned into the bounded number of discs an NLP is built for).
+    """
+    cells = np.asarray(cells, dtype=float).reshape(-1, 2)
+    distance = np.hypot(*(cells - np.asarray(centre, dtype=float)[:2]).T)
+    left = cells[distance <= reach][np.argsort(distance[distance <= reach])]
+    discs: list[tuple[float, float, float]] = []
+    half_diagonal = cell_size / np.sqrt(2.0)
+    while len(left) and len(discs) < count:
+        near = np.hypot(*(left - left[0]).T) <= size
+        group = left[near]
+        middle = group.mean(axis=0)
+        radius = np.hypot(*(group - middle).T).max() + half_diagonal
+        discs.append((middle[0], middle[1], radius))
+        left = left[~near]
+    return np.array(discs).reshape(-1, 3)
+
+
+def bounds_from_lists(lo: tuple, hi: tuple, size: int, name: str) -> tuple | None:
+    """Return (lo, hi) from lists of 0, 1 or ``size`` values (ROS's ``name``_min, _max).
+
+    Empty is unbounded on that side; None when both are.
+    """
+    if not lo and not hi:
+        return None
+    for side, values in (('min', lo), ('max', hi)):
+        if len(values) not in (0, 1, size):
+            raise ValueError(f'{name}_{side} must have 0, 1 or {size} values, got {len(values)}')
+    pair = (np.asarray(lo) if lo else -np.inf, np.asarray(hi) if hi else np.inf)
+    if np.any(np.broadcast_to(pair[0], size) > np.broadcast_to(pair[1], size)):
+        raise ValueError(f'{name}_min must not exceed {name}_max, got {list(lo)} > {list(hi)}')
+    return pair
+
+
+def gap(point: np.ndarray, discs: np.ndarray, cells: np.ndarray, cell_size: float) -> float:
+    """Distance from ``point`` (x, y) to the nearest disc edge or occupied cell (inf if none)."""
+    point = np.asarray(point, dtype=float)[:2]
+    to_discs = np.hypot(*(discs[:, :2] - point).T) - discs[:, 2]
+    to_cells = np.hypot(*(cells - point).T) - cell_size / np.sqrt(2.0)
+    return float(min(np.min(to_discs, initial=np.inf), np.min(to_cells, initial=np.inf)))

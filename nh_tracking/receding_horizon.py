@@ -32,13 +32,16 @@ from typing import Any
 import numpy as np
 
 from nh_tracking.fallback import fallback_plan, stop_plan
+from nh_tracking.limits import bounds_from_lists, Limits, plane
 from nh_tracking.problem import Solution, Terminal, terminal_error, TrackingProblem
 from nh_tracking.settings import check_fields, setting
 from nh_tracking.solvers import make_method, Method, METHODS, sample_plan, Structure
+from nh_tracking.solvers.inequalities import obstacle_slots, Shape
 from nh_tracking.system import NonholonomicSystem
 from nh_tracking.trajectory import Trajectory
 
 HISTORY = 10_000  # recent solves kept for statistics: a long-running node must not grow
+MAX_OBSTACLES = 8  # nearest obstacles a plan avoids: a bounded NLP
 
 
 class PlanStatus(str, Enum):
@@ -71,6 +74,14 @@ class PlannerSettings:
     wrap_angles: bool = setting(True, 'compare angles modulo 2 pi')
     compiled: bool = setting(False, 'variational NLP compiled to C (built once per machine '
                              'and structure, then cached)')
+    u_min: tuple = setting((), 'lower bounds of the controls: one per control, or one for '
+                           'all; empty: none')
+    u_max: tuple = setting((), 'upper bounds of the controls (as u_min)')
+    v_min: tuple = setting((), 'lower bounds of the quasi-velocities: one per velocity, or one '
+                           'for all; empty: none')
+    v_max: tuple = setting((), 'upper bounds of the quasi-velocities (as v_min)')
+    robot_radius: float = setting(0.0, "the robot's radius: obstacles are kept this far clear",
+                                  'm', (0.0, 100.0))
 
     def __post_init__(self) -> None:
         check_fields(self)
@@ -79,6 +90,12 @@ class PlannerSettings:
     def solver(self) -> Method:
         """Return the method object these settings describe."""
         return make_method(self.method, **({'compiled': True} if self.compiled else {}))
+
+    def limits(self, system: NonholonomicSystem) -> dict[str, Any]:
+        """Return the bounds of a problem of ``system``, or raise a ValueError naming them."""
+        return {'control_bounds': bounds_from_lists(self.u_min, self.u_max, system.r, 'u'),
+                'velocity_bounds': bounds_from_lists(self.v_min, self.v_max, system.k, 'v'),
+                'robot_radius': self.robot_radius}
 
 
 @dataclass
@@ -119,14 +136,25 @@ class RecedingHorizonPlanner:
         self.system = system
         self.settings = settings
         self.reference: Trajectory | None = None
+        self.obstacles = np.zeros((0, 3))  # discs (x, y, r), set by the front end
         self.previous: Solution | None = None
+        self.limits = settings.limits(system)
         self.stats = PlannerStatistics()
         self.method = settings.solver()
 
     def prepare(self) -> None:
-        """Build the solver for the current settings now, so the first plan is not late."""
+        """Build the solver for the current settings now, so the first plan is not late.
+
+        Both shapes of its limits: without obstacles, and with the obstacle slots.
+        """
         s = self.settings
-        self.method.prepare(self.system, Structure(s.steps, s.terminal, s.max_solve_time))
+        bounds = Limits.of(self.system, self.limits['control_bounds'],
+                           self.limits['velocity_bounds'], (), 0.0)
+        slots = [0] if self.method.name == 'pmp' else [0, obstacle_slots(MAX_OBSTACLES)]
+        for count in slots:
+            shape = dataclasses.replace(Shape.of(bounds), slots=count)
+            self.method.prepare(self.system, Structure(s.steps, s.terminal, s.max_solve_time,
+                                                       shape))
 
     def set_reference(self, reference: Trajectory) -> None:
         """Track ``reference`` (times on the planner's clock) from the next plan on."""
@@ -136,8 +164,9 @@ class RecedingHorizonPlanner:
 
     def update(self, **changes: Any) -> PlannerSettings:
         """Change settings (validated); the warm start is kept."""
-        self.settings = dataclasses.replace(self.settings, **changes)
-        self.method = self.settings.solver()
+        settings = dataclasses.replace(self.settings, **changes)
+        self.limits = settings.limits(self.system)
+        self.settings, self.method = settings, settings.solver()
         return self.settings
 
     def problem(self, t: float, q: np.ndarray, v: np.ndarray) -> TrackingProblem:
@@ -146,7 +175,17 @@ class RecedingHorizonPlanner:
         s = self.settings
         return TrackingProblem(self.system, self.reference, q, v, horizon=s.horizon,
                                steps=s.steps, epsilon=s.epsilon, terminal=s.terminal,
-                               omega=s.omega, wrap_angles=s.wrap_angles, t0=t)
+                               omega=s.omega, wrap_angles=s.wrap_angles, t0=t,
+                               obstacles=self.nearest_obstacles(q), **self.limits)
+
+    def nearest_obstacles(self, q: np.ndarray) -> np.ndarray:
+        """Return the :data:`MAX_OBSTACLES` obstacles nearest to q: what an NLP is built for."""
+        discs = self.obstacles
+        if len(discs) <= MAX_OBSTACLES:
+            return discs
+        ix, iy = plane(self.system)
+        gaps = np.hypot(discs[:, 0] - q[ix], discs[:, 1] - q[iy]) - discs[:, 2]
+        return discs[np.argsort(gaps)[:MAX_OBSTACLES]]
 
     def plan(self, t: float, q: np.ndarray, v: np.ndarray) -> PlanOutcome:
         """Plan from state (q, v) at time t. Raises ValueError only for bad input."""

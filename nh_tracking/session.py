@@ -31,47 +31,13 @@ import time
 import numpy as np
 
 from nh_tracking import models
+from nh_tracking.limits import obstacle_discs
 from nh_tracking.poses import PoseMap
 from nh_tracking.problem import Solution
 from nh_tracking.receding_horizon import PlannerSettings, PlanOutcome, RecedingHorizonPlanner
-from nh_tracking.settings import check_fields, setting
+from nh_tracking.session_types import Clock, PlanResult, StateEstimate
 from nh_tracking.system import NonholonomicSystem
 from nh_tracking.trajectory import Trajectory
-
-Clock = Callable[[], int]  # now, in integer nanoseconds
-
-
-@dataclass(frozen=True)
-class SessionSettings:
-    """How a session runs: when it replans, how often it commands, when odometry is stale."""
-
-    replan_period: float = setting(0.1, 'time between replans', 's', (1e-3, 60.0))
-    replan_on_odom: bool = setting(False, 'also replan on every odometry message')
-    cmd_rate: float = setting(20.0, 'velocity command rate', 'Hz', (0.1, 1000.0))
-    odom_timeout: float = setting(0.5, 'odometry older than this is stale: zero command, no '
-                                  'plans', 's', (1e-3, 3600.0))
-
-    def __post_init__(self) -> None:
-        check_fields(self)
-
-
-@dataclass(frozen=True)
-class StateEstimate:
-    """The robot's state from one odometry message."""
-
-    ns: int
-    q: np.ndarray
-    v: np.ndarray
-    received: float  # time.perf_counter() at receipt, for latency figures
-
-
-@dataclass(frozen=True)
-class PlanResult:
-    """What one replanning attempt produced: an outcome to publish, or why there is none."""
-
-    outcome: PlanOutcome | None
-    state: StateEstimate | None
-    reason: str
 
 
 @dataclass(frozen=True)
@@ -102,6 +68,7 @@ class TrackingSession:
         # NLP solver) [s], for the recent plans
         self.latencies: deque[tuple[float, float, float]] = deque(maxlen=2000)
         self._state: StateEstimate | None = None
+        self._obstacles = np.zeros((0, 3))
         self._lock = threading.Lock()  # the fields above shared between threads
         self._solve_lock = threading.Lock()  # one solve at a time; swaps happen between them
         self._pending: _Build | None = None
@@ -195,6 +162,18 @@ class TrackingSession:
         with self._lock:
             return self._state
 
+    @property
+    def obstacles(self) -> np.ndarray:
+        """Return the discs (x, y, r) the plans keep clear of."""
+        with self._lock:
+            return self._obstacles
+
+    def set_obstacles(self, discs: np.ndarray) -> None:
+        """Keep clear of ``discs`` (x, y, r) from the next plan on."""
+        discs = obstacle_discs(discs)
+        with self._lock:
+            self._obstacles = discs
+
     # reconfiguration --------------------------------------------------------------------------
     def reconfigure(self, physical: Mapping[str, float], settings: PlannerSettings) -> None:
         """Apply new model parameters and/or settings, built on the builder thread.
@@ -242,6 +221,7 @@ class TrackingSession:
             return PlanResult(None, state, reason)
         with self._solve_lock:
             planner = self.planner
+            planner.obstacles = self._obstacles
             outcome = planner.plan(self.seconds(state.ns), state.q, state.v)
             planning = planner.stats.plan_durations[-1]
         result = PlanResult(outcome, state, f'{outcome.status}: {outcome.message} '
@@ -292,6 +272,7 @@ class TrackingSession:
             q = self.pose_map.configuration(pose, None if state is None else state.q)
             t, v = self.seconds(self.clock()), np.zeros(self.system.k)
         with self._solve_lock:
+            self.planner.obstacles = self._obstacles
             solution = self.planner.preview(t, q, v)
         if not solution.success:
             return None, f'solver failed ({solution.message})'

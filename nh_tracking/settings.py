@@ -58,6 +58,8 @@ def check(value: Any, name: str, default: Any, meta: Setting) -> Any:
     kind = type(default)
     if kind is float and isinstance(value, int) and not isinstance(value, bool):
         value = float(value)
+    if kind is tuple:  # a list of numbers (a ROS double array)
+        return _numbers(value, name)
     if not isinstance(value, kind) or (kind is int and isinstance(value, bool)):
         raise ValueError(f'{name} must be {_type_name(kind)}, got {value!r}')
     if meta.bounds is not None and not (math.isfinite(value)
@@ -81,6 +83,14 @@ def check_fields(obj: Any) -> None:
         raise ValueError(f"invalid {type(obj).__name__}: {'; '.join(problems)}")
 
 
+def _numbers(value: Any, name: str) -> tuple[float, ...]:
+    if not isinstance(value, (list, tuple)) or not all(
+            isinstance(v, (int, float)) and not isinstance(v, bool) and not math.isnan(v)
+            for v in value):
+        raise ValueError(f'{name} must be a list of numbers, got {value!r}')
+    return tuple(float(v) for v in value)
+
+
 def _type_name(kind: type) -> str:
     return {bool: 'true or false', int: 'an integer', float: 'a number', str: 'a string',
             list: 'a list of numbers'}.get(kind, kind.__name__)
@@ -92,6 +102,7 @@ def markdown_table(rows: list[tuple[str, Any, Setting]]) -> str:
     for name, default, meta in rows:
         limits = (f'{meta.bounds[0]:g} – {meta.bounds[1]:g}' if meta.bounds else
                   ' \\| '.join(meta.choices))
-        shown = str(default).lower() if isinstance(default, bool) else default
+        shown = str(default).lower() if isinstance(default, bool) else (
+            list(default) if isinstance(default, tuple) else default)
         lines.append(f'| `{name}` | `{shown}` | {meta.unit} | {limits} | {meta.description} |')
     return '\n'.join(lines)

@@ -247,3 +247,63 @@ def test_outgoing_messages_round_trip(x, y, yaw):
     start, offsets, efforts = cv.controls_to_arrays(seq, ['torque', 'force'])
     assert start == 10**9 and np.allclose(efforts, np.array([[x, y], [y, x]]) * 1e-3)
     assert offsets == pytest.approx([0.0, 0.1])
+
+
+@st.composite
+def marker_arrays(draw):
+    from visualization_msgs.msg import Marker, MarkerArray
+
+    markers = []
+    for i in range(draw(st.integers(0, 4))):
+        marker = Marker(id=draw(st.integers(0, 3)), ns=draw(st.sampled_from(['a', 'b'])),
+                        type=draw(st.sampled_from([Marker.CYLINDER, Marker.SPHERE,
+                                                   Marker.TEXT_VIEW_FACING])),
+                        action=draw(st.sampled_from([Marker.ADD, Marker.DELETE,
+                                                     Marker.DELETEALL])))
+        marker.header.frame_id = draw(frames)
+        marker.pose = draw(poses())
+        marker.scale.x = draw(value)
+        markers.append(marker)
+    return MarkerArray(markers=markers)
+
+
+@given(st.lists(marker_arrays(), max_size=4))
+@SETTINGS
+def test_obstacle_markers_give_finite_discs_or_a_rejection(messages):
+    from nh_tracking.ros.obstacle_messages import MarkerObstacles
+
+    obstacles = MarkerObstacles('odom')
+    for msg in messages:
+        before = obstacles.discs
+        try:
+            obstacles.apply(msg)
+        except cv.InputRejected:
+            assert np.array_equal(obstacles.discs, before)  # the set in force stays
+        discs = obstacles.discs
+        assert discs.shape[1] == 3 and np.all(np.isfinite(discs)) and np.all(discs[:, 2] >= 0)
+
+
+@given(resolution=value, width=st.integers(0, 6), height=st.integers(0, 6),
+       data=st.lists(st.integers(-128, 127), max_size=40), origin=poses(), frame=frames)
+@SETTINGS
+def test_costmaps_give_finite_cells_or_a_rejection(resolution, width, height, data, origin,
+                                                   frame):
+    from nav_msgs.msg import OccupancyGrid
+
+    from nh_tracking.limits import cover
+    from nh_tracking.ros.obstacle_messages import occupied_cells
+
+    grid = OccupancyGrid()
+    grid.header.frame_id = frame
+    grid.info.resolution, grid.info.width, grid.info.height = resolution, width, height
+    grid.info.origin, grid.data = origin, data
+    try:
+        cells, size = occupied_cells(grid, 'odom')
+    except cv.InputRejected:
+        return
+    assert np.all(np.isfinite(cells)) and size > 0
+    assert len(cells) == sum(d >= 65 for d in data)
+    discs = cover(cells, size, np.zeros(2), 1e9, 8, 0.5)
+    assert len(discs) <= 8 and np.all(np.isfinite(discs))
+    for cell in cells[:20]:  # every cell is inside some disc, or left for lack of discs
+        assert len(discs) == 8 or np.any(np.hypot(*(discs[:, :2] - cell).T) <= discs[:, 2])

@@ -18,7 +18,7 @@ import uuid
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from geometry_msgs.msg import PoseStamped, Twist
-from nav_msgs.msg import Odometry, Path
+from nav_msgs.msg import OccupancyGrid, Odometry, Path
 from nav_msgs.srv import GetPlan
 import numpy as np
 import pytest
@@ -27,10 +27,12 @@ from rclpy.parameter import Parameter
 from std_msgs.msg import Header
 from std_srvs.srv import Trigger
 from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint, MultiDOFJointTrajectory
+from visualization_msgs.msg import Marker, MarkerArray
 
 from faults import Faulty
 from nh_tracking.examples.demo import ClosedLoop, sleigh_reference, START
 from nh_tracking.examples.experiments import SLEIGH_REFERENCE_START
+from nh_tracking.examples.obstacles import costmap_msg
 from nh_tracking.metrics import cross_track_error
 from nh_tracking.ros import conversions as cv
 from nh_tracking.ros import PlannerNode, SimulatorNode
@@ -186,6 +188,11 @@ def _bad_messages(pair):
     wrong_frame_odom = Odometry()
     wrong_frame_odom.header.frame_id = 'map'
     wrong_frame_odom.pose.pose.orientation.w = 1.0
+    disc = Marker(type=Marker.CYLINDER, action=Marker.ADD)
+    disc.header.frame_id = 'odom'
+    disc.scale.x = -0.4
+    grid = costmap_msg('odom', np.zeros((0, 3)))
+    grid.data = grid.data[:-1]
     return [
         (Path, 'reference_path', Path(header=Header(frame_id='odom')), 'path is empty'),
         (Path, 'reference_path', path(nan_pose), 'NaN'),
@@ -196,6 +203,8 @@ def _bad_messages(pair):
         (MultiDOFJointTrajectory, 'reference_trajectory', infinite, 'NaN or Inf'),
         (Odometry, 'odom', odom, 'NaN'),
         (Odometry, 'odom', wrong_frame_odom, "frame 'map'"),
+        (MarkerArray, 'obstacles', MarkerArray(markers=[disc]), 'diameter scale.x >= 0'),
+        (OccupancyGrid, 'costmap', grid, 'width x height = len(data)'),
     ]
 
 
@@ -224,9 +233,9 @@ def test_malformed_input_is_rejected_and_the_last_good_plan_stays(graph):
     # the simulator rejects a control sequence for joints it does not have, and keeps going
     bad = JointTrajectory(joint_names=['left', 'right'],
                           points=[JointTrajectoryPoint(effort=[1.0, 2.0])])
-    count = len(pair.odom)
-    pair.publisher(JointTrajectory, 'control_sequence').publish(bad)
-    assert wait_until(lambda: pair.sim.rejected_inputs == 1, 10.0)
+    count, rejected = len(pair.odom), pair.sim.rejected_inputs  # (it refused the bad
+    pair.publisher(JointTrajectory, 'control_sequence').publish(bad)  # obstacles too)
+    assert wait_until(lambda: pair.sim.rejected_inputs == rejected + 1, 10.0)
     assert wait_until(lambda: len(pair.odom) > count + 10, 10.0)
 
 
@@ -456,3 +465,24 @@ def test_an_underactuated_snakeboard_runs_through_the_nodes(graph):
     assert xy[-1, 0] > 0.5  # it moved along the path (0.07 m off it at most, measured)
     assert cross_track_error(xy, reference.q[:, :2]).max() < 0.2
     assert planner.planner.stats.optimal > 10 and planner.errors == 0 and sim.errors == 0
+
+
+@pytest.mark.parametrize('kind', ['markers', 'costmap'])
+def test_limits_and_obstacles_through_ros(graph, kind):
+    """A unicycle tracks a line through two obstacles, accelerations limited to 1.
+
+    The obstacles are sent as markers on ``obstacles``, or as a Nav2-style OccupancyGrid on
+    ``costmap``: no collision in the simulator, controls never above the limit, and the robot
+    back on the line (< 0.05 m) afterwards.
+    """
+    from nh_tracking.examples import obstacles as scenario
+
+    loop, reference = scenario.run(graph, kind, duration=25.0, namespace=unique_namespace())
+    t, xy, _, efforts = loop.record()
+    assert loop.sim is not None and t[-1] >= scenario.START + 25.0 - 0.1
+    assert loop.sim.collisions == 0 and loop.sim.errors == 0 and loop.planner.errors == 0
+    gaps = [np.hypot(*(xy - c[:2]).T).min() - c[2] for c in scenario.OBSTACLES]
+    assert min(gaps) >= scenario.ROBOT_RADIUS and xy[-1, 0] > 10.0  # past both of them
+    assert np.abs(efforts).max() <= scenario.U_LIMIT + 1e-6
+    settled = t >= t[-1] - 3.0
+    assert cross_track_error(xy[settled], reference.q[:, :2]).max() < 0.05

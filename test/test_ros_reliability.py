@@ -19,13 +19,14 @@ And a soak with reference swaps and parameter changes — nothing crashes, nothi
 import time
 
 from geometry_msgs.msg import PoseWithCovarianceStamped, Twist
-from nav_msgs.msg import Odometry, Path
+from nav_msgs.msg import OccupancyGrid, Odometry, Path
 from nav_msgs.srv import GetPlan
 import numpy as np
 import pytest
 from rclpy.parameter import Parameter
 from rclpy.qos import QoSProfile
 from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint, MultiDOFJointTrajectory
+from visualization_msgs.msg import Marker, MarkerArray
 
 from nh_tracking.examples.demo import ClosedLoop, sleigh_reference, START
 from nh_tracking.metrics import cross_track_error
@@ -100,6 +101,22 @@ class Fuzzer:
         msg.pose.pose.orientation.z = 2.0  # not a unit quaternion
         return msg
 
+    def obstacles(self):
+        marker = Marker(type=Marker.CYLINDER, action=Marker.ADD, id=int(self.rng.integers(3)))
+        marker.header.frame_id = 'odom' if self.rng.integers(2) else 'map'
+        marker.pose.position.x = self.bad()
+        marker.scale.x = -1.0 if self.rng.integers(2) else self.bad()
+        return MarkerArray(markers=[marker])
+
+    def costmap(self):
+        grid = OccupancyGrid()
+        grid.header.frame_id = 'odom'
+        grid.info.resolution = float(self.rng.choice([0.0, -0.05, self.bad()]))
+        grid.info.width, grid.info.height = 4, 3
+        grid.info.origin.orientation.w = 1.0
+        grid.data = [100] * int(self.rng.choice([12, 5]))
+        return grid
+
 
 def test_fuzz_flood_and_concurrent_calls_leave_the_loop_tracking(graph):
     pair = WallClockPair(graph, planner_params={'replan_on_odom': True})
@@ -108,7 +125,8 @@ def test_fuzz_flood_and_concurrent_calls_leave_the_loop_tracking(graph):
     fuzz = Fuzzer(pair)                         # control_sequence too: check at the source
     topics = {'reference_path': Path, 'reference_trajectory': MultiDOFJointTrajectory,
               'odom': Odometry, 'control_sequence': JointTrajectory, 'cmd_vel': Twist,
-              'initialpose': PoseWithCovarianceStamped}
+              'initialpose': PoseWithCovarianceStamped, 'obstacles': MarkerArray,
+              'costmap': OccupancyGrid}
     pubs = {t: pair.publisher(m, t) for t, m in topics.items()}
     sent = dict.fromkeys(topics, 0)
     # fuzz every input topic of both nodes for 3 s

@@ -38,8 +38,9 @@ from nh_tracking.metrics import cross_track_error, percentiles_ms
 from nh_tracking.problem import TrackingProblem
 from nh_tracking.receding_horizon import PlannerSettings, RecedingHorizonPlanner
 from nh_tracking.simulate import simulate
+from nh_tracking.solvers.midpoint import transcription
 from nh_tracking.solvers.pmp import solve_pmp
-from nh_tracking.solvers.variational import solve_variational, transcription
+from nh_tracking.solvers.variational import solve_variational
 
 REPEATS = 9
 T = TypeVar('T')

@@ -183,3 +183,31 @@ def plot_bench(results: dict, path: Path) -> Path:
         axes[3].set(ylabel='odom -> control_sequence [ms]', title='ROS latency (in process)')
         axes[3].legend()
     return _finish(fig, path)
+
+
+def plot_obstacles(reference: Trajectory, obstacles: np.ndarray, robot_radius: float,
+                   xy: np.ndarray, tu: np.ndarray, u: np.ndarray, limit: float,
+                   path: Path) -> Path:
+    """Plot obstacles, reference and driven path, and the controls against their limit."""
+    from matplotlib.patches import Circle
+
+    fig, axes = _subplots(2, 1, figsize=(11, 6.5))
+    ax = axes[0]
+    for i, (x, y, r) in enumerate(obstacles):
+        ax.add_patch(Circle((x, y), r, color='tab:red', alpha=0.5,
+                            label='obstacle' if i == 0 else None))
+        ax.add_patch(Circle((x, y), r + robot_radius, fill=False, ls=':', color='tab:red',
+                            label='clearance needed' if i == 0 else None))
+    shown = reference.q[:, 0] <= xy[:, 0].max() + 0.5
+    ax.plot(reference.q[shown, 0], reference.q[shown, 1], 'k--', label='reference')
+    ax.plot(xy[:, 0], xy[:, 1], '-', lw=2, label='robot (closed loop through ROS)')
+    ax.set(xlabel='x [m]', ylabel='y [m]', aspect='equal', title='tracking past obstacles')
+    ax.legend(loc='upper right', fontsize=8)
+    ax = axes[1]
+    for j, name in enumerate(('linear', 'angular')):
+        ax.step(tu, u[:, j], where='post', label=f'{name} acceleration')
+    for bound in (-limit, limit):
+        ax.axhline(bound, color='r', ls=':')
+    ax.set(xlabel='t [s]', ylabel='u (first of each plan)', title='controls and their limit')
+    ax.legend(fontsize=8)
+    return _finish(fig, path)

@@ -70,7 +70,7 @@ class ParameterSpec:
 
     def check(self, value: object) -> object:
         """``value`` as this parameter's type, or ValueError naming the parameter."""
-        if isinstance(self.default, list) and isinstance(value, (list, tuple)):
+        if isinstance(self.default, (list, tuple)) and isinstance(value, (list, tuple)):
             value = [float(v) if isinstance(v, int) and not isinstance(v, bool) else v
                      for v in value]
         return check(value, f'parameter {self.name}', self.default, self.meta)
@@ -95,7 +95,10 @@ def declare(node: Node, spec: ParameterSpec) -> Any:
     overrides = node._parameter_overrides  # rclpy keeps -p / params-file values here
     if spec.name in overrides:
         value = spec.check(overrides[spec.name].value)
-        overrides[spec.name] = Parameter(spec.name, value=value)
+        overrides[spec.name] = (Parameter(spec.name, Parameter.Type.DOUBLE_ARRAY,
+                                          list(value))  # type: ignore[call-overload]
+                                if isinstance(spec.default, tuple)
+                                else Parameter(spec.name, value=value))
     if isinstance(spec.default, float):
         if node not in _FLOATS:  # one callback per node: rclpy concatenates their results
             names = _FLOATS[node] = set()
@@ -104,6 +107,14 @@ def declare(node: Node, spec: ParameterSpec) -> Any:
                                 if p.name in names and p.type_ == Parameter.Type.INTEGER
                                 else p for p in params])
         _FLOATS[node].add(spec.name)
+    if isinstance(spec.default, tuple):  # a double array, possibly empty: typed explicitly
+        value = node.declare_parameter(spec.name, Parameter.Type.DOUBLE_ARRAY,
+                                       spec.descriptor()).value
+        if value is None:
+            node.set_parameters([Parameter(spec.name, Parameter.Type.DOUBLE_ARRAY,
+                                           list(spec.default))])
+            value = list(spec.default)
+        return list(value)
     return node.declare_parameter(spec.name, spec.default, spec.descriptor()).value
 
 

@@ -22,7 +22,7 @@ from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 
 from nh_tracking.receding_horizon import PlannerSettings
 from nh_tracking.ros.parameters import ParameterSpec, plain
-from nh_tracking.session import SessionSettings
+from nh_tracking.session_types import SessionSettings
 
 LATCHED = QoSProfile(depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL,
                      reliability=ReliabilityPolicy.RELIABLE)
@@ -39,5 +39,7 @@ NODE = (
     plain('cmd_vel_stamped', False, 'publish TwistStamped on cmd_vel', read_only=True),
     plain('autostart', True, 'configure and activate at start-up (false: wait for a '
           'lifecycle manager)', read_only=True),
+    plain('costmap_reach', 5.0, 'occupied costmap cells farther from the robot are ignored',
+          'm', (0.1, 1000.0)),
 )
 PARAMETERS = SETTINGS + SESSION + NODE

@@ -29,23 +29,25 @@ from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from geometry_msgs.msg import Twist, TwistStamped
 from nav_msgs.msg import Odometry, Path
 import numpy as np
-from rcl_interfaces.msg import SetParametersResult
 from rclpy.event_handler import SubscriptionEventCallbacks
 from rclpy.lifecycle import LifecycleNode, LifecycleState, TransitionCallbackReturn
 from trajectory_msgs.msg import JointTrajectory, MultiDOFJointTrajectory
 from visualization_msgs.msg import MarkerArray
 
 from nh_tracking.health import session_health
-from nh_tracking.receding_horizon import PlannerSettings
+from nh_tracking.receding_horizon import MAX_OBSTACLES, PlannerSettings
 from nh_tracking.ros import conversions as cv
+from nh_tracking.ros.obstacle_listener import CLUSTER, ObstacleListener
+from nh_tracking.ros.obstacle_messages import obstacle_markers
 from nh_tracking.ros.parameters import declare_all, declare_model
-from nh_tracking.ros.planner_interface import LATCHED, PARAMETERS, REFERENCE_QOS, SETTINGS
+from nh_tracking.ros.planner_interface import LATCHED, PARAMETERS, REFERENCE_QOS
+from nh_tracking.ros.planner_parameters import RuntimeParameters
 from nh_tracking.ros.planner_services import PlannerServices
-from nh_tracking.ros.safety import guarded, SafeNode
+from nh_tracking.ros.safety import guarded
 from nh_tracking.session import PlanResult, TrackingSession
 
 
-class PlannerNode(SafeNode, LifecycleNode):
+class PlannerNode(RuntimeParameters, ObstacleListener, LifecycleNode):
     """``nh_tracking_planner``: topics, services and parameters in the README's table."""
 
     def __init__(self, **kwargs) -> None:
@@ -81,9 +83,6 @@ class PlannerNode(SafeNode, LifecycleNode):
     @property
     def pose_map(self):
         return self.live.pose_map
-
-    def _settings_values(self) -> dict:
-        return {s.name: self.get_parameter(s.name).value for s in SETTINGS}
 
     def _now_ns(self) -> int:
         return self.get_clock().now().nanoseconds
@@ -130,6 +129,8 @@ class PlannerNode(SafeNode, LifecycleNode):
                                          self.on_reference_trajectory, qos,
                                          event_callbacks=quiet)]
         self._entities.append(self.create_subscription(Odometry, 'odom', self.on_odom, 10))
+        self._entities += self.listen_for_obstacles()
+        self._discs, self._discs_centre = np.zeros((0, 3)), np.zeros(2)
         self._service_host = PlannerServices(self)
         session.start(self._publish_plan, self._publish_display)
         self.get_logger().info(f'planning for {self.model} {self.physical} with '
@@ -213,7 +214,10 @@ class PlannerNode(SafeNode, LifecycleNode):
     @guarded('odom')
     def on_odom(self, msg: Odometry) -> None:
         received = time.perf_counter()
-        self.live.set_odometry(*cv.odom_to_arrays(msg, self.frame), received)
+        stamp, pose, twist = cv.odom_to_arrays(msg, self.frame)
+        self.live.set_odometry(stamp, pose, twist, received)
+        if len(self.costmap[0]) and np.hypot(*(pose[:2] - self._discs_centre)) > CLUSTER:
+            self.obstacles_changed()  # the costmap's discs follow the robot
         if self.params['replan_on_odom']:
             self.live.wake()
 
@@ -240,8 +244,16 @@ class PlannerNode(SafeNode, LifecycleNode):
         self.pub_path.publish(cv.path_msg(self.frame, stamps, poses))
         if self.pub_markers.get_subscription_count() > 0:
             reference = np.array([pose(q) for q in outcome.reference])
-            self.pub_markers.publish(cv.plan_markers(self.frame, stamps[0], poses[:, :3],
-                                                     reference[:, :3]))
+            markers = cv.plan_markers(self.frame, stamps[0], poses[:, :3], reference[:, :3])
+            markers.markers += obstacle_markers(self.frame, stamps[0], self._discs)
+            self.pub_markers.publish(markers)
+
+    def obstacles_changed(self) -> None:
+        state, session = self.live.state, self.live
+        centre = np.zeros(2) if state is None else session.pose_map.pose(state.q)[:2]
+        self._discs_centre = centre
+        self._discs = self.obstacle_discs(centre, self.params['costmap_reach'], MAX_OBSTACLES)
+        session.set_obstacles(self._discs)
 
     @guarded('cmd_vel')
     def publish_cmd_vel(self) -> None:
@@ -255,37 +267,6 @@ class PlannerNode(SafeNode, LifecycleNode):
             self.pub_cmd.publish(cv.twist_stamped_msg(self.frame, self._now_ns(), twist))
         else:
             self.pub_cmd.publish(cv.twist_msg(twist))
-
-    # parameters -------------------------------------------------------------------------------
-    def _validate_parameters(self, params) -> SetParametersResult:
-        changes = {p.name: p.value for p in params}
-        try:
-            PlannerSettings(**{**self._settings_values(),
-                               **{k: v for k, v in changes.items() if k in _SETTING_NAMES}})
-        except (ValueError, TypeError) as exc:
-            return SetParametersResult(successful=False, reason=str(exc))
-        return SetParametersResult(successful=True)
-
-    @guarded('parameter change')
-    def _apply_parameters(self, params) -> None:
-        names = {p.name for p in params}
-        for p in params:
-            if p.name in self.params:
-                self.params[p.name] = p.value
-            if p.name in self.physical:
-                self.physical[p.name] = float(p.value)
-        timers = {'replan_period': 0, 'cmd_rate': 1}
-        for name in names & timers.keys():
-            if self._command_timers:
-                period = self.params[name] if name == 'replan_period' else 1 / self.params[name]
-                self._command_timers[timers[name]].timer_period_ns = int(period * 1e9)
-        if self.session is not None:
-            self.live.odom_timeout = self.params['odom_timeout']
-            if names & (_SETTING_NAMES | set(self.physical)):
-                # built on the session's builder thread; the plan in force keeps going
-                self.live.reconfigure(self.physical,
-                                      PlannerSettings(**self._settings_values()))
-        self.get_logger().info(f'parameters changed: {sorted(names)}')
 
     # diagnostics ------------------------------------------------------------------------------
     @guarded('diagnostics')
@@ -308,6 +289,3 @@ class PlannerNode(SafeNode, LifecycleNode):
             self.live.active = False
         self._release()
         super().destroy_node()
-
-
-_SETTING_NAMES = {s.name for s in SETTINGS}

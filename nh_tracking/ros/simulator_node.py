@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import threading
 
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from geometry_msgs.msg import PoseWithCovarianceStamped, Twist, TwistStamped
 from nav_msgs.msg import Odometry
 import numpy as np
@@ -31,10 +32,12 @@ from rosgraph_msgs.msg import Clock as ClockMsg
 from trajectory_msgs.msg import JointTrajectory
 
 from nh_tracking import models
+from nh_tracking.limits import bounds_from_lists, gap
 from nh_tracking.poses import PoseMap
 from nh_tracking.ros import conversions as cv
+from nh_tracking.ros.obstacle_listener import ObstacleListener
 from nh_tracking.ros.parameters import declare, declare_all, declare_model, plain
-from nh_tracking.ros.safety import guarded, SafeNode
+from nh_tracking.ros.safety import guarded
 from nh_tracking.simulate import drive, simulate
 
 INITIAL_STATE = plain('initial_state', [0.0], 'initial q then v (n + k numbers; zeros by '
@@ -52,10 +55,16 @@ PARAMETERS = (
           (1e-3, 1000.0), read_only=True),
     plain('start_time', 0.0, 'initial /clock time', 's', (0.0, 1e9), read_only=True),
     plain('cmd_vel_stamped', False, 'cmd_vel is TwistStamped', read_only=True),
+    plain('u_min', (), 'lower bounds applied to the controls received: one per control, or '
+          'one for all; empty: none', read_only=True),
+    plain('u_max', (), 'upper bounds applied to the controls received (as u_min)',
+          read_only=True),
+    plain('robot_radius', 0.0, "the robot's radius: closer to an obstacle is a collision "
+          '(a diagnostic)', 'm', (0.0, 100.0), read_only=True),
 )
 
 
-class SimulatorNode(SafeNode):
+class SimulatorNode(ObstacleListener):
     """``nh_tracking_sim``: topics and parameters in the README's table."""
 
     def __init__(self, **kwargs) -> None:
@@ -75,6 +84,11 @@ class SimulatorNode(SafeNode):
         self.frame, self.child_frame = p['frame_id'], p['child_frame_id']
         self.publish_clock, scale, start = p['publish_clock'], p['time_scale'], p['start_time']
         stamped = p['cmd_vel_stamped']
+        bounds = bounds_from_lists(tuple(p['u_min']), tuple(p['u_max']), self.system.r, 'u')
+        self.saturation = None if bounds is None else np.vstack(
+            [np.broadcast_to(b, self.system.r) for b in bounds])
+        self.robot_radius = p['robot_radius']
+        self.collisions = 0  # steps ended closer than robot_radius to an obstacle
 
         self._lock = threading.Lock()
         self._q, self._v = initial[:n].copy(), initial[n:].copy()
@@ -94,6 +108,8 @@ class SimulatorNode(SafeNode):
                                  self.on_cmd_vel, 10)
         self.create_subscription(PoseWithCovarianceStamped, 'initialpose', self.on_initialpose,
                                  10)
+        self.listen_for_obstacles()
+        self.pub_diag = self.create_publisher(DiagnosticArray, '/diagnostics', 10)
         self.add_post_set_parameters_callback(self._apply_parameters)
         if self.publish_clock:
             self.create_timer(1.0 / (self.rate * scale), self.step,
@@ -123,6 +139,8 @@ class SimulatorNode(SafeNode):
     @guarded('control_sequence')
     def on_controls(self, msg: JointTrajectory) -> None:
         start, offsets, efforts = cv.controls_to_arrays(msg, self.system.control_names)
+        if self.saturation is not None:  # the actuators' limits
+            efforts = np.clip(efforts, *self.saturation)
         with self._lock:
             self._controls = (start, offsets, efforts)
             self._command_ns = self._now_ns()
@@ -196,6 +214,24 @@ class SimulatorNode(SafeNode):
         if self.pub_clock is not None:
             self._sim_ns = t1
             self.pub_clock.publish(ClockMsg(clock=cv.time_msg(t1)))
-        self.pub_odom.publish(cv.odometry_msg(self.frame, self.child_frame, t1,
-                                              self.pose_map.pose(q),
+        pose = self.pose_map.pose(q)
+        self.pub_odom.publish(cv.odometry_msg(self.frame, self.child_frame, t1, pose,
                                               self.pose_map.body_twist(q, v)))
+        self._check_clearance(pose, t1)
+
+    def _check_clearance(self, pose: np.ndarray, stamp: int) -> None:
+        """Count a step that ends closer than robot_radius to an obstacle, and report it."""
+        cells, size = self.costmap
+        clearance = gap(pose, self.marker_obstacles.discs, cells, size) - self.robot_radius
+        if clearance >= 0:
+            return
+        self.collisions += 1
+        text = f'collision: {-clearance:.3f} m inside an obstacle at ({pose[0]:.2f}, ' \
+               f'{pose[1]:.2f})'
+        if self.collisions == 1 or self.collisions % 50 == 0:
+            self.get_logger().warn(f'{text} ({self.collisions} steps so far)')
+        array = DiagnosticArray(status=[cv.diagnostic_status(
+            f'{self.get_name()}: clearance', self.get_fully_qualified_name(),
+            DiagnosticStatus.WARN, text, {'collisions': self.collisions})])
+        array.header.stamp = cv.time_msg(stamp)
+        self.pub_diag.publish(array)

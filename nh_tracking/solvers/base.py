@@ -30,6 +30,7 @@ from typing import ClassVar
 import numpy as np
 
 from nh_tracking.problem import Solution, Terminal, TrackingProblem
+from nh_tracking.solvers.inequalities import Shape
 from nh_tracking.solvers.nlp import deadline_after
 from nh_tracking.system import NonholonomicSystem
 
@@ -40,12 +41,13 @@ Guess = tuple[np.ndarray, np.ndarray, np.ndarray | None]  # q (N+1, n), v (N+1, 
 class Structure:
     """The shape of a problem, which is what an NLP is built for: intervals, terminal kind.
 
-    And the time limit [s] its solves run against (replanning), or None.
+    The time limit [s] its solves run against (replanning) or None, and the shape of its limits.
     """
 
     steps: int
     terminal: Terminal
     deadline: float | None = None
+    limits: Shape = Shape()
 
 
 class Method(ABC):

@@ -83,7 +83,9 @@ class Rows:
         for j in range(self.shape.slots):
             c, radius, on = self.obstacles[4 * j:4 * j + 2], self.obstacles[4 * j + 2], \
                 self.obstacles[4 * j + 3]
-            rows.append(on * (ca.sumsqr(p - c) - radius**2))
+            # an unused slot is the constant 1 >= 0: strictly feasible (an identically
+            # zero row would pin an interior-point slack to its bound)
+            rows.append(on * (ca.sumsqr(p - c) - radius**2) + (1 - on))
         return self._add(ca.vertcat(*rows), start, 'clear')
 
     def _add(self, expr: ca.SX, start: int, kind: str) -> list[ca.SX]:

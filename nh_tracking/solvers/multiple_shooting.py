@@ -191,7 +191,7 @@ class MultipleShooting(Method):
 
     def prepare(self, system: NonholonomicSystem, structure: Structure) -> None:
         shooting_transcription(system, structure.steps, structure.terminal,
-                               structure.deadline is not None)
+                               structure.deadline is not None, structure.limits)
 
     def solve_until(self, problem: TrackingProblem, guess: Guess | None,
                     stop: float | None) -> Solution:

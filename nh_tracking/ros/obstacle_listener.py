@@ -1,0 +1,58 @@
+# Copyright 2026 nh_tracking maintainers
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+
+"""The ``obstacles`` and ``costmap`` topics of a node: what it must keep clear of."""
+from __future__ import annotations
+
+from nav_msgs.msg import OccupancyGrid
+import numpy as np
+from visualization_msgs.msg import MarkerArray
+
+from nh_tracking.limits import cover
+from nh_tracking.ros.obstacle_messages import MarkerObstacles, occupied_cells
+from nh_tracking.ros.safety import guarded, SafeNode
+
+CLUSTER = 0.5  # [m] occupied cells this close to a disc's seed cell join that disc
+
+
+class ObstacleListener(SafeNode):
+    """Subscribes to both topics; bad messages are rejected and the set in force stays."""
+
+    frame: str
+
+    def listen_for_obstacles(self) -> list:
+        """Create the subscriptions (returned, for the node to release)."""
+        self.marker_obstacles = MarkerObstacles(self.frame)
+        self.costmap: tuple[np.ndarray, float] = (np.zeros((0, 2)), 0.0)
+        return [self.create_subscription(MarkerArray, 'obstacles', self.on_obstacles, 10),
+                self.create_subscription(OccupancyGrid, 'costmap', self.on_costmap, 1)]
+
+    @guarded('obstacles')
+    def on_obstacles(self, msg: MarkerArray) -> None:
+        self.marker_obstacles.apply(msg)
+        self.obstacles_changed()
+
+    @guarded('costmap')
+    def on_costmap(self, msg: OccupancyGrid) -> None:
+        self.costmap = occupied_cells(msg, self.frame)
+        self.obstacles_changed()
+
+    def obstacle_discs(self, centre: np.ndarray, reach: float, count: int) -> np.ndarray:
+        """Return the marker discs and up to ``count`` discs covering the costmap near centre."""
+        cells, size = self.costmap
+        return np.vstack([self.marker_obstacles.discs,
+                          cover(cells, size, centre, reach, count, CLUSTER)])
+
+    def obstacles_changed(self) -> None:
+        """React to a new obstacle set (the node's own business)."""

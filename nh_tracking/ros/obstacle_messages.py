@@ -1,0 +1,102 @@
+# Copyright 2026 nh_tracking maintainers
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+
+"""Obstacles as ROS sends them: RViz-style marker arrays and Nav2-style occupancy grids.
+
+``obstacles`` (visualization_msgs/MarkerArray): CYLINDER and SPHERE markers are discs of radius
+scale.x / 2 at their pose; ADD/MODIFY replace the marker of the same (ns, id), DELETE removes
+it, DELETEALL clears the set; other marker types (labels, arrows) are ignored. ``costmap``
+(nav_msgs/OccupancyGrid): cells at or above :data:`OCCUPIED` (map_server's 0.65 threshold;
+Nav2's lethal cost is 100) are occupied. A message with a wrong frame or non-finite or
+negative numbers is refused whole: the set in force stays.
+"""
+from __future__ import annotations
+
+from geometry_msgs.msg import Point, Vector3
+from nav_msgs.msg import OccupancyGrid
+import numpy as np
+from std_msgs.msg import ColorRGBA, Header
+from visualization_msgs.msg import Marker, MarkerArray
+
+from nh_tracking.ros import conversions as cv
+
+OCCUPIED = 65
+DISCS = (Marker.CYLINDER, Marker.SPHERE)
+
+
+class MarkerObstacles:
+    """The set of discs a stream of MarkerArray messages describes."""
+
+    def __init__(self, frame: str) -> None:
+        self.frame = frame
+        self._discs: dict[tuple[str, int], tuple[float, float, float]] = {}
+
+    @property
+    def discs(self) -> np.ndarray:
+        return np.array(list(self._discs.values())).reshape(-1, 3)
+
+    def apply(self, msg: MarkerArray) -> None:
+        """Apply a message, or raise InputRejected (and keep the set) if any marker is bad."""
+        discs = dict(self._discs)
+        for marker in msg.markers:
+            key = (marker.ns, marker.id)
+            if marker.action == Marker.DELETEALL:
+                discs.clear()
+            elif marker.action == Marker.DELETE:
+                discs.pop(key, None)
+            elif marker.type in DISCS:
+                cv.check_frame(marker.header.frame_id, self.frame, f'obstacle {key}')
+                x, y = marker.pose.position.x, marker.pose.position.y
+                radius = marker.scale.x / 2
+                if not (np.isfinite([x, y, radius]).all() and radius >= 0):
+                    raise cv.InputRejected(
+                        f'obstacle {key} needs a finite position and a diameter scale.x >= 0, '
+                        f'got ({x}, {y}), {marker.scale.x}')
+                discs[key] = (x, y, radius)
+        self._discs = discs
+
+
+def occupied_cells(msg: OccupancyGrid, frame: str) -> tuple[np.ndarray, float]:
+    """Centres (K, 2) of the occupied cells in ``frame``, and the cell size."""
+    cv.check_frame(msg.header.frame_id, frame, 'costmap')
+    info = msg.info
+    size, width, height = info.resolution, info.width, info.height
+    if not (np.isfinite(size) and size > 0) or len(msg.data) != width * height:
+        raise cv.InputRejected(f'costmap needs a resolution > 0 and width x height = len(data), '
+                               f'got {size}, {width} x {height} != {len(msg.data)}')
+    origin = cv.pose_array(info.origin, 'costmap origin')
+    grid = np.asarray(msg.data, dtype=np.int16).reshape(height, width)
+    rows, cols = np.nonzero(grid >= OCCUPIED)
+    local = np.c_[(cols + 0.5) * size, (rows + 0.5) * size]
+    c, s = np.cos(origin[3]), np.sin(origin[3])
+    world = local @ np.array([[c, s], [-s, c]]) + origin[:2]
+    return world, float(size)
+
+
+def obstacle_markers(frame: str, stamp: int, discs: np.ndarray) -> list[Marker]:
+    """Discs as flat cylinders for RViz (namespace ``obstacles``), after a DELETEALL."""
+    header = Header(frame_id=frame, stamp=cv.time_msg(stamp))
+    markers = [Marker(header=header, ns='obstacles', action=Marker.DELETEALL)]
+    for i, (x, y, r) in enumerate(discs):
+        marker = Marker(header=header, ns='obstacles', id=i, type=Marker.CYLINDER,
+                        action=Marker.ADD, scale=Vector3(x=2 * r, y=2 * r, z=0.05),
+                        color=ColorRGBA(r=0.8, g=0.2, b=0.2, a=0.6))
+        marker.pose.position = Point(x=float(x), y=float(y), z=0.0)
+        marker.pose.orientation.w = 1.0
+        markers.append(marker)
+    return markers
+
+
+def marker_array(markers: list[Marker]) -> MarkerArray:
+    return MarkerArray(markers=markers)

@@ -1,0 +1,59 @@
+# Copyright 2026 nh_tracking maintainers
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+
+"""What a tracking session takes and gives: its settings, a state estimate, a plan result."""
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+
+from nh_tracking.receding_horizon import PlanOutcome
+from nh_tracking.settings import check_fields, setting
+
+Clock = Callable[[], int]  # now, in integer nanoseconds
+
+
+@dataclass(frozen=True)
+class SessionSettings:
+    """How a session runs: when it replans, how often it commands, when odometry is stale."""
+
+    replan_period: float = setting(0.1, 'time between replans', 's', (1e-3, 60.0))
+    replan_on_odom: bool = setting(False, 'also replan on every odometry message')
+    cmd_rate: float = setting(20.0, 'velocity command rate', 'Hz', (0.1, 1000.0))
+    odom_timeout: float = setting(0.5, 'odometry older than this is stale: zero command, no '
+                                  'plans', 's', (1e-3, 3600.0))
+
+    def __post_init__(self) -> None:
+        check_fields(self)
+
+
+@dataclass(frozen=True)
+class StateEstimate:
+    """The robot's state from one odometry message."""
+
+    ns: int
+    q: np.ndarray
+    v: np.ndarray
+    received: float  # time.perf_counter() at receipt, for latency figures
+
+
+@dataclass(frozen=True)
+class PlanResult:
+    """What one replanning attempt produced: an outcome to publish, or why there is none."""
+
+    outcome: PlanOutcome | None
+    state: StateEstimate | None
+    reason: str

@@ -1,0 +1,196 @@
+# Copyright 2026 nh_tracking maintainers
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+
+"""The discrete variational (midpoint) NLP of a problem's structure, in stage form.
+
+Unknowns are the knots x_k = (q_k, v_k) of a curve on D and, per interval, the next velocity and
+the midpoint configuration (and the control, when it cannot be eliminated); see
+:class:`Transcription`. Built once per structure and cached; the numbers of a problem are its
+parameters and bounds.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import casadi as ca
+import numpy as np
+
+from nh_tracking.limits import plane
+from nh_tracking.numeric import NumericFunction
+from nh_tracking.problem import tracking_lagrangian, TrackingProblem
+from nh_tracking.solvers.cache import PerSystemCache
+from nh_tracking.solvers.inequalities import Rows, Shape, soft_bounds, soften
+from nh_tracking.solvers.nlp import BoundedNlp
+from nh_tracking.system import NonholonomicSystem
+
+BACKENDS = ('fatrop', 'ipopt')
+
+
+@dataclass
+class Transcription:
+    """The compiled NLP of one structure, and functions to read a solution back.
+
+    Stage-wise unknowns w = [x_0, u_0, ..., x_{N-1}, u_{N-1}, x_N] with x_k = (q_k, v_k) and
+    u_k = (v_{k+1}, z_k[, u_k]): z_k is the midpoint q_{k+1/2}, so the dynamics are explicit,
+    x_{k+1} = (2 z_k - q_k, v_{k+1}), and the discrete admissibility constraint becomes the
+    stage equality z_k - q_k = h/2 rho(z_k) v_{k+1/2} — the same discrete problem, in the
+    form a structure-exploiting OCP solver (fatrop) takes. The control u_k is an unknown only
+    for an underactuated system.
+    """
+
+    system: NonholonomicSystem
+    steps: int
+    terminal: str
+    nlp: BoundedNlp
+    # (w, p) -> q (n, N+1), v (k, N+1), u (r, N), max |Psi_d| (from the knots), running cost:
+    # one buffered call, since separate calls cost more than a warm solve's iteration
+    readout: NumericFunction
+    admissibility_rows: np.ndarray  # indices in g of the constraints z - q - h/2 rho v = 0
+    dynamics_rows: np.ndarray  # underactuated: of v_{k+1} - v_k - h (f + B u) = 0
+    limits: Rows  # the rows of the problem's limits
+    rows: int  # of the hard NLP's g
+    unknowns: int  # of the hard NLP's x
+    soft_index: np.ndarray | None  # softened: the inequality rows given slacks
+
+    def parameters(self, problem: TrackingProblem) -> np.ndarray:
+        q_knots, v_knots, q_mid, v_mid = problem.reference_samples
+        return np.concatenate([
+            problem.q0, problem.v0, q_mid.ravel(), v_mid.ravel(), q_knots[-1], v_knots[-1],
+            [problem.h, problem.epsilon, problem.omega], self.limits.parameters(problem.limits),
+        ])
+
+    def bounds(self, problem: TrackingProblem) -> dict[str, np.ndarray]:
+        """lbg, ubg (and the slacks' lbx) of a solve: the limits' values go in here."""
+        lower, upper = self.limits.bounds(self.rows, problem.limits)
+        if self.soft_index is None:
+            return {'lbg': lower, 'ubg': upper}
+        lbg, ubg = soft_bounds(lower, upper, self.soft_index)
+        lbx = np.concatenate([np.full(self.unknowns, -np.inf), np.zeros(len(self.soft_index))])
+        return {'lbg': lbg, 'ubg': ubg, 'lbx': lbx}
+
+    def pack(self, q: np.ndarray, v: np.ndarray, u: np.ndarray | None) -> np.ndarray:
+        """Stage-wise unknowns from knots q (N+1, n), v (N+1, k) and controls u (N, r)."""
+        mid = 0.5 * (q[1:] + q[:-1])
+        parts = [q[:-1], v[:-1], v[1:], mid]
+        if not self.system.fully_actuated:
+            parts.append(np.zeros((self.steps, self.system.r)) if u is None else u)
+        return np.concatenate([np.hstack(parts).ravel(), q[-1], v[-1]])
+
+
+_CACHE: PerSystemCache[Transcription] = PerSystemCache()
+
+
+def transcription(system: NonholonomicSystem, steps: int, terminal: str,
+                  bounded: bool = False, solver: str = 'fatrop',
+                  compiled: bool = False, shape: Shape = Shape()) -> Transcription:
+    """Return the NLP for this structure (backend, deadlines or not, compiled or interpreted.
+
+    And the shape of its limits); built on first use and cached. A soft shape is always
+    solved by IPOPT: its slacks break the stage structure fatrop needs.
+    """
+    if solver not in BACKENDS:
+        raise ValueError(f'unknown NLP solver {solver!r}; choose one of {BACKENDS}')
+    if shape.soft:
+        solver, compiled = 'ipopt', False
+    return _CACHE.get(system, (steps, terminal, solver, compiled, bool(bounded), shape),
+                      lambda: _build(system, steps, terminal, solver, compiled, bool(bounded),
+                                     shape))
+
+
+def _build(system: NonholonomicSystem, steps: int, terminal: str, solver: str,
+           compiled: bool, bounded: bool, shape: Shape) -> Transcription:
+    n, k, r, big_n = system.n, system.k, system.r, steps
+    eliminated = system.fully_actuated
+    nx = n + k
+    xs = [ca.SX.sym(f'x{i}', nx) for i in range(big_n + 1)]
+    us = [ca.SX.sym(f'u{i}', k + n + (0 if eliminated else r)) for i in range(big_n)]
+    q0, v0 = ca.SX.sym('q0', n), ca.SX.sym('v0', k)
+    q_mid, v_mid = ca.SX.sym('q_r', n * big_n), ca.SX.sym('v_r', k * big_n)
+    q_end, v_end = ca.SX.sym('q_rT', n), ca.SX.sym('v_rT', k)
+    h, eps, omega = ca.SX.sym('h'), ca.SX.sym('eps'), ca.SX.sym('omega')
+    limits = Rows(shape, plane(system) if shape.slots else None)
+    p = ca.vertcat(q0, v0, q_mid, v_mid, q_end, v_end, h, eps, omega, limits.obstacles)
+
+    lagrangian = tracking_lagrangian(system)
+    zero = ca.DM.zeros(r)
+    w: list[ca.SX] = []
+    g: list[ca.SX] = []
+    residuals: list[ca.SX] = []
+    controls: list[ca.SX] = []
+    adm_rows: list[int] = []
+    dyn_rows: list[int] = []
+    running = ca.SX(0)
+
+    def rows() -> int:
+        return sum(c.shape[0] for c in g)
+
+    def knot_limits(x: ca.SX) -> None:
+        g.extend(limits.velocity(x[n:], rows()))
+        g.extend(limits.clearance(x[:n], rows()))
+
+    for i in range(big_n):
+        q, v = xs[i][:n], xs[i][n:]
+        v_next, z = us[i][:k], us[i][k:k + n]
+        vm = 0.5 * (v + v_next)
+        drift = system.dynamics_fn(z, vm, zero)[1]
+        u = (v_next - v) / h - drift if eliminated else us[i][k + n:]
+        running += h * lagrangian(z, vm, u, q_mid[i * n:(i + 1) * n], v_mid[i * k:(i + 1) * k],
+                                  eps)
+        controls.append(u)
+        w += [xs[i], us[i]]
+        g.append(xs[i + 1] - ca.vertcat(2 * z - q, v_next))  # dynamics first (fatrop)
+        if i == 0:
+            g.append(xs[0] - ca.vertcat(q0, v0))
+        adm_rows.extend(range(rows(), rows() + n))
+        g.append(z - q - 0.5 * h * system.rho_fn(z) @ vm)
+        if not eliminated:
+            dyn_rows.extend(range(rows(), rows() + k))
+            g.append(v_next - v - h * (drift + system.input_matrix_fn(z) @ u))
+        if i > 0:  # the start is data, not a decision
+            knot_limits(xs[i])
+        g.extend(limits.clearance(z, rows()))  # the midpoint, where L is evaluated
+        g.extend(limits.control(u, rows()))
+        q_next = xs[i + 1][:n]
+        qm = 0.5 * (q + q_next)
+        residuals.append((q_next - q) / h - system.rho_fn(qm) @ (0.5 * (v + xs[i + 1][n:])))
+    w.append(xs[-1])
+    knot_limits(xs[-1])
+    objective = running
+    if terminal == 'cost':
+        objective += 0.5 * omega * ca.sumsqr(xs[-1][:n] - q_end)
+    else:
+        g.append(xs[-1] - ca.vertcat(q_end, v_end))
+    unknowns, constraints = ca.vertcat(*w), ca.vertcat(*g)
+    nlp = {'x': unknowns, 'p': p, 'f': objective, 'g': constraints}
+    soft_index = None
+    if shape.soft:
+        nlp, soft_index = soften(nlp, limits)
+    options: dict[str, Any] = {'print_time': False, 'show_eval_warnings': False}  # failures
+    if solver == 'fatrop':  # are reported in the Solution
+        options.update({'structure_detection': 'auto',
+                        'equality': list(~limits.inequality_mask(constraints.shape[0]))})
+    bounded_nlp = BoundedNlp(f'variational_{system.name}_{big_n}', solver, nlp, options,
+                             bounded, compiled, bool(limits.kinds))
+    knots_q = ca.horzcat(*[x[:n] for x in xs])
+    knots_v = ca.horzcat(*[x[n:] for x in xs])
+    readout = ca.Function('readout', [unknowns, p],
+                          [knots_q, knots_v, ca.horzcat(*controls),
+                           ca.mmax(ca.fabs(ca.horzcat(*residuals))), running])
+    return Transcription(
+        system=system, steps=big_n, terminal=terminal, nlp=bounded_nlp,
+        readout=NumericFunction(readout), admissibility_rows=np.array(adm_rows, dtype=int),
+        dynamics_rows=np.array(dyn_rows, dtype=int), limits=limits,
+        rows=constraints.shape[0], unknowns=unknowns.shape[0], soft_index=soft_index,
+    )
