@@ -145,7 +145,8 @@ class RecedingHorizonPlanner:
     def prepare(self) -> None:
         """Build the solver for the current settings now, so the first plan is not late.
 
-        Both shapes of its limits: without obstacles, and with the obstacle slots.
+        Every shape of its limits it may meet: without obstacles and with the obstacle slots,
+        and the soft forms for a start that breaks a limit.
         """
         s = self.settings
         bounds = Limits.of(self.system, self.limits['control_bounds'],
@@ -153,8 +154,11 @@ class RecedingHorizonPlanner:
         slots = [0] if self.method.name == 'pmp' else [0, obstacle_slots(MAX_OBSTACLES)]
         for count in slots:
             shape = dataclasses.replace(Shape.of(bounds), slots=count)
-            self.method.prepare(self.system, Structure(s.steps, s.terminal, s.max_solve_time,
-                                                       shape))
+            variants = [shape, dataclasses.replace(shape, soft=True)] \
+                if shape != Shape() and self.method.name != 'pmp' else [shape]
+            for variant in variants:
+                self.method.prepare(self.system, Structure(s.steps, s.terminal,
+                                                           s.max_solve_time, variant))
 
     def set_reference(self, reference: Trajectory) -> None:
         """Track ``reference`` (times on the planner's clock) from the next plan on."""

@@ -84,6 +84,8 @@ def check_fields(obj: Any) -> None:
 
 
 def _numbers(value: Any, name: str) -> tuple[float, ...]:
+    if value is None:  # what a params file's [] becomes (rcl has no typed empty array)
+        return ()
     if not isinstance(value, (list, tuple)) or not all(
             isinstance(v, (int, float)) and not isinstance(v, bool) and not math.isnan(v)
             for v in value):

@@ -43,7 +43,8 @@ def test_parameter_file_lists_every_parameter_with_its_default():
     assert set(params) == set(SECTIONS)
     for section, specs in SECTIONS.items():
         values = params[section]['ros__parameters']
-        expected = {s.name: s.default for s in (MODEL, *specs, *model_specs(values['model']))}
+        expected = {s.name: list(s.default) if isinstance(s.default, tuple) else s.default
+                    for s in (MODEL, *specs, *model_specs(values['model']))}
         if section.endswith('sim'):
             expected['initial_state'] = [0.0] * 5
         assert values == expected, section

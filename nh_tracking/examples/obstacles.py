@@ -21,6 +21,7 @@ markers on ``obstacles`` or as a Nav2-style OccupancyGrid on ``costmap``.
 from __future__ import annotations
 
 from collections.abc import Callable
+from functools import partial
 import json
 from pathlib import Path
 import threading
@@ -80,6 +81,10 @@ def costmap_msg(frame: str, discs: np.ndarray, resolution: float = 0.05) -> Occu
     return grid
 
 
+def _subscribed(publisher) -> bool:
+    return publisher.get_subscription_count() > 0
+
+
 class ObstacleLoop:
     """Planner and simulator (sim time) with the limits; a probe sends the obstacles."""
 
@@ -116,7 +121,7 @@ class ObstacleLoop:
         """Send the obstacles (``markers`` or ``costmap``) and the reference; start the robot."""
         pub = self.marker_pub if kind == 'markers' else self.costmap_pub
         for p in (pub, self.reference_pub):
-            if not wait_until(p.get_subscription_count, 10.0):
+            if not wait_until(partial(_subscribed, p), 10.0):
                 raise RuntimeError(f'the planner did not subscribe to {p.topic_name}')
         message = (MarkerArray(markers=obstacle_markers('odom', 0, OBSTACLES))
                    if kind == 'markers' else costmap_msg('odom', OBSTACLES))

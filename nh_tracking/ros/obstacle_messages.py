@@ -59,7 +59,7 @@ class MarkerObstacles:
                 cv.check_frame(marker.header.frame_id, self.frame, f'obstacle {key}')
                 x, y = marker.pose.position.x, marker.pose.position.y
                 radius = marker.scale.x / 2
-                if not (np.isfinite([x, y, radius]).all() and radius >= 0):
+                if not (np.all(np.abs([x, y, radius]) <= cv.MAX_POSITION) and radius >= 0):
                     raise cv.InputRejected(
                         f'obstacle {key} needs a finite position and a diameter scale.x >= 0, '
                         f'got ({x}, {y}), {marker.scale.x}')
@@ -72,7 +72,8 @@ def occupied_cells(msg: OccupancyGrid, frame: str) -> tuple[np.ndarray, float]:
     cv.check_frame(msg.header.frame_id, frame, 'costmap')
     info = msg.info
     size, width, height = info.resolution, info.width, info.height
-    if not (np.isfinite(size) and size > 0) or len(msg.data) != width * height:
+    if not (0 < size <= cv.MAX_POSITION / max(width, height, 1)) or \
+            len(msg.data) != width * height:
         raise cv.InputRejected(f'costmap needs a resolution > 0 and width x height = len(data), '
                                f'got {size}, {width} x {height} != {len(msg.data)}')
     origin = cv.pose_array(info.origin, 'costmap origin')

@@ -16,7 +16,7 @@
 
 An NLP is built for a *shape* of limits — which kinds are bounded, how many obstacle slots —
 so replanning with new bound values or moving obstacles only changes numbers. Obstacle slots
-come in powers of two (at least 4): unused ones are switched off by a parameter, so a changing
+come in powers of two (at least 8): unused ones are switched off by a parameter, so a changing
 number of obstacles rarely rebuilds anything. Clearance is written squared, |p - c|^2 - R^2 >= 0,
 which is smooth.
 
@@ -35,11 +35,12 @@ from nh_tracking.limits import Limits
 from nh_tracking.problem import TrackingProblem
 
 SOFT_WEIGHT = 1e4  # per unit of violation: above the multipliers of any sane tracking cost
+MIN_SLOTS = 8  # obstacle slots of an NLP with obstacles: replanning keeps one NLP up to 8
 VIOLATION_TOL = 1e-6  # a plan breaking a limit by more is no success
 
 
 def obstacle_slots(count: int) -> int:
-    return 0 if count == 0 else max(4, 1 << (count - 1).bit_length())
+    return 0 if count == 0 else max(MIN_SLOTS, 1 << (count - 1).bit_length())
 
 
 @dataclass(frozen=True)
