@@ -220,6 +220,35 @@ def pmp_shooting(log: Callable[[str], None]) -> dict:
     return out
 
 
+def limits_cost(log: Callable[[str], None]) -> dict:
+    """Cold solve time with limits against the same problem without them (same run)."""
+    import dataclasses
+
+    from nh_tracking import solve
+    from nh_tracking.examples.obstacles import line_reference
+
+    sleigh = dataclasses.replace(sleigh_problem(wrap_angles=True, terminal='cost'), omega=10.0)
+    u_max = 0.5 * np.abs(solve(sleigh, second_look=False).u).max()
+    unicycle = TrackingProblem(models.unicycle(), line_reference(10.0), np.zeros(3),
+                               np.array([0.5, 0.0]), 6.0, 60, terminal='cost', omega=10.0)
+    cases: dict[str, tuple[TrackingProblem, dict[str, Any]]] = {
+        'sleigh |u| <= half its peak': (sleigh, {'control_bounds': (-u_max, u_max)}),
+        'unicycle line through a disc': (unicycle, {'obstacles': [(1.5, 0.05, 0.3)],
+                                                    'robot_radius': 0.2})}
+    out: dict[str, Any] = {}
+    for name, (free, limits) in cases.items():
+        limited = dataclasses.replace(free, **limits)
+        times = {}
+        for label, problem in (('free', free), ('limited', limited)):
+            solve(problem, second_look=False)  # builds its NLP
+            times[label] = _median_time(partial(solve, problem, second_look=False))[0]
+        out[name] = {**times, 'ratio': times['limited'] / times['free']}
+        log(f"  {name}: {times['limited'] * 1e3:.1f} ms vs {times['free'] * 1e3:.1f} ms "
+            f"without ({out[name]['ratio']:.2f}x)")
+    out['worst_ratio'] = max(v['ratio'] for v in out.values())
+    return out
+
+
 def run_bench(out: Path, log: Callable[[str], None] = print, ros: bool = True) -> dict:
     """All sections, in one run; writes bench.json and bench.png."""
     from nh_tracking.examples.plotting import plot_bench
@@ -230,6 +259,7 @@ def run_bench(out: Path, log: Callable[[str], None] = print, ros: bool = True) -
         ('warm_replanning', lambda: warm_replanning(log)),
         ('scaling', lambda: scaling(log)),
         ('pmp_shooting', lambda: pmp_shooting(log)),
+        ('limits', lambda: limits_cost(log)),
     ]
     if ros:
         from nh_tracking.examples.latency import ros_latency
@@ -265,6 +295,10 @@ def acceptance(results: dict) -> dict:
     if scale:
         verdicts['t(N=800)/t(N=50) <= 20'] = {'value': f"{scale['ratio_800_50']:.1f}",
                                               'pass': scale['ratio_800_50'] <= 20}
+    limits = results.get('limits')
+    if limits:
+        verdicts['solve time with limits <= 2x without'] = {
+            'value': f"{limits['worst_ratio']:.2f}x", 'pass': limits['worst_ratio'] <= 2}
     ros = results.get('ros_latency')
     if ros:
         verdicts['ROS overhead beyond the solve p50 <= 2 ms'] = {

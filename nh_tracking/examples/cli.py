@@ -86,12 +86,23 @@ def cmd_reproduce(args: argparse.Namespace) -> int:
 def cmd_demo(args: argparse.Namespace) -> int:
     """Run the closed loop through ROS.
 
-    Planner + simulator (10 % heavier) on the paper's sleigh.
+    Scenario sleigh: planner + simulator (10 % heavier) on the paper's sleigh. Scenario
+    obstacles: a differential-drive robot on a line through two obstacles, torques limited.
     """
+    def log(line: str) -> None:
+        print(line, flush=True)
+
+    if args.scenario == 'obstacles':
+        from nh_tracking.examples.obstacles import run_obstacle_demo
+
+        result = run_obstacle_demo(Path(args.out), duration=args.duration or 25.0,
+                                   kind=args.obstacles, log=log)
+        return 0 if result['collisions'] == 0 and result['cross_track_error_last_3s'] < 0.05 \
+            else 1
     from nh_tracking.examples.demo import run_demo
 
-    summary = run_demo(Path(args.out), duration=args.duration, reference_kind=args.reference,
-                       time_scale=args.time_scale, log=lambda line: print(line, flush=True))
+    summary = run_demo(Path(args.out), duration=args.duration or 15.0,
+                       reference_kind=args.reference, time_scale=args.time_scale, log=log)
     return 0 if summary['final_cross_track_error'] < 0.05 else 1
 
 
@@ -129,7 +140,13 @@ def build_parser() -> argparse.ArgumentParser:
     demo = sub.add_parser('demo', help='closed-loop tracking through ROS (the main job)',
                           description=cmd_demo.__doc__)
     demo.add_argument('--out', default='results/demo')
-    demo.add_argument('--duration', type=float, default=15.0, help='simulated seconds')
+    demo.add_argument('--scenario', choices=('sleigh', 'obstacles'), default='sleigh',
+                      help="the paper's sleigh, or a line through two obstacles with torque "
+                           'limits')
+    demo.add_argument('--obstacles', choices=('markers', 'costmap'), default='markers',
+                      help='obstacles scenario: send them as MarkerArray or OccupancyGrid')
+    demo.add_argument('--duration', type=float, default=None,
+                      help='simulated seconds (default 15, obstacles 25)')
     demo.add_argument('--reference', choices=('path', 'trajectory'), default='path',
                       help='send the reference as nav_msgs/Path or MultiDOFJointTrajectory')
     demo.add_argument('--time-scale', type=float, default=4.0,

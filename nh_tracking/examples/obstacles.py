@@ -15,7 +15,7 @@
 """``nh-tracking demo --scenario obstacles``: a line through two obstacles, torques limited.
 
 A differential-drive robot (the dynamic unicycle) tracks a straight Path at 0.5 m/s with two
-discs lying on it, its accelerations limited to |u| <= 1; the obstacles reach the planner as
+discs lying on it, its accelerations limited to |u| <= 0.15; the obstacles reach the planner as
 markers on ``obstacles`` or as a Nav2-style OccupancyGrid on ``costmap``.
 """
 from __future__ import annotations
@@ -48,7 +48,7 @@ OBSTACLES = np.array([(3.0, 0.05, 0.3), (6.0, -0.05, 0.3)])  # x, y, r [m], on t
 ROBOT_RADIUS = 0.2
 INFLATION = 0.05  # [m] the planner keeps this much more: plans hold clearance at knots and
 # midpoints only, and a path can cut a little inside between them (Nav2 inflates likewise)
-U_LIMIT = 1.0  # |linear and angular acceleration|
+U_LIMIT = 0.15  # |linear and angular acceleration|: active while swerving
 SPEED = 0.5
 START = 1.0  # simulated s when the robot and the reference set off
 HORIZON = 5.0  # [s]: long enough to see a way around an obstacle, not just to brake
