@@ -229,8 +229,9 @@ def limits_cost(log: Callable[[str], None]) -> dict:
 
     sleigh = dataclasses.replace(sleigh_problem(wrap_angles=True, terminal='cost'), omega=10.0)
     u_max = 0.5 * np.abs(solve(sleigh, second_look=False).u).max()
-    unicycle = TrackingProblem(models.unicycle(), line_reference(10.0), np.zeros(3),
-                               np.array([0.5, 0.0]), 6.0, 60, terminal='cost', omega=10.0)
+    unicycle = TrackingProblem(models.unicycle(), line_reference(10.0),  # 0.3 m off the line
+                               np.array([0.0, 0.3, 0.0]), np.array([0.5, 0.0]), 6.0, 60,
+                               terminal='cost', omega=10.0)
     cases: dict[str, tuple[TrackingProblem, dict[str, Any]]] = {
         'sleigh |u| <= half its peak': (sleigh, {'control_bounds': (-u_max, u_max)}),
         'unicycle line through a disc': (unicycle, {'obstacles': [(1.5, 0.05, 0.3)],

@@ -95,10 +95,11 @@ def declare(node: Node, spec: ParameterSpec) -> Any:
     overrides = node._parameter_overrides  # rclpy keeps -p / params-file values here
     if spec.name in overrides:
         value = spec.check(overrides[spec.name].value)
-        overrides[spec.name] = (Parameter(spec.name, Parameter.Type.DOUBLE_ARRAY,
-                                          list(value))  # type: ignore[call-overload]
-                                if isinstance(spec.default, tuple)
-                                else Parameter(spec.name, value=value))
+        if isinstance(spec.default, tuple) and not value:
+            del overrides[spec.name]  # rclpy re-infers [] as a byte array: declare it empty
+        else:
+            overrides[spec.name] = Parameter(spec.name, value=list(value) if isinstance(
+                value, tuple) else value)
     if isinstance(spec.default, float):
         if node not in _FLOATS:  # one callback per node: rclpy concatenates their results
             names = _FLOATS[node] = set()
