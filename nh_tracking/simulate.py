@@ -21,7 +21,6 @@ import numpy as np
 from numpy.typing import ArrayLike
 from scipy.integrate import solve_ivp
 
-from nh_tracking.numeric import NumericFunction
 from nh_tracking.regularity import describe
 from nh_tracking.system import NonholonomicSystem
 from nh_tracking.trajectory import Trajectory
@@ -62,7 +61,6 @@ def simulate(
     if not np.all(np.isfinite(x0)):
         raise ValueError('initial state must be finite')
     n, r = system.n, system.r
-    ode = NumericFunction(system.ode_fn)
     reached = [times[0]]
     budget = [int(max_evaluations)]
     events = _domain_events(system)
@@ -73,7 +71,7 @@ def simulate(
             if budget[0] < 0:
                 raise _Exhausted()
             reached[0] = s
-            return ode(x, control(s, x))[0]
+            return np.asarray(system.ode_fn(x, control(s, x))).ravel()
         return f
 
     def integrate(span: np.ndarray, x: np.ndarray, control) -> np.ndarray:
@@ -122,9 +120,8 @@ def drive(system: NonholonomicSystem, q0: ArrayLike, v: ArrayLike, duration: flo
     v = system.as_velocity(v)
     if duration <= 0:
         return q0
-    rho = NumericFunction(system.rho_fn)
-    sol = solve_ivp(lambda s, q: rho(q)[0] @ v, (0.0, duration), q0, method='DOP853',
-                    rtol=rtol, atol=atol)
+    sol = solve_ivp(lambda s, q: np.asarray(system.rho_fn(q)) @ v, (0.0, duration), q0,
+                    method='DOP853', rtol=rtol, atol=atol)
     if not sol.success or not np.all(np.isfinite(sol.y)):
         raise RuntimeError(f'kinematic integration failed: {sol.message}')
     return sol.y[:, -1]
