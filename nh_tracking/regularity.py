@@ -83,20 +83,27 @@ def describe(coordinates: Sequence[str], q: np.ndarray) -> str:
     return ', '.join(f'{c} = {x:.4g}' for c, x in zip(coordinates, q))
 
 
-def sample_configurations(coordinates: Sequence[str], angles: Sequence[str],
-                          domain: Domain) -> np.ndarray:
-    """Deterministic configurations: random ones, and the special points, inside the domain."""
-    rng = np.random.default_rng(0)
-    n = len(coordinates)
-    samples = rng.normal(size=(SAMPLES, n))
-    specials: list[list[float]] = []
+def random_configurations(coordinates: Sequence[str], angles: Sequence[str], domain: Domain,
+                          rng: np.random.Generator, count: int = SAMPLES) -> np.ndarray:
+    """(count, n) random configurations: angles uniform, bounded intervals uniform inside."""
+    samples = rng.normal(size=(count, len(coordinates)))
     for i, c in enumerate(coordinates):
         lo, hi = domain.lower[i], domain.upper[i]
         if c in angles:
-            samples[:, i] = rng.uniform(-np.pi, np.pi, SAMPLES)
+            samples[:, i] = rng.uniform(-np.pi, np.pi, count)
         if np.isfinite(lo) and np.isfinite(hi):  # stay a little inside an open interval
             margin = 1e-2 * (hi - lo)
-            samples[:, i] = rng.uniform(lo + margin, hi - margin, SAMPLES)
+            samples[:, i] = rng.uniform(lo + margin, hi - margin, count)
+    return samples
+
+
+def sample_configurations(coordinates: Sequence[str], angles: Sequence[str],
+                          domain: Domain) -> np.ndarray:
+    """Deterministic configurations: random ones, and the special points, inside the domain."""
+    samples = random_configurations(coordinates, angles, domain, np.random.default_rng(0))
+    specials: list[list[float]] = []
+    for i, c in enumerate(coordinates):
+        lo, hi = domain.lower[i], domain.upper[i]
         values = [0.0, np.pi / 2, -np.pi / 2, np.pi] if c in angles else [0.0, 1.0, -1.0]
         specials.append([x for x in values if lo < x < hi])
     centre = np.array([s[0] if s else samples[0, i] for i, s in enumerate(specials)])
@@ -226,3 +233,16 @@ def check_in_distribution(rho_and_mu: Callable[[np.ndarray], tuple[np.ndarray, .
         if mu.size and np.abs(mu @ rho).max() > 1e-9 * max(1.0, np.abs(mu).max()):
             raise ValueError('basis(q) is not in the constraint distribution at '
                              f'{describe(coordinates, q)}')
+
+
+def check_actuators(q: ca.SX, metric: ca.SX, rho: ca.SX, forces: ca.SX, samples: np.ndarray,
+                    coordinates: Sequence[str]) -> None:
+    """Refuse force directions F (n, r) whose projections onto D are not r independent fields."""
+    (n, k), r = rho.shape, forces.shape[1]
+    if forces.shape[0] != n or not 1 <= r <= k:
+        raise ValueError(f'actuators(q) must be ({n}, r) with 1 <= r <= k = {k}, got '
+                         f'{forces.shape}')
+    projected = ca.solve(rho.T @ metric @ rho, rho.T @ forces)
+    basis_condition(numeric_map(q, projected, ca.SX.eye(k)), samples, coordinates,
+                    'the actuators projected onto D (an actuator that only pushes against the '
+                    'constraints, or two that act alike?)')

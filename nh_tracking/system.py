@@ -37,7 +37,7 @@ import casadi as ca
 import numpy as np
 from numpy.typing import ArrayLike
 
-from nh_tracking import geometry, regularity
+from nh_tracking import geometry, lean, regularity
 from nh_tracking.regularity import Domain
 
 SymbolicMap = Callable[[ca.SX], Any]
@@ -104,22 +104,24 @@ class NonholonomicSystem:
             - geometry.potential_force(metric, rho, potential, q)
             + inputs @ u
         )
-        x = ca.vertcat(q, v)
         self.actuators_fn = ca.Function('actuators', [q], [forces], ['q'], ['F'])
-        self.input_matrix_fn = ca.Function('input_matrix', [q], [inputs], ['q'], ['B'])
         self.rho_fn = ca.Function('rho', [q], [rho], ['q'], ['rho'])
         self.metric_fn = ca.Function('metric', [q], [metric], ['q'], ['G'])
         self.constraints_fn = ca.Function('constraints', [q], [constraints], ['q'], ['mu'])
         self.potential_fn = ca.Function('potential', [q], [potential], ['q'], ['V'])
-        self.metric_D_fn = ca.Function('metric_D', [q], [g_d], ['q'], ['G_D'])
-        self.christoffel_fn = ca.Function('christoffel', [q], [gamma], ['q'], ['Gamma'])
-        self.dynamics_fn = ca.Function(
-            'dynamics', [q, v, u], [qdot, vdot], ['q', 'v', 'u'], ['qdot', 'vdot']
-        )
-        self.ode_fn = ca.Function('ode', [x, u], [ca.vertcat(qdot, vdot)], ['x', 'u'], ['xdot'])
-        self.energy_fn = ca.Function(
-            'energy', [q, v], [0.5 * v.T @ g_d @ v + potential], ['q', 'v'], ['E']
-        )
+        # The derived functions, without what the derivation leaves symbolic but is constant.
+        self.input_matrix_fn = self._lean(
+            ca.Function('input_matrix', [q], [inputs], ['q'], ['B']))
+        self.metric_D_fn = self._lean(ca.Function('metric_D', [q], [g_d], ['q'], ['G_D']))
+        self.christoffel_fn = self._lean(
+            ca.Function('christoffel', [q], [gamma], ['q'], ['Gamma']))
+        self.dynamics_fn = self._lean(ca.Function(
+            'dynamics', [q, v, u], [qdot, vdot], ['q', 'v', 'u'], ['qdot', 'vdot']))
+        self.energy_fn = self._lean(ca.Function(
+            'energy', [q, v], [0.5 * v.T @ g_d @ v + potential], ['q', 'v'], ['E']))
+        x = ca.SX.sym('x', self.n + self.k)
+        self.ode_fn = ca.Function('ode', [x, u], [ca.vertcat(*self.dynamics_fn(
+            x[:self.n], x[self.n:], u))], ['x', 'u'], ['xdot'])
 
     @classmethod
     def from_constraints(
@@ -191,20 +193,18 @@ class NonholonomicSystem:
         forces = None
         if actuators is not None:
             forces = _as_sx(actuators(q), None, 'actuators')
-            if forces.shape[0] != n or not 1 <= forces.shape[1] <= k:
-                raise ValueError(f'actuators(q) must be ({n}, r) with 1 <= r <= k = {k}, got '
-                                 f'{forces.shape}')
-            projected = ca.solve(rho.T @ g @ rho, rho.T @ forces)
-            regularity.basis_condition(
-                regularity.numeric_map(q, projected, ca.SX.eye(k)), samples, coordinates,
-                'the actuators projected onto D (an actuator that only pushes against the '
-                'constraints, or two that act alike?)')
+            regularity.check_actuators(q, g, rho, forces, samples, coordinates)
         return cls(
             name=name, coordinates=coordinates, q=q, metric=g, constraints=mu, potential=pot,
             rho=rho, angles=angles, controls=controls, velocities=velocities,
             parameters=parameters, basis_condition=condition, pose=pose, actuators=forces,
             domain=box,
         )
+
+    def _lean(self, function: ca.Function) -> ca.Function:
+        """Drop what is constant or repeated in ``function``, checked over the domain."""
+        return lean.lean(function, lean.draw_states(function, self.coordinates, self.angles,
+                                                    self.domain, {'v': self.k, 'u': self.r}))
 
     # numpy interface -------------------------------------------------------------------------
     def rho(self, q: ArrayLike) -> np.ndarray:

@@ -1,0 +1,183 @@
+# Copyright 2026 nh_tracking maintainers
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+
+"""Lean derived equations: the expression graph AD builds, without what is constant or repeated.
+
+Derived by automatic differentiation, the equations keep every intermediate of the derivation:
+CasADi does not know that cos^2 + sin^2 = 1, that the metric on D of an orthonormal basis is the
+identity (so its derivatives vanish and solving with it is a no-op), or that two differently built
+subexpressions are the same function. Written by hand, none of that would be there; the sleigh's
+derived dynamics were 7.5x heavier than its hand-written ones, and every solve paid for it.
+
+:func:`lean` rebuilds a Function's graph instruction by instruction while evaluating each
+intermediate at random inputs of the model's domain (a probabilistic identity test: an analytic
+expression that is not constant differs at random points with probability one). An intermediate
+that takes one value at every sample becomes that constant (snapped to an integer when within
+rounding of one); one that equals an earlier intermediate, or its negative, becomes that one.
+CasADi's own simplifications (x*0, x*1, x+0, constant arithmetic) then fold whatever depended on
+it. The result is checked against the original at fresh inputs and the original kept if they
+differ — so the lean graph is never a different function, only a shorter one.
+"""
+from __future__ import annotations
+
+from collections.abc import Callable, Mapping, Sequence
+
+import casadi as ca
+import numpy as np
+
+from nh_tracking.regularity import Domain, random_configurations
+
+SAMPLES = 12  # random inputs each intermediate is evaluated at
+SAME = 1e-11  # relative spread (or difference) below which values are one value
+AGREE = 1e-9  # lean vs original at fresh inputs, relative
+
+Draw = Callable[[int], Sequence[np.ndarray]]  # seed -> one (SAMPLES, size) array per input
+
+
+class _Node:
+    """An intermediate: its expression, inputs it depends on and values at the samples.
+
+    ``values[0]`` at the base samples, ``values[1 + j]`` with input element j redrawn.
+    """
+
+    __slots__ = ('expr', 'depends', 'values')
+
+    def __init__(self, expr: ca.SX, depends: frozenset[int], values: np.ndarray) -> None:
+        self.expr, self.depends, self.values = expr, depends, values
+
+
+def lean(function: ca.Function, draw: Draw) -> ca.Function:
+    """Rebuild ``function`` without constant, repeated or spuriously dependent intermediates.
+
+    ``draw(seed)`` gives random inputs from where ``function`` will be evaluated (one
+    (samples, size) array per input): seed 0 and 1 to fold, seed 2 to check the result.
+    """
+    symbols = [ca.SX.sym(name, function.size1_in(i), function.size2_in(i))
+               for i, name in enumerate(function.name_in())]
+    flat = ca.vertcat(*[ca.vec(s) for s in symbols])
+    base, other = (np.hstack([np.asarray(x, float).reshape(SAMPLES, -1) for x in draw(seed)])
+                   for seed in (0, 1))
+    inputs = [_input(flat[j], j, base, other) for j in range(flat.shape[0])]
+    offsets = np.cumsum([0] + [function.nnz_in(i) for i in range(function.n_in())])
+    outputs = _Rebuild(flat, base).run(function, inputs, offsets)
+    shaped = [ca.SX(function.sparsity_out(i), out) for i, out in enumerate(outputs)]
+    result = ca.Function(function.name(), symbols, shaped, function.name_in(),
+                         function.name_out(), {'cse': True})
+    if result.n_instructions() >= function.n_instructions() or not _agree(
+            function, result, draw(2)):
+        return function
+    return result
+
+
+def draw_states(function: ca.Function, coordinates: Sequence[str], angles: Sequence[str],
+                domain: Domain, sizes: Mapping[str, int]) -> Draw:
+    """Draw inputs for a function of (q[, v][, u]): q in the domain, the others normal."""
+    def draw(seed: int) -> list[np.ndarray]:
+        rng = np.random.default_rng(seed)
+        q = random_configurations(coordinates, angles, domain, rng, 4 * SAMPLES)
+        q = q[[domain.contains(x) for x in q]][:SAMPLES]
+        return [q if name == 'q' else rng.normal(size=(SAMPLES, sizes[name]))
+                for name in function.name_in()]
+    return draw
+
+
+def _input(symbol: ca.SX, j: int, base: np.ndarray, other: np.ndarray) -> _Node:
+    values = np.repeat(base[:, j][None, :], base.shape[1] + 1, axis=0)
+    values[1 + j] = other[:, j]
+    return _Node(symbol, frozenset((j,)), values)
+
+
+class _Rebuild:
+    def __init__(self, flat: ca.SX, base: np.ndarray) -> None:
+        self.flat, self.base = flat, base
+        self.seen: dict[tuple[float, ...], ca.SX] = {}
+
+    def run(self, function: ca.Function, inputs: list[_Node],
+            offsets: np.ndarray) -> list[ca.SX]:
+        work: dict[int, _Node] = {}
+        outputs = [ca.SX.zeros(function.nnz_out(i)) for i in range(function.n_out())]
+        for k in range(function.n_instructions()):
+            op, args = function.instruction_id(k), function.instruction_input(k)
+            target = function.instruction_output(k)
+            if op == ca.OP_OUTPUT:
+                outputs[target[0]][target[1]] = work[args[0]].expr
+            elif op == ca.OP_INPUT:
+                work[target[0]] = inputs[offsets[args[0]] + args[1]]
+            elif op == ca.OP_CONST:
+                constant = function.instruction_constant(k)
+                shape = inputs[0].values.shape
+                work[target[0]] = _Node(ca.SX(constant), frozenset(), np.full(shape, constant))
+            else:
+                work[target[0]] = self.fold(_apply(op, [work[a] for a in args]))
+        return outputs
+
+    def fold(self, node: _Node) -> _Node:
+        """Replace ``node`` by the constant, reduced or earlier expression equal at the samples."""
+        if node.expr.is_constant() or not np.all(np.isfinite(node.values)):
+            return node
+        value = node.values[0]
+        scale = max(1.0, float(np.abs(node.values).max()))
+        if np.ptp(node.values) <= SAME * scale:
+            constant = float(np.mean(value))
+            nearest = float(round(constant))
+            constant = nearest if abs(constant - nearest) <= SAME * scale else constant
+            return _Node(ca.SX(constant), frozenset(), np.full(node.values.shape, constant))
+        spurious = [j for j in node.depends
+                    if np.ptp(node.values[1 + j] - value) <= SAME * scale]
+        if spurious:
+            node = self.reduce(node, spurious)
+        key = _key(value)
+        if key in self.seen:
+            return _Node(self.seen[key], node.depends, node.values)
+        if _key(-value) in self.seen:
+            return _Node(-self.seen[_key(-value)], node.depends, node.values)
+        self.seen[key] = node.expr
+        return node
+
+    def reduce(self, node: _Node, spurious: list[int]) -> _Node:
+        """Substitute inputs the value does not depend on (cos^2 + sin^2 of a dropped angle)."""
+        idx = list(spurious)
+        for at in (np.zeros(len(idx)), self.base[0, idx]):  # 0 folds most (cos 0, sin 0)
+            expr = ca.substitute(node.expr, self.flat[idx], ca.DM(at))
+            reduced = ca.Function('reduced', [self.flat], [expr]).map(self.base.shape[0])
+            if np.allclose(np.array(reduced(self.base.T)).ravel(), node.values[0],
+                           rtol=10 * SAME, atol=0):
+                return _Node(expr, node.depends - set(idx), node.values)
+        return node
+
+
+def _apply(op: int, operands: list[_Node]) -> _Node:
+    depends = frozenset().union(*(x.depends for x in operands))
+    shape = operands[0].values.shape
+    if len(operands) == 1:
+        x = operands[0]
+        values = np.array(ca.DM.unary(op, ca.DM(x.values.ravel()))).reshape(shape)
+        return _Node(ca.SX.unary(op, x.expr), depends, values)
+    x, y = operands
+    values = np.array(ca.DM.binary(op, ca.DM(x.values.ravel()), ca.DM(y.values.ravel())))
+    return _Node(ca.SX.binary(op, x.expr, y.expr), depends, values.reshape(shape))
+
+
+def _key(value: np.ndarray) -> tuple[float, ...]:
+    return tuple(float(f'{x:.9e}') for x in value)
+
+
+def _agree(original: ca.Function, result: ca.Function, check: Sequence[np.ndarray]) -> bool:
+    for sample in zip(*check):
+        expected = [np.array(x) for x in original.call(list(sample))]
+        got = [np.array(x) for x in result.call(list(sample))]
+        for e, g in zip(expected, got):
+            if not np.allclose(g, e, rtol=AGREE, atol=AGREE * max(1.0, np.abs(e).max())):
+                return False
+    return True
