@@ -74,6 +74,9 @@ class PlannerSettings:
     wrap_angles: bool = setting(True, 'compare angles modulo 2 pi')
     compiled: bool = setting(False, 'variational NLP compiled to C (built once per machine '
                              'and structure, then cached)')
+    iterations: int = setting(0, 'variational solver iterations per replan: 0 = to '
+                              'convergence, 1 = one real-time iteration on the previous plan',
+                              '', (0, 100))
     u_min: tuple = setting((), 'lower bounds of the controls: one per control, or one for '
                            'all; empty: none')
     u_max: tuple = setting((), 'upper bounds of the controls (as u_min)')
@@ -89,7 +92,10 @@ class PlannerSettings:
 
     def solver(self) -> Method:
         """Return the method object these settings describe."""
-        return make_method(self.method, **({'compiled': True} if self.compiled else {}))
+        options: dict[str, object] = {'compiled': True} if self.compiled else {}
+        if self.iterations:
+            options['iterations'] = self.iterations
+        return make_method(self.method, **options)
 
     def limits(self, system: NonholonomicSystem) -> dict[str, Any]:
         """Return the bounds of a problem of ``system``, or raise a ValueError naming them."""

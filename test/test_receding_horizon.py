@@ -13,6 +13,8 @@
 # limitations under the License.
 
 """Replanning without ROS: poses and twists, the closed loop, deadlines and fallbacks."""
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -153,3 +155,52 @@ def test_nan_from_the_dynamics_gives_a_finite_stop_plan():
     assert np.all(np.isfinite(out.plan.q)) and np.all(out.plan.v == 0) and np.all(out.plan.u == 0)
     again = planner.plan(0.1, [-51.0, 0.0, 0.0], [0.2, 0.0])  # still failing: shifted stop plan
     assert again.status == 'shifted' and np.all(np.isfinite(again.plan.u))
+
+
+def test_real_time_iterations_track_like_converged_plans():
+    """One Newton step per replan on the warm-started previous plan (iterations=1).
+
+    The sleigh closed loop (model 10 % lighter than the robot) ends as close to the path as
+    with converged plans, every plan after the first is a real-time iteration, and its first
+    control stays near the converged plan's from the same state.
+    """
+    model = nht.models.chaplygin_sleigh()
+    ref = nht.simulate(model, *SLEIGH_REFERENCE_START, np.linspace(0, 20, 801))
+    real = nht.models.chaplygin_sleigh(J=4.4)
+    errors = {}
+    for iterations in (0, 1):
+        planner = rh.RecedingHorizonPlanner(model, rh.PlannerSettings(iterations=iterations))
+        planner.set_reference(ref)
+        states = _closed_loop(planner, real, 10.0)
+        errors[iterations] = max(np.hypot(*(ref.q[:, :2] - q[:2]).T).min()
+                                 for t, q, _ in states if t >= 8.0)
+        assert planner.stats.optimal == planner.stats.plans == len(states)
+    assert errors[1] < 0.05 and abs(errors[1] - errors[0]) < 0.01, errors
+    assert planner.previous is not None and planner.previous.message == 'real-time iteration'
+
+
+def test_a_real_time_iteration_is_close_to_the_converged_plan_on_a_knife_edge():
+    """A system no issue names (a knife edge on a slope, gravity pulling it off its path).
+
+    Replanned every 0.05 s, each real-time iteration's first control is within 1 per cent
+    of the converged plan's from the same state and time.
+    """
+    from systems import inclined_knife_edge
+
+    knife = inclined_knife_edge()
+    ref = nht.simulate(knife, [0.0, 0.0, 0.3], [0.5, 0.2], np.linspace(0, 10, 201),
+                       np.tile([0.1, -0.3], (200, 1)))
+    settings = rh.PlannerSettings(horizon=2.0, steps=20)
+    rti = rh.RecedingHorizonPlanner(knife, dataclasses.replace(settings, iterations=1))
+    rti.set_reference(ref)
+    converged = rh.RecedingHorizonPlanner(knife, settings)
+    converged.set_reference(ref)
+    q, v, gaps = np.array([0.1, -0.1, 0.35]), np.array([0.5, 0.2]), []
+    for step in range(40):
+        t = 0.05 * step
+        plan = rti.plan(t, q, v).plan
+        best = converged.preview(t, q, v)
+        gaps.append(np.abs(plan.u[0] - best.u[0]).max() / np.abs(best.u).max())
+        tr = nht.simulate(knife, q, v, [t, t + 0.05], plan.u[:1])
+        q, v = tr.q[-1], tr.v[-1]
+    assert rti.stats.optimal == 40 and max(gaps[1:]) < 0.01, gaps

@@ -94,23 +94,26 @@ _CACHE: PerSystemCache[Transcription] = PerSystemCache()
 
 def transcription(system: NonholonomicSystem, steps: int, terminal: str,
                   bounded: bool = False, solver: str = 'fatrop',
-                  compiled: bool = False, shape: Shape = Shape()) -> Transcription:
-    """Return the NLP for this structure (backend, deadlines or not, compiled or interpreted.
+                  compiled: bool = False, shape: Shape = Shape(),
+                  iterations: int = 0) -> Transcription:
+    """Return the NLP for this structure, built on first use and cached.
 
-    And the shape of its limits); built on first use and cached. A soft shape is always
-    solved by IPOPT: its slacks break the stage structure fatrop needs.
+    The structure: backend, deadlines or not, compiled or interpreted, the shape of its limits
+    and an iteration budget (0: to convergence). A soft shape is always solved by IPOPT to
+    convergence: its slacks break the stage structure fatrop needs.
     """
     if solver not in BACKENDS:
         raise ValueError(f'unknown NLP solver {solver!r}; choose one of {BACKENDS}')
     if shape.soft:
-        solver, compiled = 'ipopt', False
-    return _CACHE.get(system, (steps, terminal, solver, compiled, bool(bounded), shape),
+        solver, compiled, iterations = 'ipopt', False, 0
+    return _CACHE.get(system, (steps, terminal, solver, compiled, bool(bounded), shape,
+                               iterations),
                       lambda: _build(system, steps, terminal, solver, compiled, bool(bounded),
-                                     shape))
+                                     shape, iterations))
 
 
 def _build(system: NonholonomicSystem, steps: int, terminal: str, solver: str,
-           compiled: bool, bounded: bool, shape: Shape) -> Transcription:
+           compiled: bool, bounded: bool, shape: Shape, iterations: int = 0) -> Transcription:
     n, k, r, big_n = system.n, system.k, system.r, steps
     eliminated = system.fully_actuated
     nx = n + k
@@ -182,7 +185,7 @@ def _build(system: NonholonomicSystem, steps: int, terminal: str, solver: str,
         options.update({'structure_detection': 'auto',
                         'equality': list(~limits.inequality_mask(constraints.shape[0]))})
     bounded_nlp = BoundedNlp(f'variational_{system.name}_{big_n}', solver, nlp, options,
-                             bounded, compiled, bool(limits.kinds))
+                             bounded, compiled, bool(limits.kinds), iterations)
     knots_q = ca.horzcat(*[x[:n] for x in xs])
     knots_v = ca.horzcat(*[x[n:] for x in xs])
     readout = ca.Function('readout', [unknowns, p],

@@ -114,26 +114,33 @@ class BoundedNlp:
     """An NLP solver whose every solve can be given a deadline."""
 
     def __init__(self, name: str, backend: str, nlp: dict[str, ca.SX], options: dict[str, Any],
-                 bounded: bool, compiled: bool = False, inequalities: bool = False) -> None:
-        """``bounded``: solves will be given deadlines; ``compiled``: NLP functions as C."""
+                 bounded: bool, compiled: bool = False, inequalities: bool = False,
+                 iterations: int = 0) -> None:
+        """``bounded``: solves will be given deadlines; ``compiled``: NLP functions as C.
+
+        ``iterations`` > 0: every solve takes at most that many iterations and counts as done
+        when it has taken them (a real-time iteration), converged or not.
+        """
         self.backend = backend
+        self.iterations = iterations
+        budget = iterations or MAX_ITERATIONS
         self._callback: _Deadline | None = None
         self._chunk: ca.Function | None = None
         if backend == 'ipopt':
-            options = {**IPOPT_OPTIONS, **options}
+            options = {**IPOPT_OPTIONS, **options, 'ipopt.max_iter': budget}
             if bounded:
                 sizes = (nlp['x'].numel(), nlp['g'].numel(), nlp['p'].numel())
                 self._callback = _Deadline(*sizes)
                 options['iteration_callback'] = self._callback
         else:
-            options = {**options, 'fatrop': dict(FATROP_OPTIONS)}
+            options = {**options, 'fatrop': {**FATROP_OPTIONS, 'max_iter': budget}}
         source: dict[str, ca.SX] | str = nlp
         self.solver = ca.nlpsol(name, backend, nlp, options)
         library = compiled_library(self.solver) if compiled else None
         if library is not None:
             source = str(library)
             self.solver = ca.nlpsol(name, backend, source, options)
-        if bounded and backend == 'fatrop':
+        if bounded and backend == 'fatrop' and not iterations:
             chunk = FATROP_CHUNK_INTERIOR if inequalities else FATROP_CHUNK
             chunked = {**options, 'fatrop': {**FATROP_OPTIONS, 'max_iter': chunk}}
             self._chunk = ca.nlpsol(name + '_chunk', backend, source, chunked)
@@ -146,8 +153,11 @@ class BoundedNlp:
         result = self.solver(**args)
         stats = self.solver.stats()
         message = words(stats.get('return_status', 'failed'))
-        return Outcome(result, bool(stats['success']), int(stats.get('iter_count', -1)),
-                       message)
+        success = bool(stats['success'])
+        if self.iterations and message in (FATROP_STATUS[1], 'maximum number of iterations '
+                                           'exceeded'):
+            success, message = True, 'real-time iteration'
+        return Outcome(result, success, int(stats.get('iter_count', -1)), message)
 
     def _chunks(self, deadline: float, args: dict[str, Any]) -> Outcome:
         assert self._chunk is not None

@@ -55,21 +55,23 @@ def default_guess(problem: TrackingProblem) -> tuple[np.ndarray, np.ndarray]:
 
 def solve_variational(problem: TrackingProblem, initial_guess: Guess | None = None,
                       max_time: float | None = None, solver: str = 'fatrop',
-                      compiled: bool = False) -> Solution:
+                      compiled: bool = False, iterations: int = 0) -> Solution:
     """Solve the discrete variational NLP from (q (N+1, n), v (N+1, k)[, u (N, r)]) as guess.
 
     ``max_time`` [s] bounds the wall time of the whole solve, every route included. A fatrop
     failure is retried with IPOPT while time remains (the route says so). A cold solve on a
     fine grid starts from the plan of a coarse grid, interpolated (grid continuation): from the
-    reference alone, fine grids spend most iterations backtracking.
+    reference alone, fine grids spend most iterations backtracking. ``iterations`` > 0 with a
+    guess: a real-time iteration — that many Newton steps on the guess (a warm-started previous
+    plan), converged or not; without a guess the solve converges.
     """
     return solve_variational_until(problem, initial_guess, deadline_after(max_time), solver,
-                                   compiled)
+                                   compiled, iterations)
 
 
 def solve_variational_until(problem: TrackingProblem, initial_guess: Guess | None,
                             stop: float | None, solver: str = 'fatrop',
-                            compiled: bool = False) -> Solution:
+                            compiled: bool = False, iterations: int = 0) -> Solution:
     """:func:`solve_variational` with an absolute stop time (perf_counter clock) or None."""
     coarse_time = 0.0
     if initial_guess is None and problem.steps >= CONTINUATION_MIN_STEPS:
@@ -80,7 +82,8 @@ def solve_variational_until(problem: TrackingProblem, initial_guess: Guess | Non
             q, v = coarse_plan.trajectory().sample(problem.grid)
             initial_guess = (q, v, None)
     soft = start_violation(problem) > VIOLATION_TOL  # only the least-violating plan exists
-    result = _solve_with(problem, initial_guess, stop, solver, compiled, soft)
+    result = _solve_with(problem, initial_guess, stop, solver, compiled, soft,
+                         iterations if initial_guess is not None else 0)
     result.solve_time += coarse_time
 
     def time_left(previous: Solution) -> bool:
@@ -101,10 +104,11 @@ def solve_variational_until(problem: TrackingProblem, initial_guess: Guess | Non
 
 
 def _solve_with(problem: TrackingProblem, initial_guess: Guess | None, stop: float | None,
-                solver: str, compiled: bool = False, soft: bool = False) -> Solution:
+                solver: str, compiled: bool = False, soft: bool = False,
+                iterations: int = 0) -> Solution:
     sys = problem.system
     tr = transcription(sys, problem.steps, problem.terminal, stop is not None, solver,
-                       compiled, Shape.of(problem.limits, soft))
+                       compiled, Shape.of(problem.limits, soft), iterations)
     q_g, v_g = default_guess(problem) if initial_guess is None else initial_guess[:2]
     u_g = None if initial_guess is None else initial_guess[2]
     q_g, v_g = np.array(q_g, dtype=float), np.array(v_g, dtype=float)
@@ -166,11 +170,13 @@ class Variational(Method):
 
     Solved by ``backend`` (fatrop exploits the stage structure; IPOPT is the general fallback).
     ``compiled`` runs the NLP's derivatives as C, compiled once per structure and machine
-    (:mod:`.compiled`).
+    (:mod:`.compiled`). ``iterations`` > 0: real-time iterations — each warm-started solve
+    takes that many Newton steps and stops, converged or not (0: to convergence).
     """
 
     backend: Literal['fatrop', 'ipopt'] = 'fatrop'
     compiled: bool = False
+    iterations: int = 0
     name: ClassVar[str] = 'variational'
 
     def __post_init__(self) -> None:
@@ -179,12 +185,18 @@ class Variational(Method):
                              f'got {self.backend!r}')
         if not isinstance(self.compiled, bool):
             raise TypeError(f'variational option compiled must be a bool, got {self.compiled!r}')
+        if isinstance(self.iterations, bool) or not isinstance(self.iterations, int) or \
+                self.iterations < 0:
+            raise ValueError(f'variational option iterations must be an integer >= 0, got '
+                             f'{self.iterations!r}')
 
     def prepare(self, system: NonholonomicSystem, structure: Structure) -> None:
-        transcription(system, structure.steps, structure.terminal,
-                      structure.deadline is not None, self.backend, self.compiled,
-                      structure.limits)
+        for iterations in {self.iterations, 0}:  # a solve without a guess converges
+            transcription(system, structure.steps, structure.terminal,
+                          structure.deadline is not None, self.backend, self.compiled,
+                          structure.limits, iterations)
 
     def solve_until(self, problem: TrackingProblem, guess: Guess | None,
                     stop: float | None) -> Solution:
-        return solve_variational_until(problem, guess, stop, self.backend, self.compiled)
+        return solve_variational_until(problem, guess, stop, self.backend, self.compiled,
+                                       self.iterations)
