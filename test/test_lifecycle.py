@@ -16,7 +16,6 @@
 
 In process: real nodes and the real solver, one Context per test.
 """
-import dataclasses
 import time
 
 from geometry_msgs.msg import Twist
@@ -108,10 +107,13 @@ def test_lifecycle_transitions_through_the_standard_services(graph):
 
 
 def test_reconfiguring_never_stops_the_plan_in_force(graph, tmp_path, monkeypatch):
-    """compiled=true on an empty cache (C compilation.
+    """Changes that rebuild the solver never stop cmd_vel or control_sequence for long.
 
-    Seconds) and a method change (a new NLP): both built in the background while cmd_vel and
-    control_sequence keep flowing.
+    compiled=true on an empty cache (a child process compiles while plans go on interpreted),
+    a real-time iteration budget, a finer grid and control bounds (new NLPs): built in the
+    background, each stream's longest gap stays within its own period plus one replan period.
+    A method change to multiple shooting holds the interpreter for one IPOPT build (~0.15 s on
+    the development machine): bounded more loosely.
     """
     monkeypatch.setenv('NH_TRACKING_CACHE', str(tmp_path))
     pair = WallClockPair(graph)
@@ -119,20 +121,28 @@ def test_reconfiguring_never_stops_the_plan_in_force(graph, tmp_path, monkeypatc
     sequences = Stream(pair.node, JointTrajectory, 'control_sequence')
     pair.send_reference()
     planner = pair.planner
-    for change in ({'compiled': True}, {'method': 'multiple_shooting', 'compiled': False}):
+    replan = planner.params['replan_period']
+    spacing = {'cmd_vel': 1.0 / planner.params['cmd_rate'], 'control_sequence': replan}
+    for change, slack in (({'compiled': True}, replan), ({'iterations': 1}, replan),
+                          ({'steps': 40}, replan), ({'u_max': [5.0]}, replan),
+                          ({'method': 'multiple_shooting', 'compiled': False, 'iterations': 0,
+                            'u_max': []}, 0.4)):
         since = time.monotonic()
-        result = planner.set_parameters_atomically([Parameter(k, value=v)
-                                                    for k, v in change.items()])
+        result = planner.set_parameters_atomically([  # [] alone would be a byte array
+            Parameter(k, Parameter.Type.DOUBLE_ARRAY, v) if isinstance(v, list)
+            else Parameter(k, value=v) for k, v in change.items()])
         assert result.successful, result.reason
-        assert wait_until(lambda: planner.planner.settings == dataclasses.replace(
-            planner.planner.settings, **change) and not planner.live.reconfiguring, 120.0)
+        assert wait_until(lambda: not planner.live.reconfiguring
+                          and planner.planner.settings.method == change.get(
+                              'method', 'variational'), 120.0)
         took = time.monotonic() - since
         count = sequences.count()
         assert wait_until(lambda: sequences.count() > count + 3, 10.0)
-        gaps = cmd.max_gap(since), sequences.max_gap(since)
-        print(f'\n{change}: new solver after {took:.2f} s; longest gap meanwhile: '
-              f'cmd_vel {gaps[0] * 1e3:.0f} ms, control_sequence {gaps[1] * 1e3:.0f} ms')
-        assert max(gaps) < 0.5, (change, gaps)  # 20 Hz and 10 Hz streams never stopped
+        gaps = {'cmd_vel': cmd.max_gap(since), 'control_sequence': sequences.max_gap(since)}
+        print(f'\n{change}: new solver after {took:.2f} s; longest gap meanwhile: ' + ', '.join(
+            f'{k} {g * 1e3:.0f} ms (period {spacing[k] * 1e3:.0f} ms)' for k, g in gaps.items()))
+        for topic, gap in gaps.items():
+            assert gap <= spacing[topic] + slack, (change, topic, gap)
     assert planner.planner.settings.method == 'multiple_shooting' and planner.errors == 0
     assert planner.planner.stats.fallbacks == 0
 

@@ -206,21 +206,73 @@ def test_bad_problems_are_rejected(kwargs, message):
         nht.solve(sleigh_problem(), 'shooting')
 
 
-def test_compiled_nlp_gives_the_same_plan_and_is_cached(tmp_path, monkeypatch):
-    """The NLP compiled to C (built once, kept on disk) solves to the same plan."""
-    import shutil
+def test_compiled_nlp_builds_in_the_background_and_gives_the_same_plan(tmp_path, monkeypatch):
+    """compiled=True: the first solve runs interpreted while a child process builds the library.
 
+    Later solves use it, with the same plan; a new process finds it by content at once.
+    """
+    import shutil
+    import subprocess
+    import sys
+
+    from nh_tracking.solvers.compiled import wait_for_builds
+    from nh_tracking.solvers.midpoint import transcription
     from nh_tracking.solvers.variational import solve_variational
 
     if shutil.which('gcc') is None:
         pytest.skip('no C compiler: the interpreted NLP is used instead')
     monkeypatch.setenv('NH_TRACKING_CACHE', str(tmp_path))
     problem = particle_problem(2, h=0.4)
+    first = solve_variational(problem, compiled=True)
+    nlp = transcription(problem.system, problem.steps, problem.terminal, compiled=True).nlp
+    assert not nlp.compiled and first.success  # solved without waiting for the compiler
+    wait_for_builds()
     compiled = solve_variational(problem, compiled=True)
-    assert len(list(tmp_path.glob('nlp-*.so'))) == 1
+    assert nlp.compiled and len(list(tmp_path.glob('nlp-*.so'))) == 1
     interpreted = solve_variational(problem)
     assert compiled.success and compiled.cost == pytest.approx(interpreted.cost, rel=1e-12)
     assert np.allclose(compiled.q, interpreted.q, atol=1e-10)
+    probe = ('from nh_tracking.examples.experiments import particle_problem as pp\n'
+             'from nh_tracking.solvers.midpoint import transcription\n'
+             'p = pp(2, h=0.4)\n'
+             'print(transcription(p.system, p.steps, p.terminal, compiled=True).nlp.compiled)')
+    done = subprocess.run([sys.executable, '-c', probe], capture_output=True, text=True,
+                          timeout=120)
+    assert done.stdout.strip() == 'True', done.stderr
+
+
+def test_a_library_is_keyed_by_content_and_no_compiler_means_interpreted(
+        monkeypatch, caplog, tmp_path):
+    import casadi as ca
+
+    from nh_tracking.solvers import compiled
+
+    monkeypatch.setenv('NH_TRACKING_CACHE', str(tmp_path))
+    detect = compiled.compiler
+    x, p = ca.SX.sym('x', 2), ca.SX.sym('p')
+    nlp = {'x': x, 'p': p, 'f': ca.sumsqr(x - p), 'g': x[0] * x[1]}
+    monkeypatch.setattr(compiled, '_BUILDS', {})
+    monkeypatch.setattr(compiled, 'compiler', lambda: ('/bin/false', 'cc 1.0'))
+    base = compiled.LibraryBuild('n', 'ipopt', nlp, {}).path
+    keys = {base, compiled.LibraryBuild('n', 'ipopt', {**nlp, 'f': ca.sumsqr(x)}, {}).path,
+            compiled.LibraryBuild('n', 'sqpmethod', nlp, {}).path}
+    monkeypatch.setattr(compiled, 'compiler', lambda: ('/bin/false', 'cc 2.0'))
+    keys.add(compiled.LibraryBuild('n', 'ipopt', nlp, {}).path)
+    assert len(keys) == 4 and None not in keys  # expression, solver, compiler: new library
+    monkeypatch.setattr(compiled, 'compiler', lambda: ('/bin/false', 'cc 1.0'))
+    assert compiled.LibraryBuild('n', 'ipopt', nlp, {'ipopt.tol': 1e-3}).path == base
+    compiled.wait_for_builds(60.0)
+    assert compiled.LibraryBuild('n', 'ipopt', nlp, {}).library() is None  # /bin/false failed
+    monkeypatch.setattr(compiled, 'compiler', detect)
+    monkeypatch.setenv('CC', 'no-such-compiler')
+    caplog.set_level('INFO', logger='nh_tracking.solvers.compiled')
+    detect.cache_clear()
+    try:
+        for _ in range(2):
+            assert compiled.LibraryBuild('n', 'ipopt', nlp, {}).library() is None
+    finally:
+        detect.cache_clear()  # the next test finds the real compiler again
+    assert sum('no C compiler' in r.message for r in caplog.records) == 1
 
 
 def test_methods_are_objects_with_their_own_options(sleigh_literal):

@@ -37,6 +37,7 @@ from nh_tracking.metrics import cross_track_error, percentiles_ms
 from nh_tracking.problem import TrackingProblem
 from nh_tracking.receding_horizon import PlannerSettings, RecedingHorizonPlanner
 from nh_tracking.simulate import simulate
+from nh_tracking.solvers.compiled import wait_for_builds
 from nh_tracking.solvers.midpoint import transcription
 from nh_tracking.solvers.pmp import solve_pmp
 from nh_tracking.solvers.variational import solve_variational
@@ -66,6 +67,7 @@ def cold_solve(log: Callable[[str], None]) -> dict:
         name = f'variational_{solver}' + ('_compiled' if compiled else '')
         start = time.perf_counter()
         transcription(problem.system, problem.steps, problem.terminal, False, solver, compiled)
+        wait_for_builds()
         build = time.perf_counter() - start
         median, sol = _median_time(partial(solve_variational, problem, solver=solver,
                                            compiled=compiled))
@@ -74,7 +76,8 @@ def cold_solve(log: Callable[[str], None]) -> dict:
         log(f'  {name}: {median * 1e3:.2f} ms, cost {sol.cost:.4f} (built in {build:.1f} s'
             f"{', compiling on first use, then cached' if compiled else ''})")
     ours = out['variational_fatrop']['median_s']
-    for name, peer in (('do_mpc', peers.dompc), ('opti_ipopt_ms', peers.opti_multiple_shooting)):
+    for name, peer in (('do_mpc', peers.dompc),
+                       ('opti_ipopt_ms', peers.opti_multiple_shooting)):
         try:
             out[name] = peer(problem, REPEATS)
         except ImportError:
@@ -88,7 +91,8 @@ def cold_solve(log: Callable[[str], None]) -> dict:
     return out
 
 
-WARM_MODES: dict[str, dict[str, Any]] = {  # the planner's settings for each mode of the warm replanning row
+# the planner's settings for each mode of the warm replanning row
+WARM_MODES: dict[str, dict[str, Any]] = {
     'converged': {},
     'converged, compiled': {'compiled': True},
     'real-time iteration, compiled': {'compiled': True, 'iterations': 1},
@@ -114,6 +118,7 @@ def _closed_loop(log: Callable[[str], None], mode: str, settings: PlannerSetting
     period = 1.0 / rate
     planner = RecedingHorizonPlanner(model, settings)
     planner.prepare()
+    wait_for_builds()  # compiled modes: measured compiled
     planner.set_reference(reference)
     q, v = np.array(SLEIGH_START[0]), np.array(SLEIGH_START[1])
     t, positions = 0.0, []

@@ -12,72 +12,181 @@
 # See the License for the specific language governing permissions and
 # limitations under the License.
 
-"""Compiled NLPs: C code generated from the CasADi NLP, built once with gcc, cached on disk.
 
-Evaluating the NLP's derivatives in CasADi's virtual machine costs about two thirds of a cold
-solve; compiled, the same solve takes about a third of the time. Compiling is slow (seconds
-to tens of seconds, growing with N), so a library is keyed by the hash of its generated code
-and kept in ``$NH_TRACKING_CACHE`` (default ``~/.cache/nh_tracking``): built once per
-structure per machine, then loaded in milliseconds.
+"""Compiled NLPs: C code of the NLP's derivatives, built in the background, cached on disk.
+
+Compiled, a solve's function evaluations cost a fifth of the interpreted ones. Building takes
+seconds to tens of seconds (growing with N), so it never happens where a caller waits: a child
+process (at the lowest priority, one at a time) generates the C code from the serialized NLP
+and compiles it, while solves go on interpreted; the solver switches to the library when it is
+ready.
+
+A library is keyed by its content — the serialized NLP expressions, the solver and its options,
+the CasADi version and the compiler's identity and flags — and kept in ``$NH_TRACKING_CACHE``
+(default ``~/.cache/nh_tracking``): a stale library is never loaded, and a structure built
+once per machine loads in milliseconds afterwards. Without a C compiler everything stays
+interpreted, said once at INFO level.
 """
 from __future__ import annotations
 
+import atexit
+from functools import lru_cache
 import hashlib
+import json
 import logging
 import os
 from pathlib import Path
+import queue
 import shutil
+import signal
 import subprocess
+import sys
 import tempfile
+import threading
+from typing import Any
 
 import casadi as ca
 
 LOG = logging.getLogger(__name__)
 FLAGS = ('-O1', '-fPIC', '-shared')
+SOLVER_SETTINGS = ('fatrop', 'iteration_callback')  # not in the library: left out of its key
+
+
+class _Job:
+    """One library to build: its job directory, and how the build ended."""
+
+    def __init__(self, directory: Path) -> None:
+        self.directory = directory
+        self.done = threading.Event()
+        self.error = ''
+        self.child: subprocess.Popen | None = None
+
+
+_BUILDS: dict[Path, _Job] = {}  # library -> its build, in this process
+_QUEUE: queue.Queue[_Job] = queue.Queue()  # one build at a time: they compete for the CPU
+_WORKER: list[threading.Thread] = []
 
 
 def cache_dir() -> Path:
     return Path(os.environ.get('NH_TRACKING_CACHE', Path.home() / '.cache' / 'nh_tracking'))
 
 
-def compiled_library(solver: ca.Function) -> Path | None:
-    """Path of a shared library holding ``solver``'s NLP functions.
-
-    None if it cannot be built here (no C compiler), in which case the caller keeps the interpreted
-    NLP.
-    """
-    compiler = shutil.which(os.environ.get('CC', 'gcc'))
-    if compiler is None:
-        LOG.warning('no C compiler found: using the interpreted NLP')
+@lru_cache(maxsize=None)
+def compiler() -> tuple[str, str] | None:
+    """Return the C compiler's path and identity (its --version line), or None (said once)."""
+    path = shutil.which(os.environ.get('CC', 'gcc'))
+    if path is None:
+        LOG.info('no C compiler found (set CC): NLPs stay interpreted')
         return None
-    with tempfile.TemporaryDirectory() as tmp:
-        source = Path(_generate(solver, tmp))
-        code = source.read_bytes()
-        digest = hashlib.sha256(code + ' '.join(FLAGS).encode()).hexdigest()[:24]
-        library = cache_dir() / f'nlp-{digest}.so'
-        if library.exists():
-            return library
-        library.parent.mkdir(parents=True, exist_ok=True)
-        partial = library.with_suffix(f'.{os.getpid()}.tmp')
-        LOG.info('compiling the NLP (%d kB of C) into %s', len(code) // 1024, library)
-        done = subprocess.run([compiler, *FLAGS, str(source), '-o', str(partial)],
-                              capture_output=True, text=True)
-        if done.returncode != 0:
-            LOG.warning('compiling the NLP failed, using the interpreted one: %s',
-                        done.stderr[-500:])
-            partial.unlink(missing_ok=True)
-            return None
-        partial.replace(library)  # atomic: concurrent builders never load a partial file
-        return library
+    done = subprocess.run([path, '--version'], capture_output=True, text=True)
+    return path, done.stdout.splitlines()[0] if done.stdout else path
 
 
-def _generate(solver: ca.Function, directory: str) -> str:
-    """C source of the NLP's functions in ``directory``: what ``generate_dependencies`` writes.
+class LibraryBuild:
+    """A shared library of one NLP's functions: found in the cache, or built in the background.
 
-    Without changing the process's working directory (it only writes to the current one).
+    ``library()`` is its path once it exists (None before, and for good if it cannot be built).
+    Solver settings (iteration limits, tolerances) are not part of the library: NLPs that
+    differ only in them share one.
     """
+
+    def __init__(self, name: str, backend: str, nlp: dict[str, ca.SX],
+                 options: dict[str, Any]) -> None:
+        tool = compiler()
+        self.path: Path | None = None
+        if tool is None:
+            return
+        kept = {k: v for k, v in options.items()
+                if k not in SOLVER_SETTINGS and not k.startswith('ipopt.')}
+        function = ca.Function('nlp', [nlp['x'], nlp['p']], [nlp['f'], nlp['g']])
+        serialized = function.serialize()
+        content = json.dumps([name, backend, kept, ca.CasadiMeta.version(), tool[1], FLAGS],
+                             sort_keys=True, default=str)
+        digest = hashlib.sha256(serialized.encode() + content.encode()).hexdigest()[:24]
+        self.path = cache_dir() / f'nlp-{digest}.so'
+        if self.path.exists() or self.path in _BUILDS:
+            return
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        job = _Job(Path(tempfile.mkdtemp(prefix='nh_tracking_build_')))
+        (job.directory / 'nlp.casadi').write_text(serialized)
+        (job.directory / 'job.json').write_text(json.dumps({
+            'name': name, 'backend': backend, 'options': kept, 'library': str(self.path),
+            'compiler': tool[0]}))
+        LOG.info('compiling the NLP %s in the background into %s', name, self.path)
+        _BUILDS[self.path] = job
+        _QUEUE.put(job)
+        if not _WORKER:
+            _WORKER.append(threading.Thread(target=_work, name='nh_tracking_compiler',
+                                            daemon=True))
+            _WORKER[0].start()
+
+    def library(self) -> Path | None:
+        if self.path is None:
+            return None
+        if self.path.exists():
+            return self.path
+        job = _BUILDS.get(self.path)
+        if job is not None and job.done.is_set():
+            LOG.warning('compiling the NLP failed, staying interpreted: %s', job.error)
+            self.path = None
+        return None
+
+
+def _work() -> None:
+    """Run the queued builds one after the other, each a child process at low priority."""
+    nice = shutil.which('nice')
+    while True:
+        job = _QUEUE.get()
+        command = [sys.executable, '-m', 'nh_tracking.solvers.compiled', str(job.directory)]
+        job.child = subprocess.Popen([nice, '-n', '19', *command] if nice else command,
+                                     stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
+                                     start_new_session=True)
+        _, error = job.child.communicate()
+        job.error = error.decode()[-500:] if job.child.returncode else ''
+        shutil.rmtree(job.directory, ignore_errors=True)
+        job.done.set()
+
+
+def wait_for_builds(timeout: float = 600.0) -> None:
+    """Block until every background build of this process has ended (benchmarks, tests)."""
+    for job in list(_BUILDS.values()):
+        if not job.done.wait(timeout):
+            LOG.warning('a background NLP build is still running after %.0f s', timeout)
+
+
+@atexit.register
+def _stop_builds() -> None:
+    """Stop an unfinished build (and its compiler) when the process that wanted it ends."""
+    for job in _BUILDS.values():
+        if job.child is not None and job.child.poll() is None:
+            try:
+                os.killpg(job.child.pid, signal.SIGTERM)
+            except ProcessLookupError:
+                pass
+
+
+def _build(job: Path) -> None:
+    """Do the child's work: the NLP's functions as C, compiled, then moved in atomically."""
+    spec = json.loads((job / 'job.json').read_text())
+    function = ca.Function.deserialize((job / 'nlp.casadi').read_text())
+    x, p = ca.SX.sym('x', function.size1_in(0)), ca.SX.sym('p', function.size1_in(1))
+    f, g = function(x, p)
+    solver = ca.nlpsol(spec['name'], spec['backend'], {'x': x, 'p': p, 'f': f, 'g': g},
+                       spec['options'])
     generator = ca.CodeGenerator('nlp.c')
     generator.add(solver.oracle())
     for name in solver.get_function():
         generator.add(solver.get_function(name))
-    return generator.generate(directory + os.sep)
+    source = generator.generate(str(job) + os.sep)
+    library = Path(spec['library'])
+    partial = library.with_suffix(f'.{os.getpid()}.tmp')
+    done = subprocess.run([spec['compiler'], *FLAGS, source, '-o', str(partial)],
+                          capture_output=True, text=True)
+    if done.returncode != 0:
+        partial.unlink(missing_ok=True)
+        sys.exit(done.stderr[-500:])
+    partial.replace(library)  # atomic: concurrent builders never load a partial file
+
+
+if __name__ == '__main__':
+    _build(Path(sys.argv[1]))

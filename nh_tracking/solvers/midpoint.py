@@ -183,7 +183,8 @@ def _build(system: NonholonomicSystem, steps: int, terminal: str, solver: str,
     options: dict[str, Any] = {'print_time': False, 'show_eval_warnings': False}  # failures
     if solver == 'fatrop':  # are reported in the Solution
         options.update({'structure_detection': 'auto',
-                        'equality': list(~limits.inequality_mask(constraints.shape[0]))})
+                        'equality': [bool(e) for e in
+                                     ~limits.inequality_mask(constraints.shape[0])]})
     bounded_nlp = BoundedNlp(f'variational_{system.name}_{big_n}', solver, nlp, options,
                              bounded, compiled, bool(limits.kinds), iterations)
     knots_q = ca.horzcat(*[x[:n] for x in xs])

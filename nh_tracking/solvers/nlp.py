@@ -32,7 +32,7 @@ from typing import Any
 
 import casadi as ca
 
-from nh_tracking.solvers.compiled import compiled_library
+from nh_tracking.solvers.compiled import LibraryBuild
 
 MAX_ITERATIONS = 500
 FATROP_CHUNK = 10
@@ -134,16 +134,29 @@ class BoundedNlp:
                 options['iteration_callback'] = self._callback
         else:
             options = {**options, 'fatrop': {**FATROP_OPTIONS, 'max_iter': budget}}
-        source: dict[str, ca.SX] | str = nlp
-        self.solver = ca.nlpsol(name, backend, nlp, options)
-        library = compiled_library(self.solver) if compiled else None
-        if library is not None:
-            source = str(library)
-            self.solver = ca.nlpsol(name, backend, source, options)
-        if bounded and backend == 'fatrop' and not iterations:
-            chunk = FATROP_CHUNK_INTERIOR if inequalities else FATROP_CHUNK
-            chunked = {**options, 'fatrop': {**FATROP_OPTIONS, 'max_iter': chunk}}
-            self._chunk = ca.nlpsol(name + '_chunk', backend, source, chunked)
+        self._name, self._options = name, options
+        self._chunked = bounded and backend == 'fatrop' and not iterations
+        self._chunk_size = FATROP_CHUNK_INTERIOR if inequalities else FATROP_CHUNK
+        self.build = LibraryBuild(name, backend, nlp, options) if compiled else None
+        library = self.build.library() if self.build is not None else None
+        self.compiled = library is not None
+        self._load(str(library) if library is not None else nlp)
+
+    def _load(self, source: dict[str, ca.SX] | str) -> None:
+        self.solver = ca.nlpsol(self._name, self.backend, source, self._options)
+        if self._chunked:
+            chunked = {**self._options, 'fatrop': {**FATROP_OPTIONS,
+                                                   'max_iter': self._chunk_size}}
+            self._chunk = ca.nlpsol(self._name + '_chunk', self.backend, source, chunked)
+
+    def upgrade(self) -> bool:
+        """Switch to the compiled library if it has become ready; True once compiled."""
+        if not self.compiled and self.build is not None:
+            library = self.build.library()
+            if library is not None:
+                self._load(str(library))
+                self.compiled = True
+        return self.compiled
 
     def solve(self, deadline: float | None, **args: Any) -> Outcome:
         if self._chunk is not None and deadline is not None:
