@@ -72,8 +72,8 @@ class PlannerSettings:
     max_solve_time: float = setting(0.25, 'deadline of one solve; a later solve is discarded '
                                     'and the previous plan kept', 's', (1e-6, 3600.0))
     wrap_angles: bool = setting(True, 'compare angles modulo 2 pi')
-    compiled: bool = setting(False, 'variational NLP compiled to C (built once per machine '
-                             'and structure, then cached)')
+    compiled: bool = setting(False, 'variational NLP compiled to C (built in the background '
+                             'while plans go on interpreted, then cached)')
     iterations: int = setting(0, 'variational solver iterations per replan: 0 = to '
                               'convergence, 1 = one real-time iteration on the previous plan',
                               '', (0, 100))

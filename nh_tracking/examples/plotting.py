@@ -146,7 +146,7 @@ def plot_closed_loop(reference: Trajectory, t: np.ndarray, xy: np.ndarray, error
 
 def plot_bench(results: dict, path: Path) -> Path:
     """Cold solve vs do-mpc, warm replanning solve times, scaling in N, ROS latency split."""
-    fig, axes = _subplots(1, 4, figsize=(19, 4.5))
+    fig, axes = _subplots(1, 5, figsize=(24, 4.5))
     cold = results.get('cold_solve', {})
     names = [k for k in ('variational_fatrop', 'variational_fatrop_compiled',
                          'variational_ipopt', 'do_mpc', 'opti_ipopt_ms') if cold.get(k)]
@@ -183,6 +183,16 @@ def plot_bench(results: dict, path: Path) -> Path:
         axes[3].bar(keys, ros_layer, bottom=planner, label='ROS layer')
         axes[3].set(ylabel='odom -> control_sequence [ms]', title='ROS latency (in process)')
         axes[3].legend()
+    crowd = results.get('fleet')
+    if crowd:
+        sizes = [r['robots'] for r in crowd['sizes']]
+        axes[4].plot(sizes, [r['cpu_percent_per_robot'] for r in crowd['sizes']], 'o-',
+                     label='CPU per robot [% of a core]')
+        axes[4].plot(sizes, [r['misses'] for r in crowd['sizes']], 'rs--',
+                     label='late or failed plans')
+        axes[4].set(xlabel='robots (planner + simulator processes each)',
+                    title=f"fleet at 10 Hz on {crowd['cores']} cores")
+        axes[4].legend(fontsize=8)
     return _finish(fig, path)
 
 
