@@ -161,6 +161,30 @@ def bounds_from_lists(lo: tuple, hi: tuple, size: int, name: str) -> tuple | Non
     return pair
 
 
+def relevant_discs(discs: np.ndarray, robot: np.ndarray, path: np.ndarray,
+                   robot_radius: float, count: int) -> np.ndarray:
+    """Return at most ``count`` discs, nearest the robot first, that can bend a plan on ``path``.
+
+    ``robot``: the robot's (x, y); ``path``: (., 2) the reference's positions over the horizon.
+    A plan runs from the robot to the path and swerves around the obstacles near it, so a disc
+    farther from the path than the robot's offset from it plus 0.5 m, plus twice the largest
+    disc near the path, cannot touch it: leaving it out keeps the NLP small (its slots cost
+    every iteration). The caller checks the plan against every disc all the same.
+    """
+    if not len(discs):
+        return discs
+    points = np.vstack([np.asarray(robot, dtype=float)[None, :2], path[:, :2]])
+    grown = discs[:, 2] + robot_radius
+    to_path = np.hypot(discs[:, None, 0] - points[None, :, 0],
+                       discs[:, None, 1] - points[None, :, 1]).min(axis=1) - grown
+    margin = 0.5 + float(np.hypot(*(points[0] - points[1])))
+    near = to_path < margin
+    margin += 2.0 * float(np.max(grown[near], initial=0.0))
+    chosen = discs[to_path < margin]
+    to_robot = np.hypot(chosen[:, 0] - points[0, 0], chosen[:, 1] - points[0, 1]) - chosen[:, 2]
+    return chosen[np.argsort(to_robot)[:count]]
+
+
 def gap(point: np.ndarray, discs: np.ndarray, cells: np.ndarray, cell_size: float) -> float:
     """Distance from ``point`` (x, y) to the nearest disc edge or occupied cell (inf if none)."""
     point = np.asarray(point, dtype=float)[:2]

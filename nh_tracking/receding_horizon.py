@@ -32,11 +32,11 @@ from typing import Any
 import numpy as np
 
 from nh_tracking.fallback import fallback_plan, stop_plan
-from nh_tracking.limits import bounds_from_lists, Limits, plane
+from nh_tracking.limits import bounds_from_lists, Limits, plane, relevant_discs
 from nh_tracking.problem import Solution, Terminal, terminal_error, TrackingProblem
 from nh_tracking.settings import check_fields, setting
 from nh_tracking.solvers import make_method, Method, METHODS, sample_plan, Structure
-from nh_tracking.solvers.inequalities import obstacle_slots, Shape
+from nh_tracking.solvers.inequalities import obstacle_slots, Shape, VIOLATION_TOL
 from nh_tracking.system import NonholonomicSystem
 from nh_tracking.trajectory import Trajectory
 
@@ -157,8 +157,9 @@ class RecedingHorizonPlanner:
         s = self.settings
         bounds = Limits.of(self.system, self.limits['control_bounds'],
                            self.limits['velocity_bounds'], (), 0.0)
-        slots = [0] if self.method.name == 'pmp' else [0, obstacle_slots(MAX_OBSTACLES)]
-        for count in slots:
+        slots = {0} if self.method.name == 'pmp' else {
+            obstacle_slots(count) for count in range(MAX_OBSTACLES + 1)}
+        for count in sorted(slots):
             shape = dataclasses.replace(Shape.of(bounds), slots=count)
             variants = [shape, dataclasses.replace(shape, soft=True)] \
                 if shape != Shape() and self.method.name != 'pmp' else [shape]
@@ -186,16 +187,30 @@ class RecedingHorizonPlanner:
         return TrackingProblem(self.system, self.reference, q, v, horizon=s.horizon,
                                steps=s.steps, epsilon=s.epsilon, terminal=s.terminal,
                                omega=s.omega, wrap_angles=s.wrap_angles, t0=t,
-                               obstacles=self.nearest_obstacles(q), **self.limits)
+                               obstacles=self.relevant_obstacles(t, q), **self.limits)
 
-    def nearest_obstacles(self, q: np.ndarray) -> np.ndarray:
-        """Return the :data:`MAX_OBSTACLES` obstacles nearest to q: what an NLP is built for."""
-        discs = self.obstacles
-        if len(discs) <= MAX_OBSTACLES:
-            return discs
-        ix, iy = plane(self.system)
-        gaps = np.hypot(discs[:, 0] - q[ix], discs[:, 1] - q[iy]) - discs[:, 2]
-        return discs[np.argsort(gaps)[:MAX_OBSTACLES]]
+    def relevant_obstacles(self, t: float, q: np.ndarray, count: int = MAX_OBSTACLES
+                           ) -> np.ndarray:
+        """Return the obstacles that can bend a plan from q at t (nearest first): its NLP's."""
+        if not len(self.obstacles) or self.reference is None:
+            return self.obstacles
+        axes = list(plane(self.system))
+        path = self.reference.sample(np.linspace(t, t + self.settings.horizon,
+                                                 self.settings.steps + 1))[0][:, axes]
+        return relevant_discs(self.obstacles, q[axes], path, self.limits['robot_radius'], count)
+
+    def _nearest(self, q: np.ndarray) -> np.ndarray:
+        axes = list(plane(self.system))
+        gaps = np.hypot(*(self.obstacles[:, :2] - q[axes]).T) - self.obstacles[:, 2]
+        return self.obstacles[np.argsort(gaps)[:MAX_OBSTACLES]]
+
+    def _hits_a_left_out_obstacle(self, problem: TrackingProblem, sol: Solution) -> bool:
+        """Whether a plan built with the relevant obstacles only touches one left out."""
+        if len(problem.limits.obstacles) == len(self.obstacles):
+            return False
+        every = Limits.of(self.system, None, None, self.obstacles, self.limits['robot_radius'])
+        points = np.vstack([sol.q, 0.5 * (sol.q[1:] + sol.q[:-1])])
+        return bool(every.clearance(points).min() < -VIOLATION_TOL)
 
     def plan(self, t: float, q: np.ndarray, v: np.ndarray) -> PlanOutcome:
         """Plan from state (q, v) at time t. Raises ValueError only for bad input."""
@@ -215,6 +230,11 @@ class RecedingHorizonPlanner:
         try:
             sol = self.method.solve(problem, None if guess is None
                                     else sample_plan(problem, guess), s.max_solve_time)
+            if sol.success and self._hits_a_left_out_obstacle(problem, sol):
+                nearest = dataclasses.replace(problem, obstacles=self._nearest(q))
+                again = self.method.solve(nearest, (sol.q, sol.v, sol.u), s.max_solve_time)
+                again.solve_time += sol.solve_time
+                sol = again
             error = '' if sol.success else f'solver: {sol.message}'
         except (ArithmeticError, RuntimeError, ValueError) as exc:  # a numerical failure
             sol, error = None, f'solver raised {type(exc).__name__}: {exc}'

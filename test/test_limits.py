@@ -119,3 +119,46 @@ def test_pmp_refuses_what_it_cannot_do(disc):
 def test_inconsistent_limits_are_refused_naming_the_argument(disc, change, message):
     with pytest.raises(ValueError, match=message):
         dataclasses.replace(disc, **change)
+
+
+def test_only_obstacles_that_can_bend_the_plan_enter_its_nlp():
+    """Discs far from the path stay out of the NLP (small and fast); the nearest come first."""
+    from nh_tracking.limits import relevant_discs
+
+    path = np.c_[np.linspace(0.0, 5.0, 51), np.zeros(51)]
+    discs = np.array([[3.0, 0.3, 0.2],     # on the path
+                      [1.0, -1.0, 0.1],    # 0.9 m beside it: within 0.5 + 2 * 0.4 of it
+                      [2.0, 4.0, 0.5],     # far beside it
+                      [-6.0, 0.0, 0.5],    # far behind the robot
+                      [0.5, 0.9, 0.3]])    # near the robot, off the path
+    chosen = relevant_discs(discs, np.array([0.0, 0.0]), path, 0.2, 8)
+    assert chosen.tolist() == [[0.5, 0.9, 0.3], [1.0, -1.0, 0.1], [3.0, 0.3, 0.2]]
+    assert relevant_discs(discs, np.array([0.0, 0.0]), path, 0.2, 1).tolist() == [
+        [0.5, 0.9, 0.3]]
+    offset = relevant_discs(discs, np.array([2.0, 3.0]), path, 0.2, 8)  # 3 m off the path
+    assert [2.0, 4.0, 0.5] in offset.tolist()  # the way back to it passes the far one
+    assert len(relevant_discs(np.zeros((0, 3)), np.zeros(2), path, 0.2, 8)) == 0
+
+
+def test_a_plan_that_touches_a_left_out_obstacle_is_replanned_with_it(monkeypatch):
+    """Re-solve with the nearest obstacles if the selection ever misses one the plan hits.
+
+    No plan in force goes through an obstacle the planner knows of.
+    """
+    import nh_tracking.receding_horizon as rh
+
+    unicycle = nht.models.unicycle()
+    t = np.linspace(0.0, 20.0, 201)
+    line = nht.Trajectory(t=t, q=np.c_[0.5 * t, 0 * t, 0 * t],
+                          v=np.c_[0.5 * np.ones_like(t), 0 * t], u=np.zeros((200, 2)))
+    planner = rh.RecedingHorizonPlanner(unicycle, rh.PlannerSettings(horizon=5.0, steps=50,
+                                                                     robot_radius=0.2))
+    planner.set_reference(line)
+    planner.obstacles = np.array([[1.5, 0.05, 0.3]])
+    monkeypatch.setattr(rh, 'relevant_discs', lambda discs, *args: discs[:0])
+    outcome = planner.plan(0.0, np.zeros(3), np.array([0.5, 0.0]))
+    plan = outcome.plan
+    assert outcome.status == 'optimal', outcome.message
+    grown = nht.TrackingProblem(unicycle, line, np.zeros(3), [0.5, 0], 5.0, 50,
+                                obstacles=planner.obstacles, robot_radius=0.2).limits
+    assert grown.clearance(np.vstack([plan.q, 0.5 * (plan.q[1:] + plan.q[:-1])])).min() > -TOL

@@ -35,7 +35,7 @@ from nh_tracking.limits import Limits
 from nh_tracking.problem import TrackingProblem
 
 SOFT_WEIGHT = 1e4  # per unit of violation: above the multipliers of any sane tracking cost
-MIN_SLOTS = 8  # obstacle slots of an NLP with obstacles: replanning keeps one NLP up to 8
+MIN_SLOTS = 2  # obstacle slots of an NLP with obstacles (then 4, 8, ...: one NLP per size)
 VIOLATION_TOL = 1e-6  # a plan breaking a limit by more is no success
 
 

@@ -35,6 +35,7 @@ import casadi as ca
 from nh_tracking.solvers.compiled import LibraryBuild
 
 MAX_ITERATIONS = 500
+WARM_MU = 1e-5  # fatrop's initial barrier from a warm start with inequalities (default 0.1)
 FATROP_CHUNK = 10
 FATROP_CHUNK_INTERIOR = 50
 FATROP_OPTIONS = {'print_level': 0, 'tol': 1e-10, 'max_iter': MAX_ITERATIONS}
@@ -125,7 +126,6 @@ class BoundedNlp:
         self.iterations = iterations
         budget = iterations or MAX_ITERATIONS
         self._callback: _Deadline | None = None
-        self._chunk: ca.Function | None = None
         if backend == 'ipopt':
             options = {**IPOPT_OPTIONS, **options, 'ipopt.max_iter': budget}
             if bounded:
@@ -137,17 +137,31 @@ class BoundedNlp:
         self._name, self._options = name, options
         self._chunked = bounded and backend == 'fatrop' and not iterations
         self._chunk_size = FATROP_CHUNK_INTERIOR if inequalities else FATROP_CHUNK
+        self._warm = backend == 'fatrop' and inequalities
         self.build = LibraryBuild(name, backend, nlp, options) if compiled else None
         library = self.build.library() if self.build is not None else None
         self.compiled = library is not None
         self._load(str(library) if library is not None else nlp)
 
     def _load(self, source: dict[str, ca.SX] | str) -> None:
-        self.solver = ca.nlpsol(self._name, self.backend, source, self._options)
-        if self._chunked:
-            chunked = {**self._options, 'fatrop': {**FATROP_OPTIONS,
-                                                   'max_iter': self._chunk_size}}
-            self._chunk = ca.nlpsol(self._name + '_chunk', self.backend, source, chunked)
+        """Build the solvers: cold and warm, whole and chunked.
+
+        Warm (with inequalities only): a small initial barrier, since the guess is near the
+        optimum and a large barrier would push it away from its active constraints.
+        """
+        self._solvers: dict[tuple[bool, bool], ca.Function] = {}
+        for warm in (False, True) if self._warm else (False,):
+            options = self._options
+            if self.backend == 'fatrop':
+                options = {**options, 'fatrop': {**options['fatrop'],
+                                                 **({'mu_init': WARM_MU} if warm else {})}}
+            self._solvers[warm, False] = ca.nlpsol(self._name, self.backend, source, options)
+            if self._chunked:
+                chunked = {**options, 'fatrop': {**options['fatrop'],
+                                                 'max_iter': self._chunk_size}}
+                self._solvers[warm, True] = ca.nlpsol(self._name + '_chunk', self.backend,
+                                                      source, chunked)
+        self.solver = self._solvers[False, False]
 
     def upgrade(self) -> bool:
         """Switch to the compiled library if it has become ready; True once compiled."""
@@ -158,13 +172,16 @@ class BoundedNlp:
                 self.compiled = True
         return self.compiled
 
-    def solve(self, deadline: float | None, **args: Any) -> Outcome:
-        if self._chunk is not None and deadline is not None:
-            return self._chunks(deadline, args)
+    def solve(self, deadline: float | None, warm: bool = False, **args: Any) -> Outcome:
+        """Solve from ``args`` (x0, p, bounds); ``warm``: x0 is a near-optimal plan."""
+        warm = warm and self._warm
+        if self._chunked and deadline is not None:
+            return self._chunks(self._solvers[warm, True], deadline, args)
         if self._callback is not None:
             self._callback.deadline = math.inf if deadline is None else deadline
-        result = self.solver(**args)
-        stats = self.solver.stats()
+        solver = self._solvers[warm, False]
+        result = solver(**args)
+        stats = solver.stats()
         message = words(stats.get('return_status', 'failed'))
         success = bool(stats['success'])
         if self.iterations and message in (FATROP_STATUS[1], 'maximum number of iterations '
@@ -172,12 +189,11 @@ class BoundedNlp:
             success, message = True, 'real-time iteration'
         return Outcome(result, success, int(stats.get('iter_count', -1)), message)
 
-    def _chunks(self, deadline: float, args: dict[str, Any]) -> Outcome:
-        assert self._chunk is not None
+    def _chunks(self, chunk: ca.Function, deadline: float, args: dict[str, Any]) -> Outcome:
         iterations = 0
         while True:
-            result = self._chunk(**args)
-            stats = self._chunk.stats()
+            result = chunk(**args)
+            stats = chunk.stats()
             iterations += int(stats.get('iter_count', 0))
             message = words(stats.get('return_status', 'failed'))
             if stats['success'] or message != FATROP_STATUS[1]:

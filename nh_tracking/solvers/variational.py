@@ -127,7 +127,11 @@ def _solve_with(problem: TrackingProblem, initial_guess: Guess | None, stop: flo
                        'NaN or Inf there)')
     bounds = tr.bounds(problem)
     slacks = 0 if tr.soft_index is None else len(tr.soft_index)
-    outcome = tr.nlp.solve(stop, x0=np.concatenate([w0, np.zeros(slacks)]), p=p, **bounds)
+    # a guess within the limits (a previous plan) is warm: near the optimum and its active set
+    warm = initial_guess is not None and problem.limits.violation(
+        np.vstack([q_g, 0.5 * (q_g[1:] + q_g[:-1])]), v_g) <= VIOLATION_TOL
+    outcome = tr.nlp.solve(stop, warm, x0=np.concatenate([w0, np.zeros(slacks)]), p=p,
+                           **bounds)
     elapsed = time.perf_counter() - start
     w = np.array(outcome.result['x']).ravel()[:tr.unknowns]
     q, v, u, residual, running = tr.readout(w, p)
