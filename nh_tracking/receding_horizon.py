@@ -151,8 +151,10 @@ class RecedingHorizonPlanner:
     def prepare(self) -> None:
         """Build the solver for the current settings now, so the first plan is not late.
 
-        Every shape of its limits it may meet: without obstacles and with the obstacle slots,
-        and the soft forms for a start that breaks a limit.
+        Every shape of its limits it meets in replanning: without obstacles and with each
+        number of obstacle slots. The soft forms, for a start that breaks a limit (a robot
+        pushed into an obstacle), are built when first needed: rare, and building every form
+        up front would hold the interpreter for seconds after each parameter change.
         """
         s = self.settings
         bounds = Limits.of(self.system, self.limits['control_bounds'],
@@ -161,11 +163,8 @@ class RecedingHorizonPlanner:
             obstacle_slots(count) for count in range(MAX_OBSTACLES + 1)}
         for count in sorted(slots):
             shape = dataclasses.replace(Shape.of(bounds), slots=count)
-            variants = [shape, dataclasses.replace(shape, soft=True)] \
-                if shape != Shape() and self.method.name != 'pmp' else [shape]
-            for variant in variants:
-                self.method.prepare(self.system, Structure(s.steps, s.terminal,
-                                                           s.max_solve_time, variant))
+            self.method.prepare(self.system, Structure(s.steps, s.terminal, s.max_solve_time,
+                                                       shape))
 
     def set_reference(self, reference: Trajectory) -> None:
         """Track ``reference`` (times on the planner's clock) from the next plan on."""

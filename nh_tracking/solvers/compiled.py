@@ -43,7 +43,7 @@ import subprocess
 import sys
 import tempfile
 import threading
-from typing import Any
+from typing import Any, Callable
 
 import casadi as ca
 
@@ -55,9 +55,11 @@ SOLVER_SETTINGS = ('fatrop', 'iteration_callback')  # not in the library: left o
 class _Job:
     """One library to build: its job directory, and how the build ended."""
 
-    def __init__(self, directory: Path) -> None:
-        self.directory = directory
-        self.done = threading.Event()
+    def __init__(self, directory: Path, library: Path) -> None:
+        self.directory, self.library = directory, library
+        self.finished = False  # the child has ended (under _LOCK)
+        self.ready: list[Callable[[Path], None]] = []  # called with the library when built
+        self.done = threading.Event()  # ... and after them
         self.error = ''
         self.child: subprocess.Popen | None = None
 
@@ -65,6 +67,7 @@ class _Job:
 _BUILDS: dict[Path, _Job] = {}  # library -> its build, in this process
 _QUEUE: queue.Queue[_Job] = queue.Queue()  # one build at a time: they compete for the CPU
 _WORKER: list[threading.Thread] = []
+_LOCK = threading.Lock()
 
 
 def cache_dir() -> Path:
@@ -107,7 +110,7 @@ class LibraryBuild:
         if self.path.exists() or self.path in _BUILDS:
             return
         self.path.parent.mkdir(parents=True, exist_ok=True)
-        job = _Job(Path(tempfile.mkdtemp(prefix='nh_tracking_build_')))
+        job = _Job(Path(tempfile.mkdtemp(prefix='nh_tracking_build_')), self.path)
         (job.directory / 'nlp.casadi').write_text(serialized)
         (job.directory / 'job.json').write_text(json.dumps({
             'name': name, 'backend': backend, 'options': kept, 'library': str(self.path),
@@ -119,6 +122,19 @@ class LibraryBuild:
             _WORKER.append(threading.Thread(target=_work, name='nh_tracking_compiler',
                                             daemon=True))
             _WORKER[0].start()
+
+    def when_ready(self, use: Callable[[Path], None]) -> None:
+        """Call ``use(library)`` on the compiler's thread once it is built (never if it fails).
+
+        So that loading it (tens of milliseconds in CasADi) happens off the solver's thread.
+        """
+        job = _BUILDS.get(self.path) if self.path is not None else None
+        with _LOCK:
+            if job is not None and not job.finished:
+                job.ready.append(use)
+                return
+        if self.path is not None and self.path.exists():
+            use(self.path)
 
     def library(self) -> Path | None:
         if self.path is None:
@@ -144,6 +160,15 @@ def _work() -> None:
         _, error = job.child.communicate()
         job.error = error.decode()[-500:] if job.child.returncode else ''
         shutil.rmtree(job.directory, ignore_errors=True)
+        with _LOCK:
+            job.finished = True
+            users = [] if job.error else list(job.ready)
+        for use in users:
+            try:
+                use(job.library)
+            except Exception as exc:  # noqa: BLE001 - a bad library must not stop the others
+                LOG.warning('loading the compiled NLP %s failed, staying interpreted: %s',
+                            job.library, exc)
         job.done.set()
 
 

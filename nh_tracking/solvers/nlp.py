@@ -27,6 +27,8 @@ from __future__ import annotations
 from collections.abc import Sequence
 from dataclasses import dataclass
 import math
+from pathlib import Path
+import threading
 import time
 from typing import Any
 
@@ -35,6 +37,7 @@ import casadi as ca
 from nh_tracking.solvers.compiled import LibraryBuild
 
 MAX_ITERATIONS = 500
+PACE_MAX = 0.1  # [s] the longest rest after a background build step
 WARM_MU = 1e-5  # fatrop's initial barrier from a warm start with inequalities (default 0.1)
 FATROP_CHUNK = 10
 FATROP_CHUNK_INTERIOR = 50
@@ -111,6 +114,21 @@ class Outcome:
     message: str
 
 
+def _paced_nlpsol(name: str, backend: str, source: dict[str, ca.SX] | str,
+                  options: dict[str, Any]) -> ca.Function:
+    """``ca.nlpsol``; off the main thread, followed by a rest as long as it took.
+
+    Building holds the interpreter for tens of milliseconds at a time; a background build
+    (after a parameter change, or loading a compiled library) that went on at full speed would
+    starve the threads publishing the robot's commands. At half duty they keep their rates.
+    """
+    started = time.perf_counter()
+    solver = ca.nlpsol(name, backend, source, options)
+    if threading.current_thread() is not threading.main_thread():
+        time.sleep(min(time.perf_counter() - started, PACE_MAX))
+    return solver
+
+
 class BoundedNlp:
     """An NLP solver whose every solve can be given a deadline."""
 
@@ -141,45 +159,39 @@ class BoundedNlp:
         self.build = LibraryBuild(name, backend, nlp, options) if compiled else None
         library = self.build.library() if self.build is not None else None
         self.compiled = library is not None
-        self._load(str(library) if library is not None else nlp)
+        self._solvers = self._load(str(library) if library is not None else nlp)
+        self.solver = self._solvers[False]
+        if self.build is not None and not self.compiled:
+            self.build.when_ready(self._use_library)
 
-    def _load(self, source: dict[str, ca.SX] | str) -> None:
-        """Build the solvers: cold and warm, whole and chunked.
+    def _load(self, source: dict[str, ca.SX] | str) -> dict[bool, ca.Function]:
+        """Build the solvers: cold and warm; in chunks of iterations if bounded, else whole.
 
         Warm (with inequalities only): a small initial barrier, since the guess is near the
         optimum and a large barrier would push it away from its active constraints.
         """
-        self._solvers: dict[tuple[bool, bool], ca.Function] = {}
+        solvers: dict[bool, ca.Function] = {}
         for warm in (False, True) if self._warm else (False,):
             options = self._options
             if self.backend == 'fatrop':
-                options = {**options, 'fatrop': {**options['fatrop'],
+                chunk = {'max_iter': self._chunk_size} if self._chunked else {}
+                options = {**options, 'fatrop': {**options['fatrop'], **chunk,
                                                  **({'mu_init': WARM_MU} if warm else {})}}
-            self._solvers[warm, False] = ca.nlpsol(self._name, self.backend, source, options)
-            if self._chunked:
-                chunked = {**options, 'fatrop': {**options['fatrop'],
-                                                 'max_iter': self._chunk_size}}
-                self._solvers[warm, True] = ca.nlpsol(self._name + '_chunk', self.backend,
-                                                      source, chunked)
-        self.solver = self._solvers[False, False]
+            solvers[warm] = _paced_nlpsol(self._name, self.backend, source, options)
+        return solvers
 
-    def upgrade(self) -> bool:
-        """Switch to the compiled library if it has become ready; True once compiled."""
-        if not self.compiled and self.build is not None:
-            library = self.build.library()
-            if library is not None:
-                self._load(str(library))
-                self.compiled = True
-        return self.compiled
+    def _use_library(self, library: Path) -> None:
+        """Switch to the compiled library (on the compiler's thread; solves go on meanwhile)."""
+        solvers = self._load(str(library))
+        self._solvers, self.solver, self.compiled = solvers, solvers[False], True
 
     def solve(self, deadline: float | None, warm: bool = False, **args: Any) -> Outcome:
         """Solve from ``args`` (x0, p, bounds); ``warm``: x0 is a near-optimal plan."""
-        warm = warm and self._warm
-        if self._chunked and deadline is not None:
-            return self._chunks(self._solvers[warm, True], deadline, args)
+        solver = self._solvers[warm and self._warm]  # (the set may be swapped meanwhile)
+        if self._chunked:
+            return self._chunks(solver, math.inf if deadline is None else deadline, args)
         if self._callback is not None:
             self._callback.deadline = math.inf if deadline is None else deadline
-        solver = self._solvers[warm, False]
         result = solver(**args)
         stats = solver.stats()
         message = words(stats.get('return_status', 'failed'))

@@ -116,7 +116,6 @@ def _solve_with(problem: TrackingProblem, initial_guess: Guess | None, stop: flo
     if problem.terminal == 'equality':
         q_g[-1], v_g[-1] = problem.reference_samples[0][-1], problem.reference_samples[1][-1]
     p = tr.parameters(problem)
-    tr.nlp.upgrade()  # to the compiled library once it is built
     start = time.perf_counter()
     w0 = tr.pack(q_g, v_g, u_g)
     if not all(np.all(np.isfinite(a)) for a in tr.readout(w0, p)):
