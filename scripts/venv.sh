@@ -9,7 +9,7 @@ if [ ! -x "$venv/bin/python" ]; then
   "$python" -m venv "$venv"
 fi
 stamp="$venv/.nh_tracking-installed"
-want="$(cat "$root/requirements.txt" "$root/setup.py" "$root/setup.cfg" "$root/scripts/venv.sh" | sha256sum)"
+want="$(cat "$root/requirements.txt" "$root/setup.py" "$root/setup.cfg" "$root/package.xml" "$root/scripts/venv.sh" | sha256sum)"
 if [ "$(cat "$stamp" 2>/dev/null)" != "$want" ]; then
   echo "installing pinned dependencies into $venv" >&2
   "$venv/bin/python" -m pip install -q --disable-pip-version-check pip==26.3 setuptools==68.2.2 wheel==0.43.0
