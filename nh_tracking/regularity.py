@@ -85,7 +85,10 @@ def describe(coordinates: Sequence[str], q: np.ndarray) -> str:
 
 def random_configurations(coordinates: Sequence[str], angles: Sequence[str], domain: Domain,
                           rng: np.random.Generator, count: int = SAMPLES) -> np.ndarray:
-    """(count, n) random configurations: angles uniform, bounded intervals uniform inside."""
+    """Return (count, n) random configurations inside the domain.
+
+    Angles uniform, intervals uniform inside, half lines from their end outwards, others normal.
+    """
     samples = rng.normal(size=(count, len(coordinates)))
     for i, c in enumerate(coordinates):
         lo, hi = domain.lower[i], domain.upper[i]
@@ -94,6 +97,10 @@ def random_configurations(coordinates: Sequence[str], angles: Sequence[str], dom
         if np.isfinite(lo) and np.isfinite(hi):  # stay a little inside an open interval
             margin = 1e-2 * (hi - lo)
             samples[:, i] = rng.uniform(lo + margin, hi - margin, count)
+        elif np.isfinite(lo) or np.isfinite(hi):  # a half line: from its end outwards
+            side = 1.0 if np.isfinite(lo) else -1.0
+            end = lo if np.isfinite(lo) else hi
+            samples[:, i] = end + side * (1e-2 + np.abs(samples[:, i]))
     return samples
 
 

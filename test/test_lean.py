@@ -147,3 +147,38 @@ def test_a_graph_that_would_change_is_kept_as_it_is():
         return [np.random.default_rng(seed).uniform(low, low + 1, (lean.SAMPLES, 1))]
 
     assert lean.lean(f, draw) is f
+
+
+def test_what_the_samples_cannot_see_is_left_alone():
+    """Found by an independent probe: walls, tiny terms, branches, half-line domains.
+
+    A soft wall (fmax) the samples never reach stays in the energy; a 1e-12 term stays; two
+    branches equal on the base samples but not on the redraws stay distinct; a coordinate on a
+    half line is sampled on it.
+    """
+    import nh_tracking as nht
+
+    wall = nht.NonholonomicSystem.from_constraints(
+        ['x', 'y', 'th'], lambda q: ca.diag(ca.vertcat(1.0, 1.0, 0.2)),
+        lambda q: ca.horzcat(ca.sin(q[2]), -ca.cos(q[2]), 0),
+        lambda q: 50 * (ca.fmax(q[0] - 2.0, 0) ** 2 + ca.fmax(ca.fabs(q[1]) - 2.0, 0) ** 2),
+        angles=['th'], name='walled')
+    assert wall.energy([3.5, 0.0, 0.0], [0.0, 0.0]) == pytest.approx(50 * 1.5 ** 2)
+    assert wall.dynamics([0.0, 3.0, 0.3], [0.0, 0.0])[1] != pytest.approx([0.0, 0.0])
+    x = ca.SX.sym('x', 2)
+    tiny = ca.Function('tiny', [x], [1e-12 * ca.sin(x[0]) * x[1]])
+    short = lean.lean(tiny, _draw(2))
+    assert float(short([1.0, 2.0])) == pytest.approx(2e-12 * np.sin(1.0), rel=1e-12)
+    branches = ca.Function('b', [x], [ca.vertcat(ca.fmax(x[0] - 1, 0) + x[1],
+                                                 ca.fmax(x[1] - 1, 0) + x[1])])
+
+    def draw(seed: int) -> list[np.ndarray]:  # only the redraws reach the branches
+        return [np.random.default_rng(seed).uniform(-1, 1 if seed == 0 else 2,
+                                                    (lean.SAMPLES, 2))]
+
+    np.testing.assert_allclose(np.array(lean.lean(branches, draw)([1.5, 0.5])).ravel(),
+                               [1.0, 0.5])
+    polar = nht.NonholonomicSystem.from_constraints(
+        ['r', 'a', 'b'], lambda q: ca.diag(ca.vertcat(1.0, q[0] ** 2, 1.0)),
+        lambda q: ca.horzcat(0, 1, -q[0]), domain={'r': (2.0, np.inf)}, name='half_line')
+    assert np.all(np.isfinite(polar.dynamics([2.5, 0.1, 0.2], [0.3, -0.4])[1]))

@@ -204,3 +204,29 @@ def test_a_real_time_iteration_is_close_to_the_converged_plan_on_a_knife_edge():
         tr = nht.simulate(knife, q, v, [t, t + 0.05], plan.u[:1])
         q, v = tr.q[-1], tr.v[-1]
     assert rti.stats.optimal == 40 and max(gaps[1:]) < 0.01, gaps
+
+
+def test_a_real_time_iteration_far_from_admissible_is_converged_instead():
+    """After the reference jumps, one Newton step leaves the plan off the model's dynamics.
+
+    Such a step does not count: the solve converges within the same deadline, so every plan
+    in force is a trajectory of the model (admissibility residual <= 1e-3).
+    """
+    unicycle = nht.models.unicycle()
+    t = np.linspace(0.0, 20.0, 201)
+    line = nht.Trajectory(t=t, q=np.c_[0.5 * t, 0 * t, 0 * t],
+                          v=np.c_[0.5 * np.ones_like(t), 0 * t], u=np.zeros((200, 2)))
+    jumped = nht.Trajectory(t=t, q=line.q + [1.5, -2.0, 0.0], v=line.v, u=line.u)
+    planner = rh.RecedingHorizonPlanner(unicycle, rh.PlannerSettings(iterations=1))
+    planner.set_reference(line)
+    q, v, residuals, messages = np.zeros(3), np.array([0.5, 0.0]), [], set()
+    for step in range(40):
+        if step == 20:
+            planner.set_reference(jumped)
+        out = planner.plan(0.1 * step, q, v)
+        residuals.append(out.plan.details['admissibility_residual'])
+        messages.add(out.plan.message)
+        tr = nht.simulate(unicycle, q, v, out.plan.t[:2], out.plan.u[:1])
+        q, v = tr.q[-1], tr.v[-1]
+    assert planner.stats.optimal == 40 and max(residuals) <= 1e-3, max(residuals)
+    assert {'real-time iteration', 'converged'} <= messages
