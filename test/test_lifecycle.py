@@ -109,11 +109,11 @@ def test_lifecycle_transitions_through_the_standard_services(graph):
 def test_reconfiguring_never_stops_the_plan_in_force(graph, tmp_path, monkeypatch):
     """Changes that rebuild the solver never stop cmd_vel or control_sequence for long.
 
-    compiled=true on an empty cache (a child process compiles while plans go on interpreted)
-    and a real-time iteration budget: each stream's longest gap stays within its own period
-    plus one replan period. Changes that rebuild every NLP shape (a finer grid, control bounds,
-    another method) hold the interpreter for longer: CasADi keeps it while it builds an NLP
-    (40-140 ms each), and the threads that publish wait; measured 70-290 ms, bounded at 0.4 s.
+    compiled=true on an empty cache (a child process compiles while plans go on interpreted),
+    a real-time iteration budget, a finer grid, control bounds and another method: each
+    rebuilds NLPs in the background while the plan in force is replanned. CasADi holds the
+    interpreter while it builds one NLP (40-140 ms), and the threads that publish wait: gaps of
+    0.05-0.29 s beyond each stream's period were measured, so the bound is 0.4 s beyond it.
     """
     monkeypatch.setenv('NH_TRACKING_CACHE', str(tmp_path))
     pair = WallClockPair(graph)
@@ -121,12 +121,11 @@ def test_reconfiguring_never_stops_the_plan_in_force(graph, tmp_path, monkeypatc
     sequences = Stream(pair.node, JointTrajectory, 'control_sequence')
     pair.send_reference()
     planner = pair.planner
-    replan = planner.params['replan_period']
-    spacing = {'cmd_vel': 1.0 / planner.params['cmd_rate'], 'control_sequence': replan}
-    for change, slack in (({'compiled': True}, replan), ({'iterations': 1}, replan),
-                          ({'steps': 40}, 0.4), ({'u_max': [5.0]}, 0.4),
-                          ({'method': 'multiple_shooting', 'compiled': False, 'iterations': 0,
-                            'u_max': []}, 0.4)):
+    spacing = {'cmd_vel': 1.0 / planner.params['cmd_rate'],
+               'control_sequence': planner.params['replan_period']}
+    for change in ({'compiled': True}, {'iterations': 1}, {'steps': 40}, {'u_max': [5.0]},
+                   {'method': 'multiple_shooting', 'compiled': False, 'iterations': 0,
+                    'u_max': []}):
         since = time.monotonic()
         result = planner.set_parameters_atomically([  # [] alone would be a byte array
             Parameter(k, Parameter.Type.DOUBLE_ARRAY, v) if isinstance(v, list)
@@ -142,7 +141,7 @@ def test_reconfiguring_never_stops_the_plan_in_force(graph, tmp_path, monkeypatc
         print(f'\n{change}: new solver after {took:.2f} s; longest gap meanwhile: ' + ', '.join(
             f'{k} {g * 1e3:.0f} ms (period {spacing[k] * 1e3:.0f} ms)' for k, g in gaps.items()))
         for topic, gap in gaps.items():
-            assert gap <= spacing[topic] + slack, (change, topic, gap)
+            assert gap <= spacing[topic] + 0.4, (change, topic, gap)
     assert planner.planner.settings.method == 'multiple_shooting' and planner.errors == 0
     assert planner.planner.stats.fallbacks == 0
 
