@@ -43,9 +43,11 @@ SAME = 1e-11  # relative spread (or difference) below which values are one value
 AGREE = 1e-9  # lean vs original at fresh inputs, relative
 
 Draw = Callable[[int], Sequence[np.ndarray]]  # seed -> one (SAMPLES, size) array per input
-ROUGH = {ca.OP_FMAX, ca.OP_FMIN, ca.OP_FABS, ca.OP_IF_ELSE_ZERO, ca.OP_FLOOR, ca.OP_CEIL,
-         ca.OP_SIGN, ca.OP_LT, ca.OP_LE, ca.OP_EQ, ca.OP_NE, ca.OP_NOT, ca.OP_AND, ca.OP_OR,
-         ca.OP_FMOD, ca.OP_REMAINDER, ca.OP_COPYSIGN}  # non-smooth: never folded, nor after
+# Only polynomial and trigonometric arithmetic is folded, where a random-point identity test
+# is sound: anything after another operation (non-smooth ones, and exp, tanh, atan2, ... that
+# saturate or underflow to constants at the samples) is left as it is.
+FOLDABLE = {ca.OP_ADD, ca.OP_SUB, ca.OP_MUL, ca.OP_DIV, ca.OP_NEG, ca.OP_SQ, ca.OP_TWICE,
+            ca.OP_SIN, ca.OP_COS, ca.OP_SQRT, ca.OP_CONSTPOW, ca.OP_INV, ca.OP_ASSIGN}
 UNARY: dict[int, Callable[[np.ndarray], np.ndarray]] = {
     ca.OP_NEG: np.negative, ca.OP_SQ: np.square, ca.OP_SQRT: np.sqrt, ca.OP_SIN: np.sin,
     ca.OP_COS: np.cos, ca.OP_TAN: np.tan, ca.OP_EXP: np.exp, ca.OP_LOG: np.log,
@@ -184,7 +186,7 @@ class _Rebuild:
 
 def _apply(op: int, operands: list[_Node]) -> _Node:
     depends = frozenset().union(*(x.depends for x in operands))
-    rough = op in ROUGH or any(x.rough for x in operands)
+    rough = op not in FOLDABLE or any(x.rough for x in operands) or _swamped(op, operands)
     shape = operands[0].values.shape
     with np.errstate(all='ignore'):
         if len(operands) == 1:
@@ -200,13 +202,25 @@ def _apply(op: int, operands: list[_Node]) -> _Node:
     return _Node(ca.SX.binary(op, x.expr, y.expr), depends, values, rough)
 
 
+def _swamped(op: int, operands: list[_Node]) -> bool:
+    """Tell whether a sum adds a term invisible at the samples.
+
+    E.g. 1e6 x^2 + 1e-6 sin y, or u minus a bump's force far from the bump: equal to its
+    larger operand there, it must not be folded.
+    """
+    if op not in (ca.OP_ADD, ca.OP_SUB) or any(x.expr.is_constant() for x in operands):
+        return False
+    small, large = sorted(float(np.abs(x.values).max()) for x in operands)
+    return 0.0 < small <= 1e-9 * large
+
+
 def _key(values: np.ndarray) -> bytes:
-    """Identify a node by its values at every sample and redraw, to 30 significant bits.
+    """Identify a node by its values at every sample and redraw, to 40 significant bits.
 
     The redraws too: two nodes equal at the base samples may still differ on them.
     """
     mantissa, exponent = np.frexp(values.ravel())
-    return np.ldexp(np.round(mantissa * 2.0 ** 30), exponent).tobytes()
+    return np.ldexp(np.round(mantissa * 2.0 ** 40), exponent).tobytes()
 
 
 def _agree(original: ca.Function, result: ca.Function, check: Sequence[np.ndarray]) -> bool:

@@ -112,9 +112,8 @@ class NonholonomicSystem:
         # The derived functions, without what the derivation leaves symbolic but is constant.
         self.input_matrix_fn = self._lean(
             ca.Function('input_matrix', [q], [inputs], ['q'], ['B']))
-        self.metric_D_fn = self._lean(ca.Function('metric_D', [q], [g_d], ['q'], ['G_D']))
-        self.christoffel_fn = self._lean(
-            ca.Function('christoffel', [q], [gamma], ['q'], ['Gamma']))
+        self.metric_D_fn = ca.Function('metric_D', [q], [g_d], ['q'], ['G_D'])
+        self.christoffel_fn = ca.Function('christoffel', [q], [gamma], ['q'], ['Gamma'])
         self.dynamics_fn = self._lean(ca.Function(
             'dynamics', [q, v, u], [qdot, vdot], ['q', 'v', 'u'], ['qdot', 'vdot']))
         self.energy_fn = self._lean(ca.Function(

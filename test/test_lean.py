@@ -182,3 +182,37 @@ def test_what_the_samples_cannot_see_is_left_alone():
         ['r', 'a', 'b'], lambda q: ca.diag(ca.vertcat(1.0, q[0] ** 2, 1.0)),
         lambda q: ca.horzcat(0, 1, -q[0]), domain={'r': (2.0, np.inf)}, name='half_line')
     assert np.all(np.isfinite(polar.dynamics([2.5, 0.1, 0.2], [0.3, -0.4])[1]))
+
+
+@pytest.mark.parametrize('potential, q, expected', [
+    (lambda q: 5 * ca.exp(-((q[0] - 6) ** 2 + q[1] ** 2) / 0.5), [5.5, 0.1, 0.4], 'bump'),
+    (lambda q: 3 * ca.tanh((q[0] - 6) / 0.3), [6.5, 0.0, 0.2], 'step'),
+    (lambda q: 1e6 * q[0] ** 2 + 1e-6 * ca.sin(q[1]), [0.0, 0.3, 1.0], 'scales'),
+    (lambda q: 0.5 * (q[2] - ca.atan2(ca.sin(q[2]), ca.cos(q[2]))) ** 2, [0.0, 0.0, 9.5],
+     'winding')])
+def test_features_the_samples_miss_are_kept(potential, q, expected):
+    """Keep what a second probe found folded away.
+
+    A bump at x = 6 (samples mostly |x| < 2.5), a saturating step, a 1e-6 term beside a 1e6
+    one, a winding penalty past the sampled angles.
+    """
+    import nh_tracking as nht
+    import nh_tracking.lean as module
+
+    def build(name: str):
+        return nht.NonholonomicSystem.from_constraints(
+            ['x', 'y', 'th'], lambda q: ca.SX.eye(3),
+            lambda q: ca.horzcat(ca.sin(q[2]), -ca.cos(q[2]), 0), potential, angles=['th'],
+            name=name)
+
+    lean_system = build(f'lean_{expected}')
+    original = module.lean
+    try:
+        module.lean = lambda f, draw: f
+        plain = build(f'plain_{expected}')
+    finally:
+        module.lean = original
+    for v in ([0.0, 0.0], [0.4, -0.7]):
+        np.testing.assert_allclose(lean_system.dynamics(q, v)[1], plain.dynamics(q, v)[1],
+                                   rtol=1e-9, atol=1e-15)
+        assert lean_system.energy(q, v) == pytest.approx(plain.energy(q, v), rel=1e-9, abs=1e-15)

@@ -77,11 +77,12 @@ def solve_variational_until(problem: TrackingProblem, initial_guess: Guess | Non
 
     A real-time iteration counts only if its plan is a trajectory of the model (admissibility
     residual <= :data:`RTI_RESIDUAL`) within the limits; otherwise (a jump in the reference,
-    a limit becoming active) the solve converges, within the same deadline.
+    a limit becoming active) the solve converges, within the same deadline. With limits it
+    always converges: one interior-point step there is only part of the correction.
     """
     soft = start_violation(problem) > VIOLATION_TOL  # only the least-violating plan exists
     coarse_time = 0.0
-    if iterations and initial_guess is not None and not soft:
+    if iterations and initial_guess is not None and not problem.limits.active:
         quick = _solve_with(problem, initial_guess, stop, solver, compiled, False, iterations)
         if quick.success and quick.details['admissibility_residual'] <= RTI_RESIDUAL:
             return quick
