@@ -206,7 +206,9 @@ class Variational(Method):
                              f'{self.iterations!r}')
 
     def prepare(self, system: NonholonomicSystem, structure: Structure) -> None:
-        for iterations in {self.iterations, 0}:  # a solve without a guess converges
+        # a solve without a guess converges, and so does every solve with limits
+        rti = self.iterations if structure.limits == Shape() else 0
+        for iterations in {rti, 0}:
             transcription(system, structure.steps, structure.terminal,
                           structure.deadline is not None, self.backend, self.compiled,
                           structure.limits, iterations)
