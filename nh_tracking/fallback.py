@@ -28,6 +28,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from nh_tracking.limits import Limits
 from nh_tracking.poses import PoseMap, wrap_angle
 from nh_tracking.problem import Solution, terminal_error, TrackingProblem
 from nh_tracking.simulate import simulate
@@ -77,10 +78,11 @@ class TrackingLaw:
         return np.clip(wanted, *self.problem.limits.controls)  # the actuators' limits
 
 
-def fallback_plan(problem: TrackingProblem, gains: KanayamaGains = KanayamaGains()) -> Solution:
+def fallback_plan(problem: TrackingProblem, gains: KanayamaGains = KanayamaGains(),
+                  law: type[TrackingLaw] = TrackingLaw) -> Solution:
     """Return the tracking law rolled out on the model over the horizon, as a plan."""
-    law = TrackingLaw(problem, gains)
-    traj = simulate(problem.system, problem.q0, problem.v0, problem.grid, law,
+    control = law(problem, gains)
+    traj = simulate(problem.system, problem.q0, problem.v0, problem.grid, control,
                     rtol=1e-6, atol=1e-8)
     return Solution(
         t=traj.t, q=traj.q, v=traj.v, u=traj.u, cost=float('nan'), success=False,
@@ -88,6 +90,35 @@ def fallback_plan(problem: TrackingProblem, gains: KanayamaGains = KanayamaGains
         terminal_error=terminal_error(problem, traj.q[-1], traj.v[-1]), method='fallback',
         message='not optimal: the Kanayama tracking law rolled out', route='kanayama',
     )
+
+
+class BrakingLaw(TrackingLaw):
+    """The same computed-torque loop, to rest: for when tracking would hit an obstacle."""
+
+    def desired_velocity(self, t: float, q: np.ndarray) -> np.ndarray:
+        return np.zeros(self.problem.system.k)
+
+
+def fallback(problem: TrackingProblem, clear_of: Limits) -> tuple[Solution, str]:
+    """Return the plan to use when no optimal one exists, and what it is.
+
+    The tracking law, rolled out, unless it passes closer to an obstacle of ``clear_of``
+    (grown by the robot's radius) than the start does: then braking to rest, as hard as the
+    actuators allow. If neither gives finite values: holding still.
+    """
+    try:
+        plan, what = fallback_plan(problem), 'tracking law fallback'
+        if len(clear_of.obstacles):
+            gaps = clear_of.clearance(plan.q)
+            if gaps[1:].min() < min(gaps[0].min(), 0.0):
+                plan = fallback_plan(problem, law=BrakingLaw)
+                plan.message, plan.route = 'not optimal: braking to rest', 'brake'
+                what = 'braking: the tracking law would hit an obstacle'
+        if not all(np.all(np.isfinite(a)) for a in (plan.q, plan.v, plan.u)):
+            raise ValueError('the fallback law gave non-finite values')
+        return plan, what
+    except (ArithmeticError, RuntimeError, ValueError) as exc:
+        return stop_plan(problem, str(exc)), f'stopping, tracking law failed: {exc}'
 
 
 def stop_plan(problem: TrackingProblem, reason: str) -> Solution:

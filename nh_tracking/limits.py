@@ -24,6 +24,9 @@ from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import ArrayLike
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import connected_components
+from scipy.spatial import cKDTree
 
 from nh_tracking.system import NonholonomicSystem
 
@@ -125,24 +128,43 @@ def cover(cells: np.ndarray, cell_size: float, centre: np.ndarray, reach: float,
           count: int, size: float) -> np.ndarray:
     """At most ``count`` discs (x, y, r) covering occupied cells near ``centre``, nearest first.
 
-    ``cells``: (K, 2) centres of occupied square cells of side ``cell_size``. Cells farther than
-    ``reach`` are ignored; each disc takes the nearest uncovered cell and every uncovered cell
-    within ``size`` of it, and is the smallest disc about their mean holding them whole (a
-    costmap turned into the bounded number of discs an NLP is built for).
+    ``cells``: (K, 2) centres of occupied square cells of side ``cell_size``. The discs depend
+    on the cells alone, never on where the robot is: each group of touching cells (diagonals
+    included) is one disc, the smallest about the group's mean holding its cells whole, when
+    that disc's radius is at most ``size``; a larger group is cut along a grid of side
+    ``size`` fixed in the frame, a disc per piece. ``centre`` only chooses which discs (the
+    nearest ``count`` within ``reach``). Discs that moved with the robot would put a plan that
+    hugs one inside the next, and every solve would start from a plan that breaks a limit.
     """
     cells = np.asarray(cells, dtype=float).reshape(-1, 2)
-    distance = np.hypot(*(cells - np.asarray(centre, dtype=float)[:2]).T)
-    left = cells[distance <= reach][np.argsort(distance[distance <= reach])]
-    discs: list[tuple[float, float, float]] = []
+    if not len(cells):
+        return np.zeros((0, 3))
+    pairs = cKDTree(cells).query_pairs(1.5 * cell_size, output_type='ndarray')
+    links = coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])),
+                       shape=(len(cells), len(cells)))
+    _, group = connected_components(links, directed=False)
     half_diagonal = cell_size / np.sqrt(2.0)
-    while len(left) and len(discs) < count:
-        near = np.hypot(*(left - left[0]).T) <= size
-        group = left[near]
-        middle = group.mean(axis=0)
-        radius = np.hypot(*(group - middle).T).max() + half_diagonal
-        discs.append((middle[0], middle[1], radius))
-        left = left[~near]
-    return np.array(discs).reshape(-1, 3)
+    discs = []
+    for label in np.unique(group):
+        members = cells[group == label]
+        disc = _enclosing(members, half_diagonal)
+        if disc[2] > size + half_diagonal:
+            tiles = np.floor(members / size).astype(np.int64)
+            _, piece = np.unique(tiles, axis=0, return_inverse=True)
+            discs += [_enclosing(members[piece.ravel() == i], half_diagonal)
+                      for i in range(piece.max() + 1)]
+        else:
+            discs.append(disc)
+    out = np.array(discs)
+    to_centre = np.hypot(*(out[:, :2] - np.asarray(centre, dtype=float)[:2]).T) - out[:, 2]
+    near = to_centre <= reach
+    return out[near][np.argsort(to_centre[near], kind='stable')[:count]].reshape(-1, 3)
+
+
+def _enclosing(cells: np.ndarray, half_diagonal: float) -> tuple[float, float, float]:
+    """Return the disc about the cells' mean that holds every (square) cell whole."""
+    middle = cells.mean(axis=0)
+    return middle[0], middle[1], float(np.hypot(*(cells - middle).T).max() + half_diagonal)
 
 
 def bounds_from_lists(lo: tuple, hi: tuple, size: int, name: str) -> tuple | None:
@@ -180,9 +202,32 @@ def relevant_discs(discs: np.ndarray, robot: np.ndarray, path: np.ndarray,
     margin = 0.5 + float(np.hypot(*(points[0] - points[1])))
     near = to_path < margin
     margin += 2.0 * float(np.max(grown[near], initial=0.0))
-    chosen = discs[to_path < margin]
-    to_robot = np.hypot(chosen[:, 0] - points[0, 0], chosen[:, 1] - points[0, 1]) - chosen[:, 2]
-    return chosen[np.argsort(to_robot)[:count]]
+    return nearest_discs(discs[to_path < margin], points[0], count)
+
+
+def nearest_discs(discs: np.ndarray, point: np.ndarray, count: int) -> np.ndarray:
+    """Return the ``count`` discs whose edges are nearest ``point`` (x, y), nearest first."""
+    to_point = np.hypot(*(discs[:, :2] - np.asarray(point, dtype=float)[:2]).T) - discs[:, 2]
+    return discs[np.argsort(to_point, kind='stable')[:count]]
+
+
+def clear_of_start(discs: np.ndarray, point: np.ndarray, robot_radius: float,
+                   margin: float) -> tuple[np.ndarray, float]:
+    """Shrink the discs whose clearance the robot at ``point`` is already inside.
+
+    Returns the discs, each shrunk (if need be) so the robot is ``margin`` clear of it, and
+    how deep inside the deepest one the robot was (0 if none). A replanning robot that drifts
+    a little inside the margin it keeps (model error, a disc redrawn) then gets a plan that
+    holds the distance it has and moves away, from the NLP it has, instead of no plan. A
+    disc the robot overlaps itself is shrunk to a point and still breaks the limit: that is a
+    collision, for the least-violating plan.
+    """
+    discs = np.array(discs, dtype=float).reshape(-1, 3)
+    distance = np.hypot(*(discs[:, :2] - np.asarray(point, dtype=float)[:2]).T)
+    inside = distance - robot_radius - discs[:, 2]
+    allowed = np.maximum(distance - robot_radius - margin, 0.0)
+    discs[:, 2] = np.minimum(discs[:, 2], allowed)
+    return discs, float(max(-inside.min(initial=0.0), 0.0))
 
 
 def gap(point: np.ndarray, discs: np.ndarray, cells: np.ndarray, cell_size: float) -> float:

@@ -23,6 +23,7 @@ previous plan, shifted, stays in force; with no previous plan, a classical track
 from __future__ import annotations
 
 from collections import deque
+from contextlib import nullcontext
 import dataclasses
 from dataclasses import dataclass, field
 from enum import Enum
@@ -31,17 +32,18 @@ from typing import Any
 
 import numpy as np
 
-from nh_tracking.fallback import fallback_plan, stop_plan
-from nh_tracking.limits import bounds_from_lists, Limits, plane, relevant_discs
+from nh_tracking.avoidance import Avoidance, MAX_OBSTACLES
+from nh_tracking.fallback import fallback
+from nh_tracking.limits import bounds_from_lists, Limits
 from nh_tracking.problem import Solution, Terminal, terminal_error, TrackingProblem
 from nh_tracking.settings import check_fields, setting
 from nh_tracking.solvers import make_method, Method, METHODS, sample_plan, Structure
-from nh_tracking.solvers.inequalities import obstacle_slots, Shape, VIOLATION_TOL
+from nh_tracking.solvers.cache import builds_deferred
+from nh_tracking.solvers.inequalities import obstacle_slots, Shape
 from nh_tracking.system import NonholonomicSystem
 from nh_tracking.trajectory import Trajectory
 
 HISTORY = 10_000  # recent solves kept for statistics: a long-running node must not grow
-MAX_OBSTACLES = 8  # nearest obstacles a plan avoids: a bounded NLP
 
 
 class PlanStatus(str, Enum):
@@ -147,6 +149,7 @@ class RecedingHorizonPlanner:
         self.limits = settings.limits(system)
         self.stats = PlannerStatistics()
         self.method = settings.solver()
+        self.prepared = False  # once prepared, its loop never stops to build a structure
 
     def prepare(self) -> None:
         """Build the solver for the current settings now, so the first plan is not late.
@@ -165,6 +168,7 @@ class RecedingHorizonPlanner:
             shape = dataclasses.replace(Shape.of(bounds), slots=count)
             self.method.prepare(self.system, Structure(s.steps, s.terminal, s.max_solve_time,
                                                        shape))
+        self.prepared = True
 
     def set_reference(self, reference: Trajectory) -> None:
         """Track ``reference`` (times on the planner's clock) from the next plan on."""
@@ -177,39 +181,28 @@ class RecedingHorizonPlanner:
         settings = dataclasses.replace(self.settings, **changes)
         self.limits = settings.limits(self.system)
         self.settings, self.method = settings, settings.solver()
+        self.prepared = False
         return self.settings
 
-    def problem(self, t: float, q: np.ndarray, v: np.ndarray) -> TrackingProblem:
+    @property
+    def avoidance(self) -> Avoidance:
+        """Return the obstacles of this replanning step, with what to do with them."""
+        s = self.settings
+        return Avoidance(self.system, self.obstacles, self.limits['robot_radius'],
+                         self.reference, s.horizon, s.steps)
+
+    def problem(self, t: float, q: np.ndarray, v: np.ndarray,
+                obstacles: np.ndarray | None = None) -> TrackingProblem:
+        """Return the problem from (q, v) at t, with ``obstacles`` (default: the relevant)."""
         if self.reference is None:
             raise ValueError('no reference to track yet')
         s = self.settings
+        if obstacles is None:
+            obstacles = self.avoidance.relevant(t, q, self.avoidance.from_start(q, v))
         return TrackingProblem(self.system, self.reference, q, v, horizon=s.horizon,
                                steps=s.steps, epsilon=s.epsilon, terminal=s.terminal,
                                omega=s.omega, wrap_angles=s.wrap_angles, t0=t,
-                               obstacles=self.relevant_obstacles(t, q), **self.limits)
-
-    def relevant_obstacles(self, t: float, q: np.ndarray, count: int = MAX_OBSTACLES
-                           ) -> np.ndarray:
-        """Return the obstacles that can bend a plan from q at t (nearest first): its NLP's."""
-        if not len(self.obstacles) or self.reference is None:
-            return self.obstacles
-        axes = list(plane(self.system))
-        path = self.reference.sample(np.linspace(t, t + self.settings.horizon,
-                                                 self.settings.steps + 1))[0][:, axes]
-        return relevant_discs(self.obstacles, q[axes], path, self.limits['robot_radius'], count)
-
-    def _nearest(self, q: np.ndarray) -> np.ndarray:
-        axes = list(plane(self.system))
-        gaps = np.hypot(*(self.obstacles[:, :2] - q[axes]).T) - self.obstacles[:, 2]
-        return self.obstacles[np.argsort(gaps)[:MAX_OBSTACLES]]
-
-    def _hits_a_left_out_obstacle(self, problem: TrackingProblem, sol: Solution) -> bool:
-        """Whether a plan built with the relevant obstacles only touches one left out."""
-        if len(problem.limits.obstacles) == len(self.obstacles):
-            return False
-        every = Limits.of(self.system, None, None, self.obstacles, self.limits['robot_radius'])
-        points = np.vstack([sol.q, 0.5 * (sol.q[1:] + sol.q[:-1])])
-        return bool(every.clearance(points).min() < -VIOLATION_TOL)
+                               obstacles=obstacles, **self.limits)
 
     def plan(self, t: float, q: np.ndarray, v: np.ndarray) -> PlanOutcome:
         """Plan from state (q, v) at time t. Raises ValueError only for bad input."""
@@ -220,20 +213,23 @@ class RecedingHorizonPlanner:
             self.stats.plan_durations.append(time.perf_counter() - started)
 
     def _plan(self, t: float, q: np.ndarray, v: np.ndarray) -> PlanOutcome:
-        problem = self.problem(t, q, v)
+        discs = self.avoidance.from_start(q, v)
+        problem = self.problem(t, q, v, self.avoidance.relevant(t, q, discs))
         reference = problem.reference_samples[0]
         s = self.settings
         guess = self.previous
         if guess is not None and guess.q.shape[1] != self.system.n:
             guess = None
         try:
-            sol = self.method.solve(problem, None if guess is None
-                                    else sample_plan(problem, guess), s.max_solve_time)
-            if sol.success and self._hits_a_left_out_obstacle(problem, sol):
-                nearest = dataclasses.replace(problem, obstacles=self._nearest(q))
-                again = self.method.solve(nearest, (sol.q, sol.v, sol.u), s.max_solve_time)
-                again.solve_time += sol.solve_time
-                sol = again
+            with builds_deferred() if self.prepared else nullcontext():  # never stalls
+                sol = self.method.solve(problem, None if guess is None
+                                        else sample_plan(problem, guess), s.max_solve_time)
+                if sol.success and self.avoidance.hits_one_left_out(problem, sol, discs):
+                    nearest = dataclasses.replace(problem,
+                                                  obstacles=self.avoidance.nearest(q, discs))
+                    again = self.method.solve(nearest, (sol.q, sol.v, sol.u), s.max_solve_time)
+                    again.solve_time += sol.solve_time
+                    sol = again
             error = '' if sol.success else f'solver: {sol.message}'
         except (ArithmeticError, RuntimeError, ValueError) as exc:  # a numerical failure
             sol, error = None, f'solver raised {type(exc).__name__}: {exc}'
@@ -263,14 +259,8 @@ class RecedingHorizonPlanner:
             self.stats.shifted += 1
             return PlanOutcome(shifted, PlanStatus.SHIFTED, solve_time, missed,
                                f'kept the previous plan, shifted ({error})', reference)
-        try:
-            plan, what = fallback_plan(problem), 'tracking law fallback'
-            status = PlanStatus.FALLBACK
-            if not _finite(plan):
-                raise ValueError('the tracking law gave non-finite values')
-        except (ArithmeticError, RuntimeError, ValueError) as exc:
-            plan, what = stop_plan(problem, str(exc)), f'stopping, tracking law failed: {exc}'
-            status = PlanStatus.STOP
+        plan, what = fallback(problem, self.avoidance.limits(discs))
+        status = PlanStatus.STOP if plan.route == 'stop' else PlanStatus.FALLBACK
         self.previous = plan  # the plan in force: shifted if the next solve fails too
         self.stats.fallbacks += 1
         return PlanOutcome(plan, status, solve_time, missed, f'{what} ({error})', reference)

@@ -29,7 +29,7 @@ LAYERS = [  # lowest first; a module may import from its own layer and the ones 
     {'geometry', 'system', 'models', 'simulate', 'trajectory', 'problem', 'numeric', 'metrics',
      'settings', 'regularity', 'limits', 'lean'},
     {'solvers'},
-    {'receding_horizon', 'fallback', 'poses', 'session', 'session_types', 'health'},
+    {'receding_horizon', 'avoidance', 'fallback', 'poses', 'session', 'session_types', 'health'},
     {'ros'},
     {'examples'},
 ]

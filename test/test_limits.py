@@ -145,6 +145,7 @@ def test_a_plan_that_touches_a_left_out_obstacle_is_replanned_with_it(monkeypatc
 
     No plan in force goes through an obstacle the planner knows of.
     """
+    import nh_tracking.avoidance as avoidance
     import nh_tracking.receding_horizon as rh
 
     unicycle = nht.models.unicycle()
@@ -155,10 +156,104 @@ def test_a_plan_that_touches_a_left_out_obstacle_is_replanned_with_it(monkeypatc
                                                                      robot_radius=0.2))
     planner.set_reference(line)
     planner.obstacles = np.array([[1.5, 0.05, 0.3]])
-    monkeypatch.setattr(rh, 'relevant_discs', lambda discs, *args: discs[:0])
+    monkeypatch.setattr(avoidance, 'relevant_discs', lambda discs, *args: discs[:0])
     outcome = planner.plan(0.0, np.zeros(3), np.array([0.5, 0.0]))
     plan = outcome.plan
     assert outcome.status == 'optimal', outcome.message
     grown = nht.TrackingProblem(unicycle, line, np.zeros(3), [0.5, 0], 5.0, 50,
                                 obstacles=planner.obstacles, robot_radius=0.2).limits
     assert grown.clearance(np.vstack([plan.q, 0.5 * (plan.q[1:] + plan.q[:-1])])).min() > -TOL
+
+
+def _line(duration: float = 20.0) -> nht.Trajectory:
+    t = np.linspace(0.0, duration, int(duration * 10) + 1)
+    return nht.Trajectory(t=t, q=np.c_[0.5 * t, 0 * t, 0 * t],
+                          v=np.c_[0.5 * np.ones_like(t), 0 * t], u=np.zeros((len(t) - 1, 2)))
+
+
+def test_costmap_discs_do_not_move_with_the_robot():
+    """Each blob of cells is one disc wherever the robot is; a long wall is cut on a fixed grid.
+
+    Discs redrawn about the robot's position put a plan hugging one inside the next one.
+    """
+    from nh_tracking.limits import cover
+
+    size = 0.05
+    x, y = np.meshgrid(np.arange(-40, 200) * size, np.arange(-40, 40) * size)
+    centres = [(3.0, 0.05, 0.3), (6.0, -0.05, 0.25), (8.0, 1.0, 0.1)]
+    blob = np.zeros(x.shape, dtype=bool)
+    for cx, cy, r in centres:
+        blob |= np.hypot(x - cx, y - cy) <= r
+    cells = np.c_[x[blob], y[blob]]
+    wall = np.c_[np.arange(0, 100) * size, np.full(100, -1.9)]  # 5 m long
+    seen = [cover(np.vstack([cells, wall]), size, np.array(c), 50.0, 30, 0.5)
+            for c in ((0.0, 0.0), (2.6, -0.5), (5.9, 0.6), (9.0, 3.0))]
+    for discs in seen:
+        assert {tuple(d) for d in np.round(discs, 9)} == {tuple(d) for d in np.round(seen[0], 9)}
+        blobs = discs[discs[:, 1] > -1.0]
+        assert len(blobs) == 3 and len(discs) >= 10  # the wall in pieces of at most 0.5 m
+        for cx, cy, r in centres:  # each blob: one disc about it, a cell's half diagonal more
+            d = blobs[np.argmin(np.hypot(blobs[:, 0] - cx, blobs[:, 1] - cy))]
+            assert np.hypot(d[0] - cx, d[1] - cy) < 0.02 and r <= d[2] <= r + 0.06
+    near = cover(np.vstack([cells, wall]), size, np.array([6.0, 0.5]), 50.0, 2, 0.5)
+    assert np.allclose(near[0, :2], [6.0, -0.05], atol=0.02)  # nearest first
+
+
+def test_a_robot_inside_the_margin_it_keeps_still_gets_an_optimal_plan():
+    """0.01 m inside an obstacle's clearance: the prepared NLP plans, keeping its distance."""
+    import nh_tracking.receding_horizon as rh
+
+    unicycle = nht.models.unicycle()
+    planner = rh.RecedingHorizonPlanner(unicycle, rh.PlannerSettings(
+        horizon=5.0, steps=50, robot_radius=0.2, u_min=(-0.3,), u_max=(0.3,)))
+    planner.prepare()
+    planner.set_reference(_line())
+    planner.obstacles = np.array([[0.3, 0.49, 0.3]])  # 0.01 m closer than 0.3 + 0.2 to (0.3, 0)
+    outcome = planner.plan(0.0, np.array([0.3, 0.0, 0.0]), np.array([0.5, 0.0]))
+    assert outcome.status == 'optimal', outcome.message
+    plan = outcome.plan
+    points = np.vstack([plan.q, 0.5 * (plan.q[1:] + plan.q[:-1])])
+    distance = np.hypot(points[:, 0] - 0.3, points[:, 1] - 0.49)
+    assert distance.min() >= 0.49 - 0.05 - TOL  # held what it had, less one interval's travel
+    assert distance[-1] > 1.0 and plan.q[-1, 0] > 2.0  # and went on past it
+
+
+def test_an_unprepared_structure_is_built_in_the_background_not_in_the_loop():
+    import threading
+
+    from nh_tracking.ros.graph import wait_until
+    from nh_tracking.solvers.cache import builds_deferred, NotPrepared, PerSystemCache
+
+    cache, system, calls, release = PerSystemCache(), nht.models.unicycle(), [], threading.Event()
+
+    def build() -> str:
+        release.wait(10.0)
+        calls.append(threading.current_thread().name)
+        return 'built'
+
+    with builds_deferred():
+        with pytest.raises(NotPrepared, match='background'):
+            cache.get(system, 'key', build)
+        with pytest.raises(NotPrepared):  # asked again while building: still one build
+            cache.get(system, 'key', build)
+    release.set()
+    assert wait_until(lambda: cache.get(system, 'key', lambda: 'again') == 'built', 10.0)
+    assert calls == ['nh_tracking_nlp_build']
+    assert cache.get(system, 'other', lambda: 'in line') == 'in line'  # outside: at once
+
+
+def test_the_fallback_brakes_where_tracking_would_hit_an_obstacle():
+    """No optimal plan and an obstacle on the reference: brake as hard as the limits allow."""
+    from nh_tracking.fallback import fallback
+
+    unicycle = nht.models.unicycle()
+    problem = nht.TrackingProblem(unicycle, _line(), [0.0, 0.0, 0.0], [0.5, 0.0], 5.0, 50,
+                                  control_bounds=(-0.3, 0.3), obstacles=[(1.5, 0.0, 0.3)],
+                                  robot_radius=0.2)
+    plan, what = fallback(problem, problem.limits)
+    assert plan.route == 'brake' and 'braking' in what
+    assert problem.limits.clearance(plan.q).min() > 0.0  # stops short of it
+    assert np.abs(plan.u).max() <= 0.3 + TOL and abs(plan.v[-1, 0]) < 0.05
+    clear = dataclasses.replace(problem, obstacles=[(1.5, 2.0, 0.3)])
+    plan, what = fallback(clear, clear.limits)  # nothing in the way: the tracking law
+    assert plan.route == 'kanayama' and plan.q[-1, 0] > 2.0

@@ -34,8 +34,9 @@ from rclpy.lifecycle import LifecycleNode, LifecycleState, TransitionCallbackRet
 from trajectory_msgs.msg import JointTrajectory, MultiDOFJointTrajectory
 from visualization_msgs.msg import MarkerArray
 
+from nh_tracking.avoidance import MAX_OBSTACLES
 from nh_tracking.health import session_health
-from nh_tracking.receding_horizon import MAX_OBSTACLES, PlannerSettings
+from nh_tracking.receding_horizon import PlannerSettings
 from nh_tracking.ros import conversions as cv
 from nh_tracking.ros.obstacle_listener import CLUSTER, ObstacleListener
 from nh_tracking.ros.obstacle_messages import obstacle_markers

@@ -28,6 +28,7 @@ numbers and warm-starts.
 """
 from __future__ import annotations
 
+from collections.abc import Callable
 import dataclasses
 from dataclasses import dataclass
 import time
@@ -37,6 +38,7 @@ import numpy as np
 
 from nh_tracking.problem import Solution, terminal_cost, terminal_error, TrackingProblem
 from nh_tracking.solvers.base import Guess, Method, Structure
+from nh_tracking.solvers.cache import NotPrepared
 from nh_tracking.solvers.inequalities import Shape, start_violation, VIOLATION_TOL
 from nh_tracking.solvers.midpoint import BACKENDS, transcription
 from nh_tracking.solvers.nlp import DEADLINE, deadline_after
@@ -101,16 +103,25 @@ def solve_variational_until(problem: TrackingProblem, initial_guess: Guess | Non
         return previous.message != DEADLINE and (stop is None or time.perf_counter() < stop)
 
     if not result.success and solver == 'fatrop' and not soft and time_left(result):
-        retry = _solve_with(problem, initial_guess, stop, 'ipopt')
-        retry.route = f'fatrop failed ({result.message}) -> ipopt'
-        retry.solve_time += result.solve_time
-        result = retry
+        result = _next_route(result, f'fatrop failed ({result.message}) -> ipopt',
+                             lambda: _solve_with(problem, initial_guess, stop, 'ipopt'))
     if not result.success and problem.limits.active and not soft and time_left(result):
         # e.g. a terminal state inside an obstacle: the least-violating plan, reported so
-        relaxed = _solve_with(problem, initial_guess, stop, solver, compiled, True)
-        relaxed.route = f'{result.route} failed ({result.message}) -> soft limits'
-        relaxed.solve_time += result.solve_time
-        result = relaxed
+        result = _next_route(result, f'{result.route} failed ({result.message}) -> soft limits',
+                             lambda: _solve_with(problem, initial_guess, stop, solver, compiled,
+                                                 True))
+    return result
+
+
+def _next_route(failed: Solution, route: str, solve: Callable[[], Solution]) -> Solution:
+    """Try another route after ``failed``; keep ``failed`` if its NLP is not prepared yet."""
+    try:
+        result = solve()
+    except NotPrepared as exc:  # replanning: built in the background, ready next time
+        failed.message = f'{failed.message}; {route} skipped: {exc}'
+        return failed
+    result.route = route
+    result.solve_time += failed.solve_time
     return result
 
 

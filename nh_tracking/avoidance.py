@@ -1,0 +1,85 @@
+# Copyright 2026 nh_tracking maintainers
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+
+"""Which obstacles one replan keeps clear of, and whether its plan is clear of all the others.
+
+An NLP is built for a bounded number of obstacle slots, so each replan takes only the discs
+that can bend its plan; the plan is then checked against every disc the planner knows of. A
+robot already inside a disc's clearance (it drifted, or the disc was redrawn) has that disc
+shrunk for this replan, so the prepared NLP still has a solution.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from nh_tracking.limits import clear_of_start, Limits, nearest_discs, plane, relevant_discs
+from nh_tracking.problem import Solution, TrackingProblem
+from nh_tracking.solvers.inequalities import VIOLATION_TOL
+from nh_tracking.system import NonholonomicSystem
+from nh_tracking.trajectory import Trajectory
+
+MAX_OBSTACLES = 8  # nearest obstacles a plan avoids: a bounded NLP
+
+
+@dataclass(frozen=True)
+class Avoidance:
+    """The obstacles (x, y, r) of one replanning step, for a robot of ``robot_radius``."""
+
+    system: NonholonomicSystem
+    obstacles: np.ndarray
+    robot_radius: float
+    reference: Trajectory | None
+    horizon: float
+    steps: int
+
+    def from_start(self, q: np.ndarray, v: np.ndarray) -> np.ndarray:
+        """Return every obstacle, shrunk where the robot at (q, v) is inside its clearance.
+
+        The margin kept is what the robot covers in one interval, so the plan's first midpoint
+        can be clear too.
+        """
+        if not len(self.obstacles):
+            return self.obstacles
+        axes = list(plane(self.system))
+        speed = float(np.hypot(*(self.system.rho(q) @ v)[axes]))
+        discs, _ = clear_of_start(self.obstacles, q[axes], self.robot_radius,
+                                  max(1e-3, speed * self.horizon / self.steps))
+        return discs
+
+    def relevant(self, t: float, q: np.ndarray, discs: np.ndarray) -> np.ndarray:
+        """Return those of ``discs`` that can bend a plan from q at t (nearest first)."""
+        if not len(discs) or self.reference is None:
+            return discs
+        axes = list(plane(self.system))
+        path = self.reference.sample(np.linspace(t, t + self.horizon, self.steps + 1))[0]
+        return relevant_discs(discs, q[axes], path[:, axes], self.robot_radius, MAX_OBSTACLES)
+
+    def nearest(self, q: np.ndarray, discs: np.ndarray) -> np.ndarray:
+        """Return the discs an NLP can take that are nearest the robot at q."""
+        return nearest_discs(discs, q[list(plane(self.system))], MAX_OBSTACLES)
+
+    def hits_one_left_out(self, problem: TrackingProblem, sol: Solution,
+                          discs: np.ndarray) -> bool:
+        """Whether a plan built with some of ``discs`` touches one left out (knots, midpoints)."""
+        if len(problem.limits.obstacles) == len(discs):
+            return False
+        every = self.limits(discs)
+        points = np.vstack([sol.q, 0.5 * (sol.q[1:] + sol.q[:-1])])
+        return bool(every.clearance(points).min() < -VIOLATION_TOL)
+
+    def limits(self, discs: np.ndarray) -> Limits:
+        """Return ``discs`` grown by the robot's radius, to check plans against."""
+        return Limits.of(self.system, None, None, discs, self.robot_radius)
