@@ -124,17 +124,15 @@ class Limits:
         return max(worst)
 
 
-def cover(cells: np.ndarray, cell_size: float, centre: np.ndarray, reach: float,
-          count: int, size: float) -> np.ndarray:
-    """At most ``count`` discs (x, y, r) covering occupied cells near ``centre``, nearest first.
+def costmap_discs(cells: np.ndarray, cell_size: float, size: float) -> np.ndarray:
+    """Discs (x, y, r) covering occupied square cells of side ``cell_size``, from them alone.
 
-    ``cells``: (K, 2) centres of occupied square cells of side ``cell_size``. The discs depend
-    on the cells alone, never on where the robot is: each group of touching cells (diagonals
-    included) is one disc, the smallest about the group's mean holding its cells whole, when
-    that disc's radius is at most ``size``; a larger group is cut along a grid of side
-    ``size`` fixed in the frame, a disc per piece. ``centre`` only chooses which discs (the
-    nearest ``count`` within ``reach``). Discs that moved with the robot would put a plan that
-    hugs one inside the next, and every solve would start from a plan that breaks a limit.
+    ``cells``: (K, 2) cell centres. Each group of touching cells (diagonals included) is one
+    disc, the smallest about the group's mean holding its cells whole, when that disc's radius
+    is at most ``size``; a larger group is cut along a grid of side ``size`` fixed in the frame,
+    a disc per piece. Never drawn about where the robot is: discs that moved with the robot
+    would put a plan that hugs one inside the next, and the next solve would start from a plan
+    that breaks a limit.
     """
     cells = np.asarray(cells, dtype=float).reshape(-1, 2)
     if not len(cells):
@@ -145,20 +143,25 @@ def cover(cells: np.ndarray, cell_size: float, centre: np.ndarray, reach: float,
     _, group = connected_components(links, directed=False)
     half_diagonal = cell_size / np.sqrt(2.0)
     discs = []
-    for label in np.unique(group):
-        members = cells[group == label]
+    for members in np.split(cells[np.argsort(group, kind='stable')],
+                            np.cumsum(np.bincount(group))[:-1]):
         disc = _enclosing(members, half_diagonal)
         if disc[2] > size + half_diagonal:
-            tiles = np.floor(members / size).astype(np.int64)
-            _, piece = np.unique(tiles, axis=0, return_inverse=True)
-            discs += [_enclosing(members[piece.ravel() == i], half_diagonal)
+            _, piece = np.unique(np.floor(members / size).astype(np.int64), axis=0,
+                                 return_inverse=True)
+            piece = piece.ravel()
+            discs += [_enclosing(members[piece == i], half_diagonal)
                       for i in range(piece.max() + 1)]
         else:
             discs.append(disc)
-    out = np.array(discs)
-    to_centre = np.hypot(*(out[:, :2] - np.asarray(centre, dtype=float)[:2]).T) - out[:, 2]
-    near = to_centre <= reach
-    return out[near][np.argsort(to_centre[near], kind='stable')[:count]].reshape(-1, 3)
+    return np.array(discs)
+
+
+def discs_near(discs: np.ndarray, centre: np.ndarray, reach: float, count: int) -> np.ndarray:
+    """Return at most ``count`` of ``discs`` whose edges are within ``reach`` of centre."""
+    to_centre = np.hypot(*(discs[:, :2] - np.asarray(centre, dtype=float)[:2]).T) - discs[:, 2]
+    near = discs[to_centre <= reach]
+    return nearest_discs(near, centre, count).reshape(-1, 3)
 
 
 def _enclosing(cells: np.ndarray, half_diagonal: float) -> tuple[float, float, float]:

@@ -19,11 +19,11 @@ from nav_msgs.msg import OccupancyGrid
 import numpy as np
 from visualization_msgs.msg import MarkerArray
 
-from nh_tracking.limits import cover
+from nh_tracking.limits import costmap_discs, discs_near
 from nh_tracking.ros.obstacle_messages import MarkerObstacles, occupied_cells
 from nh_tracking.ros.safety import guarded, SafeNode
 
-CLUSTER = 0.5  # [m] occupied cells this close to a disc's seed cell join that disc
+DISC_SIZE = 0.5  # [m] the largest costmap disc; wider groups of cells are cut in pieces
 
 
 class ObstacleListener(SafeNode):
@@ -35,6 +35,7 @@ class ObstacleListener(SafeNode):
         """Create the subscriptions (returned, for the node to release)."""
         self.marker_obstacles = MarkerObstacles(self.frame)
         self.costmap: tuple[np.ndarray, float] = (np.zeros((0, 2)), 0.0)
+        self._costmap_discs = np.zeros((0, 3))  # drawn once per costmap
         return [self.create_subscription(MarkerArray, 'obstacles', self.on_obstacles, 10),
                 self.create_subscription(OccupancyGrid, 'costmap', self.on_costmap, 1)]
 
@@ -45,14 +46,14 @@ class ObstacleListener(SafeNode):
 
     @guarded('costmap')
     def on_costmap(self, msg: OccupancyGrid) -> None:
-        self.costmap = occupied_cells(msg, self.frame)
+        cells, size = occupied_cells(msg, self.frame)
+        self.costmap, self._costmap_discs = (cells, size), costmap_discs(cells, size, DISC_SIZE)
         self.obstacles_changed()
 
     def obstacle_discs(self, centre: np.ndarray, reach: float, count: int) -> np.ndarray:
         """Return the marker discs and up to ``count`` discs covering the costmap near centre."""
-        cells, size = self.costmap
         return np.vstack([self.marker_obstacles.discs,
-                          cover(cells, size, centre, reach, count, CLUSTER)])
+                          discs_near(self._costmap_discs, centre, reach, count)])
 
     def obstacles_changed(self) -> None:
         """React to a new obstacle set (the node's own business)."""

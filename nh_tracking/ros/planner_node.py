@@ -38,7 +38,7 @@ from nh_tracking.avoidance import MAX_OBSTACLES
 from nh_tracking.health import session_health
 from nh_tracking.receding_horizon import PlannerSettings
 from nh_tracking.ros import conversions as cv
-from nh_tracking.ros.obstacle_listener import CLUSTER, ObstacleListener
+from nh_tracking.ros.obstacle_listener import DISC_SIZE, ObstacleListener
 from nh_tracking.ros.obstacle_messages import obstacle_markers
 from nh_tracking.ros.parameters import declare_all, declare_model
 from nh_tracking.ros.planner_interface import LATCHED, PARAMETERS, REFERENCE_QOS
@@ -217,8 +217,8 @@ class PlannerNode(RuntimeParameters, ObstacleListener, LifecycleNode):
         received = time.perf_counter()
         stamp, pose, twist = cv.odom_to_arrays(msg, self.frame)
         self.live.set_odometry(stamp, pose, twist, received)
-        if len(self.costmap[0]) and np.hypot(*(pose[:2] - self._discs_centre)) > CLUSTER:
-            self.obstacles_changed()  # the costmap's discs follow the robot
+        if len(self.costmap[0]) and np.hypot(*(pose[:2] - self._discs_centre)) > DISC_SIZE:
+            self.obstacles_changed()  # re-choose the costmap discs near the robot
         if self.params['replan_on_odom']:
             self.live.wake()
 
