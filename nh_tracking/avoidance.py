@@ -46,18 +46,12 @@ class Avoidance:
     steps: int
 
     def from_start(self, q: np.ndarray, v: np.ndarray) -> np.ndarray:
-        """Return every obstacle, shrunk where the robot at (q, v) is inside its clearance.
-
-        The margin kept is what the robot covers in one interval, so the plan's first midpoint
-        can be clear too.
-        """
+        """Return every obstacle, shrunk where the robot at (q, v) is inside its clearance."""
         if not len(self.obstacles):
             return self.obstacles
         axes = list(plane(self.system))
-        speed = float(np.hypot(*(self.system.rho(q) @ v)[axes]))
-        discs, _ = clear_of_start(self.obstacles, q[axes], self.robot_radius,
-                                  max(1e-3, speed * self.horizon / self.steps))
-        return discs
+        return clear_of_start(self.obstacles, q[axes], (self.system.rho(q) @ v)[axes],
+                              self.robot_radius, self.horizon / self.steps)
 
     def relevant(self, t: float, q: np.ndarray, discs: np.ndarray) -> np.ndarray:
         """Return those of ``discs`` that can bend a plan from q at t (nearest first)."""

@@ -103,22 +103,33 @@ def fallback(problem: TrackingProblem, clear_of: Limits) -> tuple[Solution, str]
     """Return the plan to use when no optimal one exists, and what it is.
 
     The tracking law, rolled out, unless it passes closer to an obstacle of ``clear_of``
-    (grown by the robot's radius) than the start does: then braking to rest, as hard as the
-    actuators allow. If neither gives finite values: holding still.
+    (grown by the robot's radius) than braking to rest (as hard as the actuators allow) does;
+    at equal closest approach, the one that ends farther clear. If neither gives finite
+    values: holding still.
     """
     try:
-        plan, what = fallback_plan(problem), 'tracking law fallback'
-        if len(clear_of.obstacles):
-            gaps = clear_of.clearance(plan.q)
-            if gaps[1:].min() < min(gaps[0].min(), 0.0):
-                plan = fallback_plan(problem, law=BrakingLaw)
-                plan.message, plan.route = 'not optimal: braking to rest', 'brake'
-                what = 'braking: the tracking law would hit an obstacle'
-        if not all(np.all(np.isfinite(a)) for a in (plan.q, plan.v, plan.u)):
-            raise ValueError('the fallback law gave non-finite values')
+        plan, what = _finite(fallback_plan(problem)), 'tracking law fallback'
+        if len(clear_of.obstacles) and _closest(plan, clear_of)[0] < 0.0:
+            brake = _finite(fallback_plan(problem, law=BrakingLaw))
+            if _closest(brake, clear_of) > _closest(plan, clear_of):
+                brake.message, brake.route = 'not optimal: braking to rest', 'brake'
+                plan, what = brake, 'braking: the tracking law would come closer to an obstacle'
         return plan, what
     except (ArithmeticError, RuntimeError, ValueError) as exc:
         return stop_plan(problem, str(exc)), f'stopping, tracking law failed: {exc}'
+
+
+def _closest(plan: Solution, clear_of: Limits) -> tuple[float, float]:
+    """(closest approach after the start at knots and midpoints, clearance at the end), mm."""
+    points = np.vstack([plan.q[1:], 0.5 * (plan.q[1:] + plan.q[:-1])])
+    return (round(float(clear_of.clearance(points).min()), 3),
+            round(float(clear_of.clearance(plan.q[-1:]).min()), 3))
+
+
+def _finite(plan: Solution) -> Solution:
+    if not all(np.all(np.isfinite(a)) for a in (plan.q, plan.v, plan.u)):
+        raise ValueError('the fallback law gave non-finite values')
+    return plan
 
 
 def stop_plan(problem: TrackingProblem, reason: str) -> Solution:

@@ -129,10 +129,10 @@ def costmap_discs(cells: np.ndarray, cell_size: float, size: float) -> np.ndarra
 
     ``cells``: (K, 2) cell centres. Each group of touching cells (diagonals included) is one
     disc, the smallest about the group's mean holding its cells whole, when that disc's radius
-    is at most ``size``; a larger group is cut along a grid of side ``size`` fixed in the frame,
-    a disc per piece. Never drawn about where the robot is: discs that moved with the robot
-    would put a plan that hugs one inside the next, and the next solve would start from a plan
-    that breaks a limit.
+    is at most ``size`` (plus half a cell's diagonal); a larger group is cut along a grid of
+    side ``size`` fixed in the frame, a disc per piece. Never drawn about where the robot is:
+    discs that moved with the robot would put a plan that hugs one inside the next, and the
+    next solve would start from a plan that breaks a limit.
     """
     cells = np.asarray(cells, dtype=float).reshape(-1, 2)
     if not len(cells):
@@ -143,15 +143,12 @@ def costmap_discs(cells: np.ndarray, cell_size: float, size: float) -> np.ndarra
     _, group = connected_components(links, directed=False)
     half_diagonal = cell_size / np.sqrt(2.0)
     discs = []
-    for members in np.split(cells[np.argsort(group, kind='stable')],
-                            np.cumsum(np.bincount(group))[:-1]):
+    for members in _groups(cells, group):
         disc = _enclosing(members, half_diagonal)
         if disc[2] > size + half_diagonal:
             _, piece = np.unique(np.floor(members / size).astype(np.int64), axis=0,
                                  return_inverse=True)
-            piece = piece.ravel()
-            discs += [_enclosing(members[piece == i], half_diagonal)
-                      for i in range(piece.max() + 1)]
+            discs += [_enclosing(part, half_diagonal) for part in _groups(members, piece.ravel())]
         else:
             discs.append(disc)
     return np.array(discs)
@@ -162,6 +159,12 @@ def discs_near(discs: np.ndarray, centre: np.ndarray, reach: float, count: int) 
     to_centre = np.hypot(*(discs[:, :2] - np.asarray(centre, dtype=float)[:2]).T) - discs[:, 2]
     near = discs[to_centre <= reach]
     return nearest_discs(near, centre, count).reshape(-1, 3)
+
+
+def _groups(cells: np.ndarray, labels: np.ndarray) -> list[np.ndarray]:
+    """Split cells by their labels 0..L-1 (sorted once, not one pass per label)."""
+    order = np.argsort(labels, kind='stable')
+    return np.split(cells[order], np.cumsum(np.bincount(labels))[:-1])
 
 
 def _enclosing(cells: np.ndarray, half_diagonal: float) -> tuple[float, float, float]:
@@ -211,26 +214,28 @@ def relevant_discs(discs: np.ndarray, robot: np.ndarray, path: np.ndarray,
 def nearest_discs(discs: np.ndarray, point: np.ndarray, count: int) -> np.ndarray:
     """Return the ``count`` discs whose edges are nearest ``point`` (x, y), nearest first."""
     to_point = np.hypot(*(discs[:, :2] - np.asarray(point, dtype=float)[:2]).T) - discs[:, 2]
-    return discs[np.argsort(to_point, kind='stable')[:count]]
+    return discs[np.argsort(to_point, kind='stable')[:max(count, 0)]]
 
 
-def clear_of_start(discs: np.ndarray, point: np.ndarray, robot_radius: float,
-                   margin: float) -> tuple[np.ndarray, float]:
-    """Shrink the discs whose clearance the robot at ``point`` is already inside.
+def clear_of_start(discs: np.ndarray, point: np.ndarray, velocity: np.ndarray,
+                   robot_radius: float, interval: float) -> np.ndarray:
+    """Shrink the discs whose clearance the robot at ``point`` (moving at ``velocity``) is inside.
 
-    Returns the discs, each shrunk (if need be) so the robot is ``margin`` clear of it, and
-    how deep inside the deepest one the robot was (0 if none). A replanning robot that drifts
-    a little inside the margin it keeps (model error, a disc redrawn) then gets a plan that
-    holds the distance it has and moves away, from the NLP it has, instead of no plan. A
-    disc the robot overlaps itself is shrunk to a point and still breaks the limit: that is a
-    collision, for the least-violating plan.
+    Each such disc is shrunk to leave the robot where it is, less what its approach speed
+    carries it in one ``interval`` (so the plan's first midpoint can be clear too): a
+    replanning robot that drifted a little inside the margin it keeps (model error, a disc
+    redrawn) gets a plan from the NLP it has that comes no closer, instead of no plan. At rest
+    nothing is given away, so replans cannot ratchet the robot in. A disc the robot is within
+    its radius of is shrunk to a point and still breaks the limit: the least-violating plan's.
     """
     discs = np.array(discs, dtype=float).reshape(-1, 3)
-    distance = np.hypot(*(discs[:, :2] - np.asarray(point, dtype=float)[:2]).T)
-    inside = distance - robot_radius - discs[:, 2]
-    allowed = np.maximum(distance - robot_radius - margin, 0.0)
+    offset = np.asarray(point, dtype=float)[:2] - discs[:, :2]
+    distance = np.hypot(*offset.T)
+    approach = np.maximum(-(offset @ np.asarray(velocity, dtype=float)[:2])
+                          / np.maximum(distance, 1e-12), 0.0)
+    allowed = np.maximum(distance - robot_radius - approach * interval, 0.0)
     discs[:, 2] = np.minimum(discs[:, 2], allowed)
-    return discs, float(max(-inside.min(initial=0.0), 0.0))
+    return discs
 
 
 def gap(point: np.ndarray, discs: np.ndarray, cells: np.ndarray, cell_size: float) -> float:

@@ -218,6 +218,17 @@ def test_a_robot_inside_the_margin_it_keeps_still_gets_an_optimal_plan():
     distance = np.hypot(points[:, 0] - 0.3, points[:, 1] - 0.49)
     assert distance.min() >= 0.49 - 0.05 - TOL  # held what it had, less one interval's travel
     assert distance[-1] > 1.0 and plan.q[-1, 0] > 2.0  # and went on past it
+    # at rest in front of a disc on the reference: replans must not ratchet it in
+    planner.obstacles = np.array([[1.0, 0.02, 0.25]])
+    planner.previous = None  # a new situation
+    q, v, t, closest, optimal = np.array([0.56, 0.0, 0.0]), np.zeros(2), 1.12, np.inf, 0
+    for _ in range(60):
+        outcome = planner.plan(t, q, v)
+        optimal += outcome.status == 'optimal'
+        step = nht.simulate(unicycle, q, v, outcome.plan.t[:2], outcome.plan.u[:1])
+        q, v, t = step.q[-1], step.v[-1], t + 0.1
+        closest = min(closest, np.hypot(q[0] - 1.0, q[1] - 0.02))
+    assert closest >= 0.44 - 1e-3 and optimal >= 50  # 0.01 inside the 0.45 it keeps
 
 
 def test_an_unprepared_structure_is_built_in_the_background_not_in_the_loop():
@@ -256,6 +267,9 @@ def test_the_fallback_brakes_where_tracking_would_hit_an_obstacle():
     assert plan.route == 'brake' and 'braking' in what
     assert problem.limits.clearance(plan.q).min() > 0.0  # stops short of it
     assert np.abs(plan.u).max() <= 0.3 + TOL and abs(plan.v[-1, 0]) < 0.05
+    inside = dataclasses.replace(problem, q0=np.array([1.4, 0.0, 0.0]))  # tracking drives out
+    plan, what = fallback(inside, inside.limits)
+    assert plan.route == 'kanayama' and inside.limits.clearance(plan.q[-1:]).min() > 0.0
     clear = dataclasses.replace(problem, obstacles=[(1.5, 2.0, 0.3)])
     plan, what = fallback(clear, clear.limits)  # nothing in the way: the tracking law
     assert plan.route == 'kanayama' and plan.q[-1, 0] > 2.0
