@@ -87,6 +87,9 @@ def run(make_node: Callable[[], Node], usage: Callable[[], str],
         executor.spin()
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
+    except RuntimeError:  # (RCLError) SIGTERM shut down while the executor made its wait set
+        if rclpy.ok():
+            raise
     finally:
         executor.shutdown(timeout_sec=5.0)
         node.destroy_node()
