@@ -15,6 +15,8 @@
 """Fast numeric calls of CasADi Functions from Python hot loops (ODE right-hand sides)."""
 from __future__ import annotations
 
+from typing import Any
+
 import casadi as ca
 import numpy as np
 
@@ -28,7 +30,8 @@ class NumericFunction:
     """
 
     def __init__(self, fn: ca.Function) -> None:
-        inputs = [ca.SX.sym(fn.name_in(i), fn.sparsity_in(i)) for i in range(fn.n_in())]
+        sym = ca.SX.sym if fn.is_a('SXFunction') else ca.MX.sym  # MX: e.g. a linear solve
+        inputs: list[Any] = [sym(fn.name_in(i), fn.sparsity_in(i)) for i in range(fn.n_in())]
         outputs = [ca.densify(o) for o in fn.call(inputs)]
         dense = ca.Function(fn.name() + '_dense', inputs, outputs)
         self._buffer, self._trigger = dense.buffer()

@@ -184,17 +184,28 @@ def _number(name: str, value: object) -> float:
     return float(value)
 
 
+def tracking_residual(system: NonholonomicSystem) -> ca.Function:
+    """r(q, v, u, q_r, v_r, eps) = (q - q_r, v - v_r, sqrt(eps) u): L = 1/2 |r|^2.
+
+    The cost as a sum of squares, for Gauss-Newton steps; the Lagrangian is built from it.
+    """
+    q, qr = ca.SX.sym('q', system.n), ca.SX.sym('q_r', system.n)
+    v, vr = ca.SX.sym('v', system.k), ca.SX.sym('v_r', system.k)
+    u, eps = ca.SX.sym('u', system.r), ca.SX.sym('eps')
+    return ca.Function('r', [q, v, u, qr, vr, eps], [ca.vertcat(q - qr, v - vr, ca.sqrt(eps) * u)],
+                       ['q', 'v', 'u', 'q_r', 'v_r', 'eps'], ['r'])
+
+
 def tracking_lagrangian(system: NonholonomicSystem) -> ca.Function:
     """L(q, v, u, q_r, v_r, eps) = 1/2 (|q - q_r|^2 + |v - v_r|^2 + eps |u|^2).
 
     One symbolic definition shared by every solver, so they optimise the same cost.
     """
-    q, qr = ca.SX.sym('q', system.n), ca.SX.sym('q_r', system.n)
-    v, vr = ca.SX.sym('v', system.k), ca.SX.sym('v_r', system.k)
-    u, eps = ca.SX.sym('u', system.r), ca.SX.sym('eps')
-    value = 0.5 * (ca.sumsqr(q - qr) + ca.sumsqr(v - vr) + eps * ca.sumsqr(u))
-    return ca.Function('L', [q, v, u, qr, vr, eps], [value],
-                       ['q', 'v', 'u', 'q_r', 'v_r', 'eps'], ['L'])
+    args = [ca.SX.sym(name, size) for name, size in (
+        ('q', system.n), ('v', system.k), ('u', system.r), ('q_r', system.n),
+        ('v_r', system.k), ('eps', 1))]
+    value = 0.5 * ca.sumsqr(tracking_residual(system)(*args))
+    return ca.Function('L', args, [value], ['q', 'v', 'u', 'q_r', 'v_r', 'eps'], ['L'])
 
 
 def terminal_cost(problem: TrackingProblem, q_final: np.ndarray) -> float:

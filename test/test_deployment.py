@@ -171,8 +171,13 @@ def test_start_up_parameters_run_or_exit_2_with_one_line(tmp_path):
                                      domain_env()),
                              'simulating', "'J': 4.4, 'a': 0.2} from [1.0, 2.0, 0.0, 0.0, 0.0]"),
     }
-    for case, (process, ready, shown) in running.items():
-        assert shown in starts_and_stops(process, ready), case
+    try:
+        for case, (process, ready, shown) in running.items():
+            assert shown in starts_and_stops(process, ready), case
+    finally:  # a failure must not leave the others running (and loading the machine)
+        for process, _, _ in running.values():
+            if process.proc.poll() is None:
+                process.kill()
     refused = [('planner', 'horizon:=-1.0', 'parameter horizon must be in [0.05, 600]'),
                ('planner', 'steps:=1', 'parameter steps must be in [2, 2000]'),
                ('planner', 'method:=magic', 'parameter method must be one of'),

@@ -301,3 +301,38 @@ def test_methods_are_objects_with_their_own_options(sleigh_literal):
     with pytest.raises(ValueError, match='takes no option compiled'):
         PlannerSettings(method='multiple_shooting', compiled=True)
     assert make_method('pmp', budget=5.0).budget == 5.0
+
+
+def _knife_reference() -> nht.Trajectory:
+    return nht.simulate(inclined_knife_edge(), [0.0, 0.0, 0.0], [0.5, 0.3],
+                        np.linspace(0.0, 6.0, 61))
+
+
+@pytest.mark.parametrize('make', [lambda: sleigh_problem(wrap_angles=True, terminal='cost'),
+                                  lambda: nht.TrackingProblem(
+                                      inclined_knife_edge(), _knife_reference(), [0.0, 0.4, 0.3],
+                                      [0.2, 0.0], 3.0, 30, terminal='equality')])
+def test_gauss_newton_real_time_iterations_converge_to_the_nlp_solution(make):
+    """Repeated real-time iterations (one Gauss-Newton KKT step each) reach fatrop's optimum.
+
+    At the optimum a step stays put and its multipliers are the NLP's: the step solves the
+    KKT conditions, whatever Hessian it uses.
+    """
+    from nh_tracking.solvers.variational import solve_variational
+
+    problem = make()
+    exact = nht.solve(problem, second_look=False)
+    rng = np.random.default_rng(3)  # a plan near the optimum, as a shifted previous plan is
+    q = exact.q + 0.01 * rng.standard_normal(exact.q.shape)
+    v = exact.v + 0.01 * rng.standard_normal(exact.v.shape)
+    costs = []
+    for _ in range(30):  # Gauss-Newton: linear convergence, the rate set by the curvature
+        step = solve_variational(problem, (q, v, None), iterations=1)
+        assert step.route == 'gauss-newton' and step.message == 'real-time iteration'
+        q, v, costs = step.q, step.v, costs + [step.cost]
+    assert abs(costs[-1] - exact.cost) <= 1e-8 * max(1.0, exact.cost)
+    assert np.abs(step.q - exact.q).max() < 1e-6 and step.details['admissibility_residual'] < 1e-9
+    still = solve_variational(problem, (exact.q, exact.v, exact.u), iterations=1)
+    assert np.abs(still.q - exact.q).max() < 1e-7
+    for mine, theirs in zip(still.costates, exact.costates):
+        assert np.abs(mine - theirs).max() < 1e-5 * max(1.0, np.abs(theirs).max())

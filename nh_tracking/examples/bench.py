@@ -95,7 +95,7 @@ def cold_solve(log: Callable[[str], None]) -> dict:
 WARM_MODES: dict[str, dict[str, Any]] = {
     'converged': {},
     'converged, compiled': {'compiled': True},
-    'real-time iteration, compiled': {'compiled': True, 'iterations': 1},
+    'real-time iteration': {'iterations': 1},  # Gauss-Newton steps: nothing to compile
 }
 
 

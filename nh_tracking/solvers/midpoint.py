@@ -29,9 +29,10 @@ import numpy as np
 
 from nh_tracking.limits import plane
 from nh_tracking.numeric import NumericFunction
-from nh_tracking.problem import tracking_lagrangian, TrackingProblem
+from nh_tracking.problem import tracking_lagrangian, tracking_residual, TrackingProblem
 from nh_tracking.solvers.cache import PerSystemCache
 from nh_tracking.solvers.inequalities import Rows, Shape, soft_bounds, soften
+from nh_tracking.solvers.newton import gauss_newton_step
 from nh_tracking.solvers.nlp import BoundedNlp
 from nh_tracking.system import NonholonomicSystem
 
@@ -53,7 +54,7 @@ class Transcription:
     system: NonholonomicSystem
     steps: int
     terminal: str
-    nlp: BoundedNlp
+    nlp: BoundedNlp | None  # None: real-time iterations by Gauss-Newton steps (newton)
     # (w, p) -> q (n, N+1), v (k, N+1), u (r, N), max |Psi_d| (from the knots), running cost:
     # one buffered call, since separate calls cost more than a warm solve's iteration
     readout: NumericFunction
@@ -63,6 +64,7 @@ class Transcription:
     rows: int  # of the hard NLP's g
     unknowns: int  # of the hard NLP's x
     soft_index: np.ndarray | None  # softened: the inequality rows given slacks
+    newton: NumericFunction | None  # real-time iterations without limits: (w, p) -> (w, lam_g)
 
     def parameters(self, problem: TrackingProblem) -> np.ndarray:
         q_knots, v_knots, q_mid, v_mid = problem.reference_samples
@@ -126,7 +128,8 @@ def _build(system: NonholonomicSystem, steps: int, terminal: str, solver: str,
     limits = Rows(shape, plane(system) if shape.slots else None)
     p = ca.vertcat(q0, v0, q_mid, v_mid, q_end, v_end, h, eps, omega, limits.obstacles)
 
-    lagrangian = tracking_lagrangian(system)
+    lagrangian, residual = tracking_lagrangian(system), tracking_residual(system)
+    cost_residuals: list[ca.SX] = []  # the objective is 1/2 |r|^2 (Gauss-Newton steps)
     zero = ca.DM.zeros(r)
     w: list[ca.SX] = []
     g: list[ca.SX] = []
@@ -149,8 +152,9 @@ def _build(system: NonholonomicSystem, steps: int, terminal: str, solver: str,
         vm = 0.5 * (v + v_next)
         drift = system.dynamics_fn(z, vm, zero)[1]
         u = (v_next - v) / h - drift if eliminated else us[i][k + n:]
-        running += h * lagrangian(z, vm, u, q_mid[i * n:(i + 1) * n], v_mid[i * k:(i + 1) * k],
-                                  eps)
+        reference = (q_mid[i * n:(i + 1) * n], v_mid[i * k:(i + 1) * k])
+        running += h * lagrangian(z, vm, u, *reference, eps)
+        cost_residuals.append(ca.sqrt(h) * residual(z, vm, u, *reference, eps))
         controls.append(u)
         w += [xs[i], us[i]]
         g.append(xs[i + 1] - ca.vertcat(2 * z - q, v_next))  # dynamics first (fatrop)
@@ -173,6 +177,7 @@ def _build(system: NonholonomicSystem, steps: int, terminal: str, solver: str,
     objective = running
     if terminal == 'cost':
         objective += 0.5 * omega * ca.sumsqr(xs[-1][:n] - q_end)
+        cost_residuals.append(ca.sqrt(omega) * (xs[-1][:n] - q_end))
     else:
         g.append(xs[-1] - ca.vertcat(q_end, v_end))
     unknowns, constraints = ca.vertcat(*w), ca.vertcat(*g)
@@ -185,8 +190,13 @@ def _build(system: NonholonomicSystem, steps: int, terminal: str, solver: str,
         options.update({'structure_detection': 'auto',
                         'equality': [bool(e) for e in
                                      ~limits.inequality_mask(constraints.shape[0])]})
-    bounded_nlp = BoundedNlp(f'variational_{system.name}_{big_n}', solver, nlp, options,
-                             bounded, compiled, bool(limits.kinds), iterations)
+    # a real-time iteration without limits is one Gauss-Newton step in one call: no NLP solver
+    newton, bounded_nlp = None, None
+    if iterations and not limits.kinds:
+        newton = gauss_newton_step(unknowns, p, ca.vertcat(*cost_residuals), constraints)
+    else:
+        bounded_nlp = BoundedNlp(f'variational_{system.name}_{big_n}', solver, nlp, options,
+                                 bounded, compiled, bool(limits.kinds), iterations)
     knots_q = ca.horzcat(*[x[:n] for x in xs])
     knots_v = ca.horzcat(*[x[n:] for x in xs])
     readout = ca.Function('readout', [unknowns, p],
@@ -197,4 +207,5 @@ def _build(system: NonholonomicSystem, steps: int, terminal: str, solver: str,
         readout=NumericFunction(readout), admissibility_rows=np.array(adm_rows, dtype=int),
         dynamics_rows=np.array(dyn_rows, dtype=int), limits=limits,
         rows=constraints.shape[0], unknowns=unknowns.shape[0], soft_index=soft_index,
+        newton=newton,
     )

@@ -108,7 +108,7 @@ class _Deadline(ca.Callback):
 
 @dataclass
 class Outcome:
-    result: dict[str, ca.DM]
+    result: dict[str, Any]  # x, lam_g: DM from a solver, arrays from a Newton step
     success: bool
     iterations: int
     message: str

@@ -41,7 +41,8 @@ from nh_tracking.solvers.base import Guess, Method, Structure
 from nh_tracking.solvers.cache import NotPrepared
 from nh_tracking.solvers.inequalities import Shape, start_violation, VIOLATION_TOL
 from nh_tracking.solvers.midpoint import BACKENDS, transcription
-from nh_tracking.solvers.nlp import DEADLINE, deadline_after
+from nh_tracking.solvers.newton import newton_steps
+from nh_tracking.solvers.nlp import DEADLINE, deadline_after, Outcome
 from nh_tracking.system import NonholonomicSystem
 
 RTI_RESIDUAL = 1e-3  # a real-time iteration's plan must be this close to admissible
@@ -151,8 +152,13 @@ def _solve_with(problem: TrackingProblem, initial_guess: Guess | None, stop: flo
     # a guess within the limits (a previous plan) is warm: near the optimum and its active set
     warm = initial_guess is not None and problem.limits.violation(
         np.vstack([q_g, 0.5 * (q_g[1:] + q_g[:-1])]), v_g) <= VIOLATION_TOL
-    outcome = tr.nlp.solve(stop, warm, x0=np.concatenate([w0, np.zeros(slacks)]), p=p,
-                           **bounds)
+    if tr.nlp is None:  # a real-time iteration without limits: Gauss-Newton steps
+        w_new, lam_g = newton_steps(tr.newton, w0, p, iterations)  # type: ignore[arg-type]
+        outcome = Outcome({'x': w_new, 'lam_g': lam_g}, bool(np.all(np.isfinite(w_new))),
+                          iterations, 'real-time iteration')
+    else:
+        outcome = tr.nlp.solve(stop, warm, x0=np.concatenate([w0, np.zeros(slacks)]), p=p,
+                               **bounds)
     elapsed = time.perf_counter() - start
     w = np.array(outcome.result['x']).ravel()[:tr.unknowns]
     q, v, u, residual, running = tr.readout(w, p)
@@ -176,7 +182,8 @@ def _solve_with(problem: TrackingProblem, initial_guess: Guess | None, stop: flo
         t=problem.grid, q=q, v=v, u=u, cost=cost, success=success,
         iterations=outcome.iterations, solve_time=elapsed,
         terminal_error=terminal_error(problem, q[-1], v[-1]), method='variational',
-        message=message, route=solver if tr.soft_index is None else 'ipopt (soft limits)',
+        message=message, route=('gauss-newton' if tr.nlp is None else solver)
+        if tr.soft_index is None else 'ipopt (soft limits)',
         costates=(lam, mu),
         details={'admissibility_residual': max_residual, 'violation': violation},
     )
