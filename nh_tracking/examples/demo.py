@@ -83,12 +83,14 @@ class ClosedLoop:
         with self._lock:
             self.odometry.append((stamp * 1e-9, pose))
 
-    def send_reference(self, reference: Trajectory, kind: str, timeout: float = 10.0) -> None:
+    def send_reference(self, reference: Trajectory, kind: str, timeout: float = 10.0,
+                       start: float = START) -> None:
+        """Send the reference to begin at ``start`` s on the planner's clock."""
         pub = self.publishers[kind]
         if not wait_until(lambda: pub.get_subscription_count() > 0, timeout):
             raise RuntimeError(f'planner did not subscribe to {pub.topic_name} in {timeout} s')
         received = self.planner.planner.reference
-        pub.publish(cv.reference_message(reference, self.pose_map, START, kind))
+        pub.publish(cv.reference_message(reference, self.pose_map, start, kind))
         if not wait_until(lambda: self.planner.planner.reference is not received, timeout):
             raise RuntimeError(f'planner did not take the reference in {timeout} s')
 

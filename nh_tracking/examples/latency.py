@@ -49,10 +49,10 @@ def ros_latency(log: Callable[[str], None], duration: float = 6.0, rate: float =
             'use_sim_time': False, 'replan_on_odom': True, 'replan_period': 60.0,
             **REAL_TIME})
         planner = loop.planner
-        loop.send_reference(reference, 'path')
         replay = graph.plain_node('odometry_replay', '/bench')
         pub = replay.create_publisher(Odometry, 'odom', 10)
-        t0 = time.monotonic()
+        t0 = time.monotonic()  # the reference starts now on the wall clock, and so does the robot
+        loop.send_reference(reference, 'path', start=planner.get_clock().now().nanoseconds * 1e-9)
 
         def publish() -> None:
             q, v = reference.at(time.monotonic() - t0)

@@ -28,6 +28,8 @@ multipliers of g = 0 in CasADi's sign convention (∇f + Gᵀλ = 0 at a solutio
 """
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import casadi as ca
 import numpy as np
 
@@ -52,10 +54,24 @@ def gauss_newton_step(w: ca.SX, p: ca.SX, residual: ca.SX, g: ca.SX) -> NumericF
                                        [w_mx + step[:nw], step[nw:]]))
 
 
-def newton_steps(step: NumericFunction, w: np.ndarray, p: np.ndarray,
-                 iterations: int) -> tuple[np.ndarray, np.ndarray]:
-    """Take ``iterations`` steps from w; return the unknowns and the last multipliers."""
-    multipliers = np.zeros(0)
-    for _ in range(iterations):
+def newton_steps(step: NumericFunction, w: np.ndarray, p: np.ndarray, iterations: int,
+                 residual: Callable[[np.ndarray], float], tolerance: float, most: int
+                 ) -> tuple[np.ndarray, np.ndarray, int]:
+    """Take ``iterations`` steps from w, then more while the residual is above ``tolerance``.
+
+    At most ``most`` steps in all, and none once the residual grows (far from the solution,
+    where Gauss-Newton without a line search diverges: a converged solve is the caller's
+    remedy). Returns the unknowns, the last multipliers and the number of steps taken. A step
+    costs a tenth of a millisecond, so a plan that one step leaves short of admissible (the
+    robot off the previous plan by centimetres) gets another rather than a converged solve.
+    """
+    multipliers, taken, last = np.zeros(0), 0, np.inf
+    while taken < most:
         w, multipliers = step(w, p)
-    return w, multipliers
+        taken += 1
+        if taken >= iterations:
+            now = residual(w)
+            if now <= tolerance or now >= last:
+                break
+            last = now
+    return w, multipliers, taken

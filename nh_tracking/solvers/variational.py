@@ -46,6 +46,7 @@ from nh_tracking.solvers.nlp import DEADLINE, deadline_after, Outcome
 from nh_tracking.system import NonholonomicSystem
 
 RTI_RESIDUAL = 1e-3  # a real-time iteration's plan must be this close to admissible
+RTI_EXTRA_STEPS = 4  # Gauss-Newton steps beyond the budget while a plan is not yet that close
 CONTINUATION_MIN_STEPS = 100  # cold solves with this many intervals or more start coarse
 COARSE_STEPS = 50
 
@@ -153,9 +154,11 @@ def _solve_with(problem: TrackingProblem, initial_guess: Guess | None, stop: flo
     warm = initial_guess is not None and problem.limits.violation(
         np.vstack([q_g, 0.5 * (q_g[1:] + q_g[:-1])]), v_g) <= VIOLATION_TOL
     if tr.nlp is None:  # a real-time iteration without limits: Gauss-Newton steps
-        w_new, lam_g = newton_steps(tr.newton, w0, p, iterations)  # type: ignore[arg-type]
+        w_new, lam_g, taken = newton_steps(
+            tr.newton, w0, p, iterations,  # type: ignore[arg-type]
+            lambda w: float(tr.readout(w, p)[3][0]), RTI_RESIDUAL, iterations + RTI_EXTRA_STEPS)
         outcome = Outcome({'x': w_new, 'lam_g': lam_g}, bool(np.all(np.isfinite(w_new))),
-                          iterations, 'real-time iteration')
+                          taken, 'real-time iteration')
     else:
         outcome = tr.nlp.solve(stop, warm, x0=np.concatenate([w0, np.zeros(slacks)]), p=p,
                                **bounds)
