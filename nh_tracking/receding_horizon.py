@@ -39,7 +39,8 @@ from nh_tracking.problem import Solution, Terminal, terminal_error, TrackingProb
 from nh_tracking.settings import check_fields, setting
 from nh_tracking.solvers import make_method, Method, METHODS, sample_plan, Structure
 from nh_tracking.solvers.cache import builds_deferred
-from nh_tracking.solvers.inequalities import obstacle_slots, Shape
+from nh_tracking.solvers.inequalities import (obstacle_slots, Shape, start_violation,
+                                              VIOLATION_TOL)
 from nh_tracking.system import NonholonomicSystem
 from nh_tracking.trajectory import Trajectory
 
@@ -53,6 +54,7 @@ class PlanStatus(str, Enum):
     SHIFTED = 'shifted'  # the solve failed or was late: the previous plan, shifted
     FALLBACK = 'fallback'  # no previous plan: the Kanayama tracking law rolled out
     STOP = 'stop'  # even the tracking law failed: hold the configuration at rest
+    LEAST_VIOLATING = 'least-violating'  # the start breaks a limit: the plan breaking it least
 
     def __str__(self) -> str:
         return self.value
@@ -253,6 +255,11 @@ class RecedingHorizonPlanner:
                                f'{s.method}: cost {sol.cost:.4g} in {sol.iterations} iterations',
                                reference)
         solve_time = sol.solve_time if sol is not None else 0.0
+        if (sol is not None and finite and not missed and sol.details.get('least_violating')
+                and start_violation(problem) > VIOLATION_TOL):
+            self.previous = sol  # inside an obstacle, say: the way out beats the old plan
+            return PlanOutcome(sol, PlanStatus.LEAST_VIOLATING, solve_time, missed,
+                               sol.message, reference)
         if self.previous is not None and self.previous.t[-1] > t:
             shifted = self._shifted(problem, self.previous)
             self.previous = shifted

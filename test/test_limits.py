@@ -273,3 +273,30 @@ def test_the_fallback_brakes_where_tracking_would_hit_an_obstacle():
     clear = dataclasses.replace(problem, obstacles=[(1.5, 2.0, 0.3)])
     plan, what = fallback(clear, clear.limits)  # nothing in the way: the tracking law
     assert plan.route == 'kanayama' and plan.q[-1, 0] > 2.0
+
+
+def test_a_robot_inside_an_obstacle_is_given_the_way_out():
+    """Overlapping an obstacle (a collision): the least-violating plan, once its NLP is built.
+
+    The soft NLP is built in the background on first need, so the first replans keep what they
+    have; then every plan is the least-violating one, and it leaves the obstacle.
+    """
+    import nh_tracking.receding_horizon as rh
+    from nh_tracking.ros.graph import wait_until
+
+    unicycle = nht.models.unicycle()
+    planner = rh.RecedingHorizonPlanner(unicycle, rh.PlannerSettings(
+        horizon=5.0, steps=50, robot_radius=0.2, u_min=(-0.3,), u_max=(0.3,)))
+    planner.prepare()
+    planner.set_reference(_line())
+    planner.obstacles = np.array([[0.1, 0.1, 0.3]])  # the robot at the origin overlaps it
+    start = (0.0, np.zeros(3), np.array([0.5, 0.0]))
+    first = planner.plan(*start)
+    assert first.status != 'optimal' and np.all(np.isfinite(first.plan.u))
+    assert wait_until(lambda: planner.plan(*start).status == 'least-violating', 60.0)
+    plan = planner.plan(*start).plan
+    grown = nht.TrackingProblem(unicycle, _line(), np.zeros(3), [0.5, 0], 5.0, 50,
+                                obstacles=planner.obstacles, robot_radius=0.2).limits
+    clearance = grown.clearance(plan.q)[:, 0]
+    assert clearance[0] < 0 and clearance[-1] > 0  # it starts inside and gets out
+    assert np.abs(plan.u).max() <= 0.3 + TOL

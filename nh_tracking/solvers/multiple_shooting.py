@@ -176,7 +176,8 @@ def _solve_until(problem: TrackingProblem, initial_guess: Guess | None,
         iterations=outcome.iterations, solve_time=elapsed,
         terminal_error=terminal_error(problem, q[-1], v[-1]), method='multiple_shooting',
         message=message, route='ipopt' if tr.soft_index is None else 'ipopt (soft limits)',
-        details={'violation': violation},
+        details={'violation': violation, 'least_violating': tr.soft_index is not None
+                 and outcome.success and bool(np.all(np.isfinite(w)))},
     )
 
 

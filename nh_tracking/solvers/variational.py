@@ -188,7 +188,9 @@ def _solve_with(problem: TrackingProblem, initial_guess: Guess | None, stop: flo
         message=message, route=('gauss-newton' if tr.nlp is None else solver)
         if tr.soft_index is None else 'ipopt (soft limits)',
         costates=(lam, mu),
-        details={'admissibility_residual': max_residual, 'violation': violation},
+        details={'admissibility_residual': max_residual, 'violation': violation,
+                 'least_violating': tr.soft_index is not None and outcome.success
+                 and bool(np.all(np.isfinite(w)))},  # the best plan a broken start has
     )
 
 
