@@ -74,6 +74,21 @@ class Avoidance:
         points = np.vstack([sol.q, 0.5 * (sol.q[1:] + sol.q[:-1])])
         return bool(every.clearance(points).min() < -VIOLATION_TOL)
 
+    def no_deeper(self, problem: TrackingProblem, sol: Solution, discs: np.ndarray) -> bool:
+        """Whether a plan from a start that breaks a limit breaks none more than the start does.
+
+        Over every disc, not only the problem's, and the problem's bounds, at knots and
+        midpoints after the start: a least-violating plan minimises the summed violation, and
+        driving through an obstacle and out can sum to less than braking inside it.
+        """
+        every = self.limits(discs)
+        after = np.vstack([sol.q[1:], 0.5 * (sol.q[1:] + sol.q[:-1])])
+        start = max(problem.limits.violation(sol.q[:1], sol.v[:1]),
+                    float(np.max(-every.clearance(sol.q[:1]), initial=0.0)))
+        worst = max(problem.limits.violation(after, sol.v[1:], sol.u),
+                    float(np.max(-every.clearance(after), initial=0.0)))
+        return worst <= start + VIOLATION_TOL
+
     def limits(self, discs: np.ndarray) -> Limits:
         """Return ``discs`` grown by the robot's radius, to check plans against."""
         return Limits.of(self.system, None, None, discs, self.robot_radius)

@@ -256,7 +256,8 @@ class RecedingHorizonPlanner:
                                reference)
         solve_time = sol.solve_time if sol is not None else 0.0
         if (sol is not None and finite and not missed and sol.details.get('least_violating')
-                and start_violation(problem) > VIOLATION_TOL):
+                and start_violation(problem) > VIOLATION_TOL
+                and self.avoidance.no_deeper(problem, sol, discs)):
             self.previous = sol  # inside an obstacle, say: the way out beats the old plan
             return PlanOutcome(sol, PlanStatus.LEAST_VIOLATING, solve_time, missed,
                                sol.message, reference)
