@@ -25,7 +25,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from nh_tracking.limits import clear_of_start, Limits, nearest_discs, plane, relevant_discs
+from nh_tracking.limits import (clear_of_start, knots_and_midpoints, Limits, nearest_discs, plane,
+                                relevant_discs)
 from nh_tracking.problem import Solution, TrackingProblem
 from nh_tracking.solvers.inequalities import VIOLATION_TOL
 from nh_tracking.system import NonholonomicSystem
@@ -70,9 +71,8 @@ class Avoidance:
         """Whether a plan built with some of ``discs`` touches one left out (knots, midpoints)."""
         if len(problem.limits.obstacles) == len(discs):
             return False
-        every = self.limits(discs)
-        points = np.vstack([sol.q, 0.5 * (sol.q[1:] + sol.q[:-1])])
-        return bool(every.clearance(points).min() < -VIOLATION_TOL)
+        return bool(self.limits(discs).clearance(knots_and_midpoints(sol.q)).min()
+                    < -VIOLATION_TOL)
 
     def no_deeper(self, problem: TrackingProblem, sol: Solution, discs: np.ndarray) -> bool:
         """Whether a plan from a start that breaks a limit breaks none more than the start does.
@@ -82,7 +82,7 @@ class Avoidance:
         driving through an obstacle and out can sum to less than braking inside it.
         """
         every = self.limits(discs)
-        after = np.vstack([sol.q[1:], 0.5 * (sol.q[1:] + sol.q[:-1])])
+        after = knots_and_midpoints(sol.q, first=1)
         start = max(problem.limits.violation(sol.q[:1], sol.v[:1]),
                     float(np.max(-every.clearance(sol.q[:1]), initial=0.0)))
         worst = max(problem.limits.violation(after, sol.v[1:], sol.u),

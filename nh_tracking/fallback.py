@@ -28,7 +28,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from nh_tracking.limits import Limits
+from nh_tracking.limits import knots_and_midpoints, Limits
 from nh_tracking.poses import PoseMap, wrap_angle
 from nh_tracking.problem import Solution, terminal_error, TrackingProblem
 from nh_tracking.simulate import simulate
@@ -109,9 +109,10 @@ def fallback(problem: TrackingProblem, clear_of: Limits) -> tuple[Solution, str]
     """
     try:
         plan, what = _finite(fallback_plan(problem)), 'tracking law fallback'
-        if len(clear_of.obstacles) and _closest(plan, clear_of)[0] < 0.0:
+        tracking = _closest(plan, clear_of) if len(clear_of.obstacles) else (0.0, 0.0)
+        if tracking[0] < 0.0:
             brake = _finite(fallback_plan(problem, law=BrakingLaw))
-            if _closest(brake, clear_of) > _closest(plan, clear_of):
+            if _closest(brake, clear_of) > tracking:
                 brake.message, brake.route = 'not optimal: braking to rest', 'brake'
                 plan, what = brake, 'braking: the tracking law would come closer to an obstacle'
         return plan, what
@@ -121,8 +122,7 @@ def fallback(problem: TrackingProblem, clear_of: Limits) -> tuple[Solution, str]
 
 def _closest(plan: Solution, clear_of: Limits) -> tuple[float, float]:
     """(closest approach after the start at knots and midpoints, clearance at the end), mm."""
-    points = np.vstack([plan.q[1:], 0.5 * (plan.q[1:] + plan.q[:-1])])
-    return (round(float(clear_of.clearance(points).min()), 3),
+    return (round(float(clear_of.clearance(knots_and_midpoints(plan.q, first=1)).min()), 3),
             round(float(clear_of.clearance(plan.q[-1:]).min()), 3))
 
 

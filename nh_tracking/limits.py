@@ -154,13 +154,6 @@ def costmap_discs(cells: np.ndarray, cell_size: float, size: float) -> np.ndarra
     return np.array(discs)
 
 
-def discs_near(discs: np.ndarray, centre: np.ndarray, reach: float, count: int) -> np.ndarray:
-    """Return at most ``count`` of ``discs`` whose edges are within ``reach`` of centre."""
-    to_centre = np.hypot(*(discs[:, :2] - np.asarray(centre, dtype=float)[:2]).T) - discs[:, 2]
-    near = discs[to_centre <= reach]
-    return nearest_discs(near, centre, count).reshape(-1, 3)
-
-
 def _groups(cells: np.ndarray, labels: np.ndarray) -> list[np.ndarray]:
     """Split cells by their labels 0..L-1 (sorted once, not one pass per label)."""
     order = np.argsort(labels, kind='stable')
@@ -211,10 +204,21 @@ def relevant_discs(discs: np.ndarray, robot: np.ndarray, path: np.ndarray,
     return nearest_discs(discs[to_path < margin], points[0], count)
 
 
-def nearest_discs(discs: np.ndarray, point: np.ndarray, count: int) -> np.ndarray:
-    """Return the ``count`` discs whose edges are nearest ``point`` (x, y), nearest first."""
+def nearest_discs(discs: np.ndarray, point: np.ndarray, count: int,
+                  reach: float = np.inf) -> np.ndarray:
+    """Return the ``count`` discs whose edges are nearest ``point`` (x, y), nearest first.
+
+    Only those whose edges are within ``reach`` of it.
+    """
+    discs = np.asarray(discs, dtype=float).reshape(-1, 3)
     to_point = np.hypot(*(discs[:, :2] - np.asarray(point, dtype=float)[:2]).T) - discs[:, 2]
-    return discs[np.argsort(to_point, kind='stable')[:max(count, 0)]]
+    order = np.argsort(to_point, kind='stable')
+    return discs[order[to_point[order] <= reach][:max(count, 0)]]
+
+
+def knots_and_midpoints(q: np.ndarray, first: int = 0) -> np.ndarray:
+    """Return the configurations where a plan's limits hold: knots from ``first``, midpoints."""
+    return np.vstack([q[first:], 0.5 * (q[1:] + q[:-1])])
 
 
 def clear_of_start(discs: np.ndarray, point: np.ndarray, velocity: np.ndarray,

@@ -200,7 +200,8 @@ class RecedingHorizonPlanner:
             raise ValueError('no reference to track yet')
         s = self.settings
         if obstacles is None:
-            obstacles = self.avoidance.relevant(t, q, self.avoidance.from_start(q, v))
+            avoidance = self.avoidance
+            obstacles = avoidance.relevant(t, q, avoidance.from_start(q, v))
         return TrackingProblem(self.system, self.reference, q, v, horizon=s.horizon,
                                steps=s.steps, epsilon=s.epsilon, terminal=s.terminal,
                                omega=s.omega, wrap_angles=s.wrap_angles, t0=t,
@@ -215,8 +216,9 @@ class RecedingHorizonPlanner:
             self.stats.plan_durations.append(time.perf_counter() - started)
 
     def _plan(self, t: float, q: np.ndarray, v: np.ndarray) -> PlanOutcome:
-        discs = self.avoidance.from_start(q, v)
-        problem = self.problem(t, q, v, self.avoidance.relevant(t, q, discs))
+        avoidance = self.avoidance
+        discs = avoidance.from_start(q, v)
+        problem = self.problem(t, q, v, avoidance.relevant(t, q, discs))
         reference = problem.reference_samples[0]
         s = self.settings
         guess = self.previous
@@ -226,9 +228,8 @@ class RecedingHorizonPlanner:
             with builds_deferred() if self.prepared else nullcontext():  # never stalls
                 sol = self.method.solve(problem, None if guess is None
                                         else sample_plan(problem, guess), s.max_solve_time)
-                if sol.success and self.avoidance.hits_one_left_out(problem, sol, discs):
-                    nearest = dataclasses.replace(problem,
-                                                  obstacles=self.avoidance.nearest(q, discs))
+                if sol.success and avoidance.hits_one_left_out(problem, sol, discs):
+                    nearest = dataclasses.replace(problem, obstacles=avoidance.nearest(q, discs))
                     again = self.method.solve(nearest, (sol.q, sol.v, sol.u), s.max_solve_time)
                     again.solve_time += sol.solve_time
                     sol = again
@@ -257,7 +258,7 @@ class RecedingHorizonPlanner:
         solve_time = sol.solve_time if sol is not None else 0.0
         if (sol is not None and finite and not missed and sol.details.get('least_violating')
                 and start_violation(problem) > VIOLATION_TOL
-                and self.avoidance.no_deeper(problem, sol, discs)):
+                and avoidance.no_deeper(problem, sol, discs)):
             self.previous = sol  # inside an obstacle, say: the way out beats the old plan
             return PlanOutcome(sol, PlanStatus.LEAST_VIOLATING, solve_time, missed,
                                sol.message, reference)
@@ -267,7 +268,7 @@ class RecedingHorizonPlanner:
             self.stats.shifted += 1
             return PlanOutcome(shifted, PlanStatus.SHIFTED, solve_time, missed,
                                f'kept the previous plan, shifted ({error})', reference)
-        plan, what = fallback(problem, self.avoidance.limits(discs))
+        plan, what = fallback(problem, avoidance.limits(discs))
         status = PlanStatus.STOP if plan.route == 'stop' else PlanStatus.FALLBACK
         self.previous = plan  # the plan in force: shifted if the next solve fails too
         self.stats.fallbacks += 1

@@ -290,7 +290,7 @@ def test_costmaps_give_finite_cells_or_a_rejection(resolution, width, height, da
                                                    frame):
     from nav_msgs.msg import OccupancyGrid
 
-    from nh_tracking.limits import costmap_discs, discs_near
+    from nh_tracking.limits import costmap_discs, nearest_discs
     from nh_tracking.ros.obstacle_messages import occupied_cells
 
     grid = OccupancyGrid()
@@ -303,7 +303,7 @@ def test_costmaps_give_finite_cells_or_a_rejection(resolution, width, height, da
         return
     assert np.all(np.isfinite(cells)) and size > 0
     assert len(cells) == sum(d >= 65 for d in data)
-    discs = discs_near(costmap_discs(cells, size, 0.5), np.zeros(2), 1e9, 8)
+    discs = nearest_discs(costmap_discs(cells, size, 0.5), np.zeros(2), 8, 1e9)
     assert len(discs) <= 8 and np.all(np.isfinite(discs))
     for cell in cells[:20]:  # every cell is inside some disc, or left for lack of discs
         assert len(discs) == 8 or np.any(np.hypot(*(discs[:, :2] - cell).T) <= discs[:, 2])

@@ -176,7 +176,7 @@ def test_costmap_discs_do_not_move_with_the_robot():
 
     Discs redrawn about the robot's position put a plan hugging one inside the next one.
     """
-    from nh_tracking.limits import costmap_discs, discs_near
+    from nh_tracking.limits import costmap_discs, nearest_discs
 
     size = 0.05
     x, y = np.meshgrid(np.arange(-40, 200) * size, np.arange(-40, 40) * size)
@@ -187,7 +187,7 @@ def test_costmap_discs_do_not_move_with_the_robot():
     cells = np.c_[x[blob], y[blob]]
     wall = np.c_[np.arange(0, 100) * size, np.full(100, -1.9)]  # 5 m long
     every = costmap_discs(np.vstack([cells, wall]), size, 0.5)
-    seen = [discs_near(every, np.array(c), 50.0, 30)
+    seen = [nearest_discs(every, np.array(c), 30, 50.0)
             for c in ((0.0, 0.0), (2.6, -0.5), (5.9, 0.6), (9.0, 3.0))]
     for discs in seen:
         assert {tuple(d) for d in np.round(discs, 9)} == {tuple(d) for d in np.round(seen[0], 9)}
@@ -196,9 +196,9 @@ def test_costmap_discs_do_not_move_with_the_robot():
         for cx, cy, r in centres:  # each blob: one disc about it, a cell's half diagonal more
             d = blobs[np.argmin(np.hypot(blobs[:, 0] - cx, blobs[:, 1] - cy))]
             assert np.hypot(d[0] - cx, d[1] - cy) < 0.02 and r <= d[2] <= r + 0.06
-    near = discs_near(every, np.array([6.0, 0.5]), 50.0, 2)
+    near = nearest_discs(every, np.array([6.0, 0.5]), 2, 50.0)
     assert len(near) == 2 and np.allclose(near[0, :2], [6.0, -0.05], atol=0.02)  # nearest first
-    assert len(discs_near(every, np.array([20.0, 0.0]), 1.0, 8)) == 0  # none within reach
+    assert len(nearest_discs(every, np.array([20.0, 0.0]), 8, 1.0)) == 0  # none within reach
 
 
 def test_a_robot_inside_the_margin_it_keeps_still_gets_an_optimal_plan():

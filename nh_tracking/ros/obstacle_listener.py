@@ -19,7 +19,7 @@ from nav_msgs.msg import OccupancyGrid
 import numpy as np
 from visualization_msgs.msg import MarkerArray
 
-from nh_tracking.limits import costmap_discs, discs_near
+from nh_tracking.limits import costmap_discs, nearest_discs
 from nh_tracking.ros.obstacle_messages import MarkerObstacles, occupied_cells
 from nh_tracking.ros.safety import guarded, SafeNode
 
@@ -53,7 +53,7 @@ class ObstacleListener(SafeNode):
     def obstacle_discs(self, centre: np.ndarray, reach: float, count: int) -> np.ndarray:
         """Return the marker discs and up to ``count`` discs covering the costmap near centre."""
         return np.vstack([self.marker_obstacles.discs,
-                          discs_near(self._costmap_discs, centre, reach, count)])
+                          nearest_discs(self._costmap_discs, centre, count, reach)])
 
     def obstacles_changed(self) -> None:
         """React to a new obstacle set (the node's own business)."""

@@ -36,6 +36,7 @@ from typing import ClassVar, Literal
 
 import numpy as np
 
+from nh_tracking.limits import knots_and_midpoints
 from nh_tracking.problem import Solution, terminal_cost, terminal_error, TrackingProblem
 from nh_tracking.solvers.base import Guess, Method, Structure
 from nh_tracking.solvers.cache import NotPrepared
@@ -152,7 +153,7 @@ def _solve_with(problem: TrackingProblem, initial_guess: Guess | None, stop: flo
     slacks = 0 if tr.soft_index is None else len(tr.soft_index)
     # a guess within the limits (a previous plan) is warm: near the optimum and its active set
     warm = initial_guess is not None and problem.limits.violation(
-        np.vstack([q_g, 0.5 * (q_g[1:] + q_g[:-1])]), v_g) <= VIOLATION_TOL
+        knots_and_midpoints(q_g), v_g) <= VIOLATION_TOL
     if tr.nlp is None:  # a real-time iteration without limits: Gauss-Newton steps
         w_new, lam_g, taken = newton_steps(
             tr.newton, w0, p, iterations,  # type: ignore[arg-type]
@@ -175,7 +176,7 @@ def _solve_with(problem: TrackingProblem, initial_guess: Guess | None, stop: flo
     mu = (-problem.epsilon * u if sys.fully_actuated
           else -lam_g[tr.dynamics_rows].reshape(problem.steps, sys.k))
     cost = float(running[0]) + terminal_cost(problem, q[-1])
-    violation = problem.limits.violation(np.vstack([q, 0.5 * (q[1:] + q[:-1])]), v, u)
+    violation = problem.limits.violation(knots_and_midpoints(q), v, u)
     success = (outcome.success and bool(np.all(np.isfinite(w)))
                and violation <= VIOLATION_TOL)
     message = outcome.message
