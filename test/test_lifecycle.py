@@ -17,6 +17,7 @@
 In process: real nodes and the real solver, one Context per test.
 """
 import time
+import weakref
 
 from geometry_msgs.msg import Twist
 from lifecycle_msgs.msg import State, Transition
@@ -107,13 +108,12 @@ def test_lifecycle_transitions_through_the_standard_services(graph):
 
 
 def test_reconfiguring_never_stops_the_plan_in_force(graph, tmp_path, monkeypatch):
-    """Changes that rebuild the solver never stop cmd_vel or control_sequence for long.
+    """Changes that rebuild the solver never stop cmd_vel or control_sequence for a replan period.
 
     compiled=true on an empty cache (a child process compiles while plans go on interpreted),
     a real-time iteration budget, a finer grid, control bounds and another method: each
-    rebuilds NLPs in the background while the plan in force is replanned. CasADi holds the
-    interpreter while it builds one NLP (40-140 ms), and the threads that publish wait: gaps of
-    0.05-0.29 s beyond each stream's period were measured, so the bound is 0.4 s beyond it.
+    rebuilds NLPs in the background while the plan in force is replanned. Neither stream may
+    fall silent for more than one replan period beyond its own spacing.
     """
     monkeypatch.setenv('NH_TRACKING_CACHE', str(tmp_path))
     pair = WallClockPair(graph)
@@ -127,6 +127,7 @@ def test_reconfiguring_never_stops_the_plan_in_force(graph, tmp_path, monkeypatc
                    {'method': 'multiple_shooting', 'compiled': False, 'iterations': 0,
                     'u_max': []}):
         since = time.monotonic()
+        replaced = weakref.ref(planner.planner)
         result = planner.set_parameters_atomically([  # [] alone would be a byte array
             Parameter(k, Parameter.Type.DOUBLE_ARRAY, v) if isinstance(v, list)
             else Parameter(k, value=v) for k, v in change.items()])
@@ -137,11 +138,14 @@ def test_reconfiguring_never_stops_the_plan_in_force(graph, tmp_path, monkeypatc
         took = time.monotonic() - since
         count = sequences.count()
         assert wait_until(lambda: sequences.count() > count + 3, 10.0)
+        # the session froze the heap: a replaced planner must go by reference counting alone
+        assert replaced() is None, change
         gaps = {'cmd_vel': cmd.max_gap(since), 'control_sequence': sequences.max_gap(since)}
         print(f'\n{change}: new solver after {took:.2f} s; longest gap meanwhile: ' + ', '.join(
             f'{k} {g * 1e3:.0f} ms (period {spacing[k] * 1e3:.0f} ms)' for k, g in gaps.items()))
         for topic, gap in gaps.items():
-            assert gap <= spacing[topic] + 0.4, (change, topic, gap)
+            assert gap <= spacing[topic] + planner.params['replan_period'], (
+                change, topic, gap)
     assert planner.planner.settings.method == 'multiple_shooting' and planner.errors == 0
     assert planner.planner.stats.fallbacks == 0
 

@@ -19,6 +19,7 @@ Start-up errors as one line and exit code 2, spin, and a clean exit (code 0) on 
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
+import gc
 import signal
 import sys
 
@@ -78,6 +79,7 @@ def run(make_node: Callable[[], Node], usage: Callable[[], str],
         print(f'cannot start: {str(exc).splitlines()[0]}', file=sys.stderr)
         return 2
     responsive_threads()
+    gc.freeze()  # the node as built lives as long as the process: no full collection walks it
     # Single-threaded on purpose: the solver runs in the planner's own worker thread, and
     # rclpy's MultiThreadedExecutor (7.1, Jazzy) starves timers when another node subscribes
     # to what they publish (ros2/rclpy#1223, #1452).
