@@ -110,10 +110,6 @@ class PoseMap:
         q[self.hidden] += 0.5 * dt * (rate_prev + rate_now)
         return q
 
-    def _pose_rate(self, q: np.ndarray, world: np.ndarray) -> np.ndarray:
-        """Rates of the mapped coordinates from world (xdot, ydot, zdot, yaw rate)."""
-        return np.array([world[AXES.index(a)] for a in AXES if a in self.rows])
-
     def velocity(self, q: np.ndarray, body_twist: np.ndarray) -> np.ndarray:
         """V from a body-frame twist (vx, vy, vz, wz), projected onto D (least squares)."""
         yaw = q[self.rows['yaw']] if self.has_yaw else 0.0
@@ -123,8 +119,14 @@ class PoseMap:
 
     def velocity_from_world(self, q: np.ndarray, world: np.ndarray) -> np.ndarray:
         """V from world-frame rates (xdot, ydot, zdot, yaw rate), projected onto D."""
-        rho = self.system.rho(q)[self.pose_rows]
-        return np.linalg.lstsq(rho, self._pose_rate(q, world), rcond=None)[0]
+        return self._project(self.system.rho(q)[None], world[None])[0]
+
+    def _project(self, rho: np.ndarray, world: np.ndarray) -> np.ndarray:
+        """(N, k) least-squares velocities from (N, n, k) bases and (N, 4) world rates."""
+        rows = rho[:, self.pose_rows, :]
+        rates = np.asarray(world, dtype=float)[:, [AXES.index(a) for a in AXES if a in self.rows]]
+        cutoff = np.finfo(float).eps * max(rows.shape[1:])  # lstsq's default (rcond=None)
+        return (np.linalg.pinv(rows, rcond=cutoff) @ rates[:, :, None])[:, :, 0]
 
     def body_twist(self, q: np.ndarray, v: np.ndarray) -> np.ndarray:
         """Body-frame twist (vx, vy, vz, wz) of the motion (q, v)."""
@@ -158,8 +160,9 @@ class PoseMap:
             world = np.stack([c * tw[:, 0] - s * tw[:, 1], s * tw[:, 0] + c * tw[:, 1],
                               tw[:, 2], tw[:, 3]], axis=1)
         q = np.array([self.configuration(p, hidden0) for p in poses])
-        v = np.array([self.velocity_from_world(qi, w) for qi, w in zip(q, world)])
+        rho = self.system.rho_many(q)
+        v = self._project(rho, world)
         if self.hidden:
-            rates = np.array([self.system.rho(qi)[self.hidden] @ vi for qi, vi in zip(q, v)])
+            rates = np.einsum('nik,nk->ni', rho[:, self.hidden, :], v)
             q[:, self.hidden] += cumulative_trapezoid(rates, times, axis=0, initial=0.0)
         return Trajectory(t=times, q=q, v=v, u=np.zeros((len(times) - 1, self.system.r)))

@@ -18,6 +18,8 @@ import numpy as np
 import pytest
 
 import nh_tracking as nht
+from nh_tracking.poses import PoseMap
+from nh_tracking.system import POSE_AXES
 
 
 @pytest.mark.parametrize('m, J, a', [(1.0, 4.0, 0.2), (2.5, 0.3, 0.9), (0.7, 1.1, -0.4)])
@@ -167,3 +169,20 @@ def test_numpy_interface_rejects_wrong_sizes():
         sleigh.dynamics([0, 0], [0, 0])
     with pytest.raises(ValueError, match='u must have 2 entries'):
         sleigh.dynamics([0, 0, 0], [0, 0], [1, 2, 3])
+
+
+@pytest.mark.parametrize('name', sorted(nht.models.MODELS))
+def test_rho_at_many_configurations_is_rho_at_each(name):
+    """A reference's bases come in one call; each must be the basis at its configuration."""
+    system = nht.models.create(name)
+    qs = np.random.default_rng(7).uniform(-2.0, 2.0, (57, system.n))
+    many = system.rho_many(qs)
+    assert many.shape == (57, system.n, system.k)
+    assert np.abs(many - np.array([system.rho(q) for q in qs])).max() < 1e-14
+    posemap = PoseMap(system)  # and the projected velocities: one least squares per pose
+    world = np.random.default_rng(8).normal(size=(57, 4))
+    projected = posemap._project(many, world)
+    for q, w, v in zip(qs, world, projected):
+        rows = system.rho(q)[posemap.pose_rows]
+        rates = w[[POSE_AXES.index(a) for a in POSE_AXES if a in posemap.rows]]
+        assert np.allclose(v, np.linalg.lstsq(rows, rates, rcond=None)[0], atol=1e-12)
