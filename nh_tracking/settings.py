@@ -21,6 +21,7 @@ machine-readable.
 """
 from __future__ import annotations
 
+import array
 import dataclasses
 from dataclasses import dataclass, field
 import math
@@ -86,7 +87,8 @@ def check_fields(obj: Any) -> None:
 def _numbers(value: Any, name: str) -> tuple[float, ...]:
     if value is None:  # what a params file's [] becomes (rcl has no typed empty array)
         return ()
-    if not isinstance(value, (list, tuple)) or not all(
+    # array('d'): how a double array set through the set_parameters service arrives
+    if not isinstance(value, (list, tuple, array.array)) or not all(
             isinstance(v, (int, float)) and not isinstance(v, bool) and not math.isnan(v)
             for v in value):
         raise ValueError(f'{name} must be a list of numbers, got {value!r}')

@@ -210,15 +210,6 @@ class NonholonomicSystem:
         """(n, k) adapted basis at q: column A holds the components rho^i_A of e_A."""
         return np.array(self.rho_fn(self.as_configuration(q)))
 
-    def rho_many(self, qs: ArrayLike) -> np.ndarray:
-        """(N, n, k) adapted bases at N configurations, in one CasADi call.
-
-        A reference has thousands of poses; one call per pose cost 0.3 s for 6000 of them.
-        """
-        qs = np.asarray(qs, dtype=float).reshape(-1, self.n)
-        blocks = np.array(self.rho_fn.map(len(qs))(qs.T)).reshape(self.n, len(qs), self.k)
-        return blocks.transpose(1, 0, 2)
-
     def metric(self, q: ArrayLike) -> np.ndarray:
         """(n, n) kinetic-energy metric G(q)."""
         return np.array(self.metric_fn(self.as_configuration(q)))

@@ -23,10 +23,13 @@ from pathlib import Path
 import threading
 import time
 
+from geometry_msgs.msg import Twist
 from nav_msgs.msg import Odometry
 from nav_msgs.msg import Path as PathMsg
 import numpy as np
 import pytest
+from rcl_interfaces.srv import SetParametersAtomically
+from rclpy.parameter import Parameter
 from trajectory_msgs.msg import JointTrajectory
 import yaml
 
@@ -194,3 +197,62 @@ def test_start_up_parameters_run_or_exit_2_with_one_line(tmp_path):
         done = run(exe, ['--help'], domain_env())
         assert done.returncode == 0 and done.stdout.startswith(f'usage: {exe}')
         assert node in done.stdout and '--params-file' in done.stdout
+
+
+CHANGES = ({'compiled': True}, {'iterations': 1}, {'steps': 40}, {'u_max': [5.0]},
+           {'method': 'multiple_shooting', 'compiled': False, 'iterations': 0, 'u_max': []})
+
+
+def test_parameter_changes_never_stop_a_deployed_planner_for_a_replan_period(tmp_path):
+    """Each change rebuilds the NLPs in the planner's background while it goes on commanding.
+
+    Through the standard set_parameters_atomically service of the planner process (as
+    ``ros2 param load`` does it: a double array arrives as array('d')); neither cmd_vel nor
+    control_sequence may fall silent for more than one replan period beyond its own spacing
+    while the new solver is built (compiled=true compiles in a child process on an empty cache).
+    """
+    env = dict(domain_env(), NH_TRACKING_CACHE=str(tmp_path))
+    period, rate = 0.1, 20.0
+    sim = Process('sim', ['--ros-args', '-p', f'initial_state:=[{RADIUS}, 0.0, {math.pi / 2}, '
+                          f'{SPEED}, {SPEED / RADIUS}]'], env)
+    planner = Process('planner', ['--ros-args', '-p', f'replan_period:={period}',
+                                  '-p', f'cmd_rate:={rate}'], env)
+    peer = Peer(env)
+    try:
+        heard: dict[str, list[float]] = {'cmd_vel': [], 'control_sequence': []}
+        for topic, msg_type in (('cmd_vel', Twist), ('control_sequence', JointTrajectory)):
+            peer.node.create_subscription(msg_type, topic, lambda m, topic=topic: heard[
+                topic].append(time.monotonic()), 10)
+        client = peer.node.create_client(SetParametersAtomically,
+                                         '/nh_tracking_planner/set_parameters_atomically')
+        assert sim.wait_for('simulating') and planner.wait_for('planning for'), \
+            sim.output + planner.output
+        assert client.wait_for_service(20.0)
+        reference = peer.node.create_publisher(PathMsg, 'reference_path', LATCHED)
+        reference.publish(circle(peer.node.get_clock().now().nanoseconds)[0])
+        assert wait_until(lambda: len(heard['control_sequence']) > 10, 30.0), planner.output
+        spacing = {'cmd_vel': 1.0 / rate, 'control_sequence': period}
+        for change in CHANGES:
+            rebuilt = planner.output.count('rebuilt in')
+            since = time.monotonic()
+            future = client.call_async(SetParametersAtomically.Request(parameters=[
+                Parameter(k, Parameter.Type.DOUBLE_ARRAY, v).to_parameter_msg()
+                if isinstance(v, list) else Parameter(k, value=v).to_parameter_msg()
+                for k, v in change.items()]))
+            assert wait_until(future.done, 20.0)
+            assert future.result().result.successful, future.result()
+            assert wait_until(lambda: planner.output.count('rebuilt in') > rebuilt, 120.0)
+            until = time.monotonic() + 2 * period  # the first plans of the new solver too
+            assert wait_until(lambda: time.monotonic() > until + period, 1.0 + 3 * period)
+            gaps = {topic: max(np.diff([t for t in times if since <= t <= until]))
+                    for topic, times in heard.items()}
+            print(f'\n{change}: rebuilt after {until - since:.2f} s; longest gap meanwhile: '
+                  + ', '.join(f'{k} {g * 1e3:.0f} ms' for k, g in gaps.items()))
+            for topic, gap in gaps.items():
+                assert gap <= spacing[topic] + period, (change, topic, gap)
+        assert "method='multiple_shooting'" in planner.output.split('rebuilt in')[-1]
+    finally:
+        peer.close()
+        codes = planner.interrupt(), sim.interrupt()
+    assert codes == (0, 0), planner.output + sim.output
+    assert 'Traceback' not in planner.output + sim.output

@@ -18,7 +18,7 @@ import numpy as np
 import pytest
 
 import nh_tracking as nht
-from nh_tracking.poses import PoseMap
+from nh_tracking.poses import bases, PoseMap
 from nh_tracking.system import POSE_AXES
 
 
@@ -143,7 +143,6 @@ def test_user_models_load_from_an_entry_point(monkeypatch):
 
 
 def test_a_system_without_pose_axes_says_how_to_give_them():
-    from nh_tracking.poses import PoseMap
 
     plain = nht.NonholonomicSystem.from_constraints(
         ['a', 'b'], lambda q: ca.SX.eye(2), name='plain')
@@ -176,7 +175,7 @@ def test_rho_at_many_configurations_is_rho_at_each(name):
     """A reference's bases come in one call; each must be the basis at its configuration."""
     system = nht.models.create(name)
     qs = np.random.default_rng(7).uniform(-2.0, 2.0, (57, system.n))
-    many = system.rho_many(qs)
+    many = bases(system, qs)
     assert many.shape == (57, system.n, system.k)
     assert np.abs(many - np.array([system.rho(q) for q in qs])).max() < 1e-14
     posemap = PoseMap(system)  # and the projected velocities: one least squares per pose

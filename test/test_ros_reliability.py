@@ -129,23 +129,23 @@ def test_fuzz_flood_and_concurrent_calls_leave_the_loop_tracking(graph):
               'costmap': OccupancyGrid}
     pubs = {t: pair.publisher(m, t) for t, m in topics.items()}
     sent = dict.fromkeys(topics, 0)
-    # fuzz every input topic of both nodes for 3 s
-    end = time.monotonic() + 3.0
-    while time.monotonic() < end:
+    # fuzz every input topic of both nodes: 1200 messages (a count, not a time: how many fit
+    # in a second depends on the machine)
+    for _ in range(1200):
         topic = list(topics)[int(fuzz.rng.integers(len(topics)))]
         pubs[topic].publish(getattr(fuzz, topic)())
         sent[topic] += 1
         time.sleep(0.0005)
-    # flood odometry at >= 500 Hz: the robot's true state, re-sent by a chatty driver
-    flood, end, msg = 0, time.monotonic() + 2.0, None
-    while time.monotonic() < end:
+    # flood odometry, 1000 messages back to back: the robot's true state, re-sent by a chatty
+    # driver
+    msg = None
+    for flood in range(1000):
         if flood % 10 == 0:  # refresh the state now and then, re-stamp every time
             q, v = pair.sim.state
             msg = cv.odometry_msg('odom', 'base_link', 0, pair.planner.pose_map.pose(q),
                                   pair.planner.pose_map.body_twist(q, v))
         msg.header.stamp = cv.time_msg(pair.planner.get_clock().now().nanoseconds)
         pubs['odom'].publish(msg)
-        flood += 1
     # 20 plan calls at once
     client = pair.node.create_client(GetPlan, f'{pair.ns}/plan',
                                      qos_profile=QoSProfile(depth=100))
@@ -153,10 +153,10 @@ def test_fuzz_flood_and_concurrent_calls_leave_the_loop_tracking(graph):
     futures = [client.call_async(GetPlan.Request()) for _ in range(20)]
     assert wait_until(lambda: all(f.done() for f in futures), 60.0)
     answers = [f.result() for f in futures]
-    print(f'fuzzed {sum(sent.values())} messages {sent}; odometry flood {flood} in 2 s; '
+    print(f'fuzzed {sum(sent.values())} messages {sent}; odometry flood of 1000; '
           f'20 plan calls answered; rejected: planner {pair.planner.rejected_inputs}, '
           f'simulator {pair.sim.rejected_inputs}')
-    assert flood >= 1000 and sum(sent.values()) > 1000
+    assert all(sent.values())  # every input topic was fuzzed
     assert all(len(a.plan.poses) == 31 for a in answers)
     assert all(np.isfinite(p.pose.position.x) for a in answers for p in a.plan.poses)
     assert pair.planner.rejected_inputs > 0 and pair.sim.rejected_inputs > 0

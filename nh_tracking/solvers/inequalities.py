@@ -58,6 +58,22 @@ class Shape:
                    obstacle_slots(len(limits.obstacles)), soft)
 
 
+class ConstraintStack:
+    """An NLP's constraint blocks in order, and the rows they fill: where the next one starts.
+
+    Limits record the rows they occupy; summing the blocks' heights at each use was quadratic
+    in the horizon (the builder's hottest loop, holding the interpreter from the executor).
+    """
+
+    def __init__(self) -> None:
+        self.blocks: list[ca.SX] = []
+        self.rows = 0
+
+    def add(self, *blocks: ca.SX) -> None:
+        self.blocks.extend(blocks)
+        self.rows += sum(b.shape[0] for b in blocks)
+
+
 @dataclass
 class Rows:
     """Inequality rows of an NLP under construction, in the order they enter g."""

@@ -31,7 +31,7 @@ from nh_tracking.limits import plane
 from nh_tracking.numeric import NumericFunction
 from nh_tracking.problem import tracking_lagrangian, tracking_residual, TrackingProblem
 from nh_tracking.solvers.cache import PerSystemCache
-from nh_tracking.solvers.inequalities import Rows, Shape, soft_bounds, soften
+from nh_tracking.solvers.inequalities import ConstraintStack, Rows, Shape, soft_bounds, soften
 from nh_tracking.solvers.newton import gauss_newton_step
 from nh_tracking.solvers.nlp import BoundedNlp
 from nh_tracking.system import NonholonomicSystem
@@ -132,19 +132,16 @@ def _build(system: NonholonomicSystem, steps: int, terminal: str, solver: str,
     cost_residuals: list[ca.SX] = []  # the objective is 1/2 |r|^2 (Gauss-Newton steps)
     zero = ca.DM.zeros(r)
     w: list[ca.SX] = []
-    g: list[ca.SX] = []
+    g = ConstraintStack()
     residuals: list[ca.SX] = []
     controls: list[ca.SX] = []
     adm_rows: list[int] = []
     dyn_rows: list[int] = []
     running = ca.SX(0)
 
-    def rows() -> int:
-        return sum(c.shape[0] for c in g)
-
     def knot_limits(x: ca.SX) -> None:
-        g.extend(limits.velocity(x[n:], rows()))
-        g.extend(limits.clearance(x[:n], rows()))
+        g.add(*limits.velocity(x[n:], g.rows))
+        g.add(*limits.clearance(x[:n], g.rows))
 
     for i in range(big_n):
         q, v = xs[i][:n], xs[i][n:]
@@ -157,18 +154,18 @@ def _build(system: NonholonomicSystem, steps: int, terminal: str, solver: str,
         cost_residuals.append(ca.sqrt(h) * residual(z, vm, u, *reference, eps))
         controls.append(u)
         w += [xs[i], us[i]]
-        g.append(xs[i + 1] - ca.vertcat(2 * z - q, v_next))  # dynamics first (fatrop)
+        g.add(xs[i + 1] - ca.vertcat(2 * z - q, v_next))  # dynamics first (fatrop)
         if i == 0:
-            g.append(xs[0] - ca.vertcat(q0, v0))
-        adm_rows.extend(range(rows(), rows() + n))
-        g.append(z - q - 0.5 * h * system.rho_fn(z) @ vm)
+            g.add(xs[0] - ca.vertcat(q0, v0))
+        adm_rows.extend(range(g.rows, g.rows + n))
+        g.add(z - q - 0.5 * h * system.rho_fn(z) @ vm)
         if not eliminated:
-            dyn_rows.extend(range(rows(), rows() + k))
-            g.append(v_next - v - h * (drift + system.input_matrix_fn(z) @ u))
+            dyn_rows.extend(range(g.rows, g.rows + k))
+            g.add(v_next - v - h * (drift + system.input_matrix_fn(z) @ u))
         if i > 0:  # the start is data, not a decision
             knot_limits(xs[i])
-        g.extend(limits.clearance(z, rows()))  # the midpoint, where L is evaluated
-        g.extend(limits.control(u, rows()))
+        g.add(*limits.clearance(z, g.rows))  # the midpoint, where L is evaluated
+        g.add(*limits.control(u, g.rows))
         q_next = xs[i + 1][:n]
         qm = 0.5 * (q + q_next)
         residuals.append((q_next - q) / h - system.rho_fn(qm) @ (0.5 * (v + xs[i + 1][n:])))
@@ -179,8 +176,8 @@ def _build(system: NonholonomicSystem, steps: int, terminal: str, solver: str,
         objective += 0.5 * omega * ca.sumsqr(xs[-1][:n] - q_end)
         cost_residuals.append(ca.sqrt(omega) * (xs[-1][:n] - q_end))
     else:
-        g.append(xs[-1] - ca.vertcat(q_end, v_end))
-    unknowns, constraints = ca.vertcat(*w), ca.vertcat(*g)
+        g.add(xs[-1] - ca.vertcat(q_end, v_end))
+    unknowns, constraints = ca.vertcat(*w), ca.vertcat(*g.blocks)
     nlp = {'x': unknowns, 'p': p, 'f': objective, 'g': constraints}
     soft_index = None
     if shape.soft:

@@ -31,8 +31,8 @@ from nh_tracking.problem import (Solution, terminal_cost, terminal_error, tracki
                                  TrackingProblem)
 from nh_tracking.solvers.base import Guess, Method, Structure
 from nh_tracking.solvers.cache import PerSystemCache
-from nh_tracking.solvers.inequalities import (Rows, Shape, soft_bounds, soften, start_violation,
-                                              VIOLATION_TOL)
+from nh_tracking.solvers.inequalities import (ConstraintStack, Rows, Shape, soft_bounds, soften,
+                                              start_violation, VIOLATION_TOL)
 from nh_tracking.solvers.nlp import BoundedNlp, deadline_after
 from nh_tracking.system import NonholonomicSystem
 
@@ -84,21 +84,18 @@ def _build(system: NonholonomicSystem, steps: int, terminal: str,
     w = ca.SX.sym('w', nx * (steps + 1) + r * steps)  # stage-wise x_0, u_0, x_1, ..., x_N
     xs = [w[i * (nx + r):i * (nx + r) + nx] for i in range(steps + 1)]
     us = [w[i * (nx + r) + nx:(i + 1) * (nx + r)] for i in range(steps)]
-    running, g = ca.SX(0), list[ca.SX]()
-
-    def rows() -> int:
-        return sum(c.shape[0] for c in g)
+    running, g = ca.SX(0), ConstraintStack()
 
     dt = h / SUBSTEPS
     for i in range(steps):
         x = xs[i]
         if i > 0:  # the start is data, not a decision
-            g.extend(limits.velocity(x[n:], rows()))
-            g.extend(limits.clearance(x[:n], rows()))
-        g.extend(limits.control(us[i], rows()))
+            g.add(*limits.velocity(x[n:], g.rows))
+            g.add(*limits.clearance(x[:n], g.rows))
+        g.add(*limits.control(us[i], g.rows))
         for s in range(SUBSTEPS):
             if 2 * s == SUBSTEPS:  # the interval's midpoint
-                g.extend(limits.clearance(x[:n], rows()))
+                g.add(*limits.clearance(x[:n], g.rows))
             j = 2 * (i * SUBSTEPS + s)
             k1, l1 = rate(x, us[i], j)
             k2, l2 = rate(x + dt / 2 * k1, us[i], j + 1)
@@ -106,20 +103,20 @@ def _build(system: NonholonomicSystem, steps: int, terminal: str,
             k4, l4 = rate(x + dt * k3, us[i], j + 2)
             x = x + dt / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
             running += dt / 6 * (l1 + 2 * l2 + 2 * l3 + l4)
-        g.append(x - xs[i + 1])
-    g.extend(limits.velocity(xs[-1][n:], rows()))
-    g.extend(limits.clearance(xs[-1][:n], rows()))
+        g.add(x - xs[i + 1])
+    g.add(*limits.velocity(xs[-1][n:], g.rows))
+    g.add(*limits.clearance(xs[-1][:n], g.rows))
     objective = running
     if terminal == 'cost':
         objective += 0.5 * omega * ca.sumsqr(xs[-1][:n] - q_ref[:, -1])
-    nlp = {'x': w, 'p': p, 'f': objective, 'g': ca.vertcat(*g)}
+    nlp = {'x': w, 'p': p, 'f': objective, 'g': ca.vertcat(*g.blocks)}
     soft_index = None
     if shape.soft:
         nlp, soft_index = soften(nlp, limits)
     solver = BoundedNlp(f'multiple_shooting_{system.name}_{steps}', 'ipopt', nlp, {}, bounded)
     return ShootingTranscription(system=system, steps=steps, nlp=solver,
                                  running_cost=ca.Function('running', [w, p], [running]),
-                                 limits=limits, rows=rows(), soft_index=soft_index)
+                                 limits=limits, rows=g.rows, soft_index=soft_index)
 
 
 def solve_multiple_shooting(problem: TrackingProblem, initial_guess: Guess | None = None,
