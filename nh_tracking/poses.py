@@ -129,7 +129,7 @@ class PoseMap:
 
     def velocity_from_world(self, q: np.ndarray, world: np.ndarray) -> np.ndarray:
         """V from world-frame rates (xdot, ydot, zdot, yaw rate), projected onto D."""
-        return self._project(self.system.rho(q)[None], world[None])[0]
+        return self._project(self.system.rho(q)[None], np.asarray(world, dtype=float)[None])[0]
 
     def _project(self, rho: np.ndarray, world: np.ndarray) -> np.ndarray:
         """(N, k) least-squares velocities from (N, n, k) bases and (N, 4) world rates."""

@@ -111,12 +111,12 @@ def test_reconfiguring_never_stops_the_plan_in_force(graph, tmp_path, monkeypatc
     """Changes that rebuild the solver never stop cmd_vel or control_sequence for long.
 
     compiled=true on an empty cache (a child process compiles while plans go on interpreted),
-    a real-time iteration budget, a finer grid, control bounds and another method: each
-    rebuilds NLPs in the background while the plan in force is replanned. Here the simulator
-    shares the planner's executor and interpreter (its integration, and the cyclic garbage
-    scipy leaves, hold up the planner's timers): up to 0.14 s beyond a stream's spacing was
-    measured, so the bound is two replan periods; deployed as processes the bar is one
-    (test_deployment). Before the heap was frozen, full collections made it 0.3 s.
+    a real-time iteration budget, a finer grid, control bounds, the model's inertia and another
+    method: each rebuilds NLPs in the background while the plan in force is replanned. Here
+    the simulator shares the planner's executor and interpreter (its integration, and the
+    cyclic garbage scipy leaves, hold up the planner's timers): up to 0.14 s beyond a stream's
+    spacing was measured, so the bound is two replan periods; deployed as processes the bar is
+    one (test_deployment). Before the heap was frozen, full collections made it 0.3 s.
     """
     monkeypatch.setenv('NH_TRACKING_CACHE', str(tmp_path))
     pair = WallClockPair(graph)
@@ -127,10 +127,10 @@ def test_reconfiguring_never_stops_the_plan_in_force(graph, tmp_path, monkeypatc
     spacing = {'cmd_vel': 1.0 / planner.params['cmd_rate'],
                'control_sequence': planner.params['replan_period']}
     for change in ({'compiled': True}, {'iterations': 1}, {'steps': 40}, {'u_max': [5.0]},
-                   {'method': 'multiple_shooting', 'compiled': False, 'iterations': 0,
-                    'u_max': []}):
+                   {'J': 5.5}, {'method': 'multiple_shooting', 'compiled': False,
+                                'iterations': 0, 'u_max': []}):
         since = time.monotonic()
-        replaced = weakref.ref(planner.planner)
+        replaced, model = weakref.ref(planner.planner), weakref.ref(planner.live.system)
         result = planner.set_parameters_atomically([  # [] alone would be a byte array
             Parameter(k, Parameter.Type.DOUBLE_ARRAY, v) if isinstance(v, list)
             else Parameter(k, value=v) for k, v in change.items()])
@@ -141,8 +141,10 @@ def test_reconfiguring_never_stops_the_plan_in_force(graph, tmp_path, monkeypatc
         took = time.monotonic() - since
         count = sequences.count()
         assert wait_until(lambda: sequences.count() > count + 3, 10.0)
-        # the session froze the heap: a replaced planner must go by reference counting alone
+        # the session froze the heap: a replaced planner, and a replaced model with its NLPs,
+        # must go by reference counting alone
         assert replaced() is None, change
+        assert (model() is None) == ('J' in change), change
         gaps = {'cmd_vel': cmd.max_gap(since), 'control_sequence': sequences.max_gap(since)}
         print(f'\n{change}: new solver after {took:.2f} s; longest gap meanwhile: ' + ', '.join(
             f'{k} {g * 1e3:.0f} ms (period {spacing[k] * 1e3:.0f} ms)' for k, g in gaps.items()))

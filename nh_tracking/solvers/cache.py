@@ -48,7 +48,11 @@ def builds_deferred() -> Iterator[None]:
 
 
 class PerSystemCache(Generic[T]):
-    """Building a CasADi NLP or flow takes far longer than solving it, so each is built once."""
+    """Building a CasADi NLP or flow takes far longer than solving it, so each is built once.
+
+    Held per system, and dropped with it: a cached structure must not reference its system
+    (the store holds the structure, so the weakly held system would live on, with its NLPs).
+    """
 
     def __init__(self) -> None:
         self._store: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()

@@ -163,6 +163,7 @@ def _work() -> None:
         with _LOCK:
             job.finished = True
             users = [] if job.error else list(job.ready)
+            job.ready.clear()  # they hold their NLPs: let them go with their systems
         for use in users:
             try:
                 use(job.library)

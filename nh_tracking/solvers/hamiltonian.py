@@ -36,7 +36,6 @@ class PontryaginFlow:
     variational equations Phi' = (d zdot/dz) Phi, so shooting gets exact Jacobians.
     """
 
-    system: NonholonomicSystem
     rhs: ca.Function  # (z, q_r, v_r, eps, u_lo, u_hi) -> (zdot, running cost, d zdot/dz)
     control: ca.Function  # (z, eps, u_lo, u_hi) -> u*
     dim: int  # len(z) = 2 (n + k)
@@ -70,7 +69,6 @@ def _build(system: NonholonomicSystem) -> PontryaginFlow:
     dim = 2 * (n + k)
     zdot = ca.vertcat(ca.gradient(h_star, p), -ca.gradient(h_star, x))
     return PontryaginFlow(
-        system=system,
         rhs=ca.Function('pmp_rhs', [z, qr, vr, eps, lo, hi],
                         [zdot, ca.substitute(running, u, u_star), ca.jacobian(zdot, z)]),
         control=ca.Function('pmp_control', [z, eps, lo, hi], [u_star]),

@@ -51,7 +51,7 @@ class Transcription:
     for an underactuated system.
     """
 
-    system: NonholonomicSystem
+    controls: int  # r when the controls are unknowns (underactuated), else 0
     steps: int
     terminal: str
     nlp: BoundedNlp | None  # None: real-time iterations by Gauss-Newton steps (newton)
@@ -86,8 +86,8 @@ class Transcription:
         """Stage-wise unknowns from knots q (N+1, n), v (N+1, k) and controls u (N, r)."""
         mid = 0.5 * (q[1:] + q[:-1])
         parts = [q[:-1], v[:-1], v[1:], mid]
-        if not self.system.fully_actuated:
-            parts.append(np.zeros((self.steps, self.system.r)) if u is None else u)
+        if self.controls:
+            parts.append(np.zeros((self.steps, self.controls)) if u is None else u)
         return np.concatenate([np.hstack(parts).ravel(), q[-1], v[-1]])
 
 
@@ -200,7 +200,7 @@ def _build(system: NonholonomicSystem, steps: int, terminal: str, solver: str,
                           [knots_q, knots_v, ca.horzcat(*controls),
                            ca.mmax(ca.fabs(ca.horzcat(*residuals))), running])
     return Transcription(
-        system=system, steps=big_n, terminal=terminal, nlp=bounded_nlp,
+        controls=0 if eliminated else r, steps=big_n, terminal=terminal, nlp=bounded_nlp,
         readout=NumericFunction(readout), admissibility_rows=np.array(adm_rows, dtype=int),
         dynamics_rows=np.array(dyn_rows, dtype=int), limits=limits,
         rows=constraints.shape[0], unknowns=unknowns.shape[0], soft_index=soft_index,

@@ -41,7 +41,6 @@ SUBSTEPS = 2  # RK4 steps per control interval
 
 @dataclass
 class ShootingTranscription:
-    system: NonholonomicSystem
     steps: int
     nlp: BoundedNlp
     running_cost: ca.Function  # (w, p) -> integrated running cost
@@ -114,7 +113,7 @@ def _build(system: NonholonomicSystem, steps: int, terminal: str,
     if shape.soft:
         nlp, soft_index = soften(nlp, limits)
     solver = BoundedNlp(f'multiple_shooting_{system.name}_{steps}', 'ipopt', nlp, {}, bounded)
-    return ShootingTranscription(system=system, steps=steps, nlp=solver,
+    return ShootingTranscription(steps=steps, nlp=solver,
                                  running_cost=ca.Function('running', [w, p], [running]),
                                  limits=limits, rows=g.rows, soft_index=soft_index)
 
