@@ -79,14 +79,14 @@ def run(make_node: Callable[[], Node], usage: Callable[[], str],
         print(f'cannot start: {str(exc).splitlines()[0]}', file=sys.stderr)
         return 2
     responsive_threads()
-    gc.collect()  # the node as built lives as long as the process: no collection walks it
-    gc.freeze()
     # Single-threaded on purpose: the solver runs in the planner's own worker thread, and
     # rclpy's MultiThreadedExecutor (7.1, Jazzy) starves timers when another node subscribes
     # to what they publish (ros2/rclpy#1223, #1452).
     executor = SingleThreadedExecutor()
     executor.add_node(node)
     try:
+        gc.collect()  # the node as built lives as long as the process: no collection walks it
+        gc.freeze()  # (inside: a Ctrl-C during the collection ends cleanly too)
         executor.spin()
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
