@@ -21,7 +21,7 @@ import pytest
 from faults import Faulty
 import nh_tracking as nht
 from nh_tracking.examples.experiments import SLEIGH_REFERENCE_START, SLEIGH_START
-from nh_tracking.fallback import TrackingLaw
+from nh_tracking.fallback import fallback_plan, TrackingLaw
 from nh_tracking.poses import PoseMap, wrap_angle
 import nh_tracking.receding_horizon as rh
 from systems import ALL_SYSTEMS, random_state
@@ -123,6 +123,22 @@ def test_fallback_law_tracks_a_unicycle():
                       rtol=1e-7, atol=1e-9)
     q_ref, _ = prob.reference_at(prob.grid)
     assert np.linalg.norm(tr.q[-1, :2] - q_ref[-1, :2]) < 1e-3
+
+
+@pytest.mark.parametrize('name', ['unicycle', 'chaplygin_sleigh', 'rolling_disk'])
+def test_the_fallback_plan_is_what_its_controls_do_held(name):
+    """The fallback plan's motion is its controls held per interval (as a robot applies them).
+
+    Checked against the tight adaptive integration of those held controls.
+    """
+    model = nht.models.create(name)
+    ref = nht.simulate(model, np.zeros(model.n), np.full(model.k, 0.4), np.linspace(0, 8, 81))
+    q0 = ref.q[0] + np.r_[0.3, -0.2, np.zeros(model.n - 2)]
+    prob = nht.TrackingProblem(model, ref, q0, np.zeros(model.k), horizon=3.0, steps=30)
+    plan = fallback_plan(prob)
+    held = nht.simulate(model, prob.q0, prob.v0, prob.grid, plan.u)
+    assert np.abs(plan.q - held.q).max() < 1e-5 and np.abs(plan.v - held.v).max() < 1e-5
+    assert np.abs(plan.u).max() > 0.1  # the law did act
 
 
 @pytest.mark.parametrize('bad', [{'horizon': -1.0}, {'steps': 1}, {'epsilon': 0.0},
