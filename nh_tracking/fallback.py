@@ -32,6 +32,7 @@ import numpy as np
 from nh_tracking.limits import knots_and_midpoints, Limits
 from nh_tracking.poses import PoseMap, wrap_angle
 from nh_tracking.problem import Solution, terminal_error, TrackingProblem
+from nh_tracking.simulate import held_rk4
 from nh_tracking.solvers.cache import PerSystemCache
 from nh_tracking.system import NonholonomicSystem
 from nh_tracking.trajectory import Trajectory
@@ -105,14 +106,7 @@ def held_rollout(problem: TrackingProblem, control: TrackingLaw) -> Trajectory:
 
 def _held_step(system: NonholonomicSystem) -> ca.Function:
     x, u, h = ca.SX.sym('x', system.n + system.k), ca.SX.sym('u', system.r), ca.SX.sym('h')
-    dt, y = h / HELD_SUBSTEPS, x
-    for _ in range(HELD_SUBSTEPS):
-        k1 = system.ode_fn(y, u)
-        k2 = system.ode_fn(y + dt / 2 * k1, u)
-        k3 = system.ode_fn(y + dt / 2 * k2, u)
-        k4 = system.ode_fn(y + dt * k3, u)
-        y = y + dt / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
-    return ca.Function('held_step', [x, u, h], [y])
+    return ca.Function('held_step', [x, u, h], [held_rk4(system, x, u, h, HELD_SUBSTEPS)])
 
 
 def fallback_plan(problem: TrackingProblem, gains: KanayamaGains = KanayamaGains(),

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 
+import casadi as ca
 import numpy as np
 from numpy.typing import ArrayLike
 from scipy.integrate import solve_ivp
@@ -107,6 +108,21 @@ def simulate(
             knots.append(integrate(times[i:i + 2], knots[-1], lambda s, x, ui=ui: ui)[-1])
         states = np.array(knots)
     return Trajectory(t=times, q=states[:, :n], v=states[:, n:], u=controls)
+
+
+def held_rk4(system: NonholonomicSystem, x: ca.SX, u: ca.SX, h: ca.SX, substeps: int) -> ca.SX:
+    """Return the state after ``h`` with ``u`` held, symbolically: ``substeps`` RK4 steps.
+
+    Fixed steps in one expression: for what replays or rolls out held controls many times.
+    """
+    dt = h / substeps
+    for _ in range(substeps):
+        k1 = system.ode_fn(x, u)
+        k2 = system.ode_fn(x + dt / 2 * k1, u)
+        k3 = system.ode_fn(x + dt / 2 * k2, u)
+        k4 = system.ode_fn(x + dt * k3, u)
+        x = x + dt / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
+    return x
 
 
 def drive(system: NonholonomicSystem, q0: ArrayLike, v: ArrayLike, duration: float, *,

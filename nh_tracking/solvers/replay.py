@@ -26,6 +26,7 @@ import casadi as ca
 import numpy as np
 
 from nh_tracking.numeric import NumericFunction
+from nh_tracking.simulate import held_rk4
 from nh_tracking.solvers.cache import PerSystemCache
 from nh_tracking.system import NonholonomicSystem
 
@@ -40,13 +41,7 @@ def _step(system: NonholonomicSystem) -> NumericFunction:
     def build() -> NumericFunction:
         x = ca.SX.sym('x', system.n + system.k)
         u, h = ca.SX.sym('u', system.r), ca.SX.sym('h')
-        end, dt = x, h / SUBSTEPS
-        for _ in range(SUBSTEPS):
-            k1 = system.ode_fn(end, u)
-            k2 = system.ode_fn(end + dt / 2 * k1, u)
-            k3 = system.ode_fn(end + dt / 2 * k2, u)
-            k4 = system.ode_fn(end + dt * k3, u)
-            end = end + dt / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
+        end = held_rk4(system, x, u, h, SUBSTEPS)
         return NumericFunction(ca.Function('held_step', [x, u, h],
                                            [end, ca.jacobian(end, u), ca.jacobian(end, x)]))
     return _CACHE.get(system, 'step', build)
