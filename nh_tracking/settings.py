@@ -88,10 +88,13 @@ def _numbers(value: Any, name: str) -> tuple[float, ...]:
     if value is None:  # what a params file's [] becomes (rcl has no typed empty array)
         return ()
     # array('d'): how a double array set through the set_parameters service arrives
-    if not isinstance(value, (list, tuple, array.array)) or not all(
-            isinstance(v, (int, float)) and not isinstance(v, bool) and not math.isnan(v)
-            for v in value):
+    if isinstance(value, array.array):
+        value = value.tolist()
+    if not isinstance(value, (list, tuple)) or not all(
+            isinstance(v, (int, float)) and not isinstance(v, bool) for v in value):
         raise ValueError(f'{name} must be a list of numbers, got {value!r}')
+    if any(math.isnan(v) for v in value):
+        raise ValueError(f'{name} must not contain NaN (use +-inf for no bound), got {value}')
     return tuple(float(v) for v in value)
 
 

@@ -149,6 +149,16 @@ def test_bad_settings_are_refused(bad):
         rh.PlannerSettings(**bad)
 
 
+def test_bounds_as_the_parameter_services_send_them():
+    """A double array set at run time arrives as array('d'); NaN is refused by name."""
+    from array import array
+    assert rh.PlannerSettings(u_max=array('d', [5.0]), v_min=array('d')).u_max == (5.0,)
+    with pytest.raises(ValueError, match=r'u_max must not contain NaN .*got \[nan\]'):
+        rh.PlannerSettings(u_max=array('d', [float('nan')]))
+    with pytest.raises(ValueError, match='u_min must be a list of numbers'):
+        rh.PlannerSettings(u_min=['fast'])
+
+
 def test_nan_from_the_dynamics_gives_a_finite_stop_plan():
     """A knife edge whose potential is NaN for x < -50 (sqrt), far from where it was checked.
 
