@@ -47,7 +47,7 @@ class _Build:
     settings: PlannerSettings
 
 
-def _settle_heap(generation: int) -> None:
+def settle_heap(generation: int) -> None:
     """Collect ``generation`` and exempt every object alive then from later collections.
 
     A full collection holds the interpreter while it walks every tracked object: 100 ms in a
@@ -122,7 +122,7 @@ class TrackingSession:
                                           name='nh_tracking_builder', daemon=True)]
         for thread in self._threads:
             thread.start()
-        _settle_heap(2)
+        settle_heap(2)
 
     def stop(self, timeout: float = 10.0) -> None:
         self._stop.set()
@@ -225,7 +225,7 @@ class TrackingSession:
             else:
                 self.pose_map = PoseMap(system)
             self.planner = planner
-        _settle_heap(1)
+        settle_heap(1)
         with self._lock:
             self._pending = None if self._pending is build else self._pending
         self.log('info', f'rebuilt in {time.perf_counter() - started:.2f} s: {build.settings}')

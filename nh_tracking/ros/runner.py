@@ -19,7 +19,6 @@ Start-up errors as one line and exit code 2, spin, and a clean exit (code 0) on 
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
-import gc
 import signal
 import sys
 
@@ -27,6 +26,8 @@ import rclpy
 from rclpy.exceptions import ParameterException
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
+
+from nh_tracking.session import settle_heap
 
 HELP = ('-h', '--help')
 SWITCH_INTERVAL = 5e-4  # s
@@ -85,8 +86,8 @@ def run(make_node: Callable[[], Node], usage: Callable[[], str],
     executor = SingleThreadedExecutor()
     executor.add_node(node)
     try:
-        gc.collect()  # the node as built lives as long as the process: no collection walks it
-        gc.freeze()  # (inside: a Ctrl-C during the collection ends cleanly too)
+        settle_heap(2)  # the node as built lives as long as the process (inside the try: a
+        # Ctrl-C during the collection ends cleanly too)
         executor.spin()
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
