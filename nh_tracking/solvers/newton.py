@@ -61,7 +61,8 @@ def newton_steps(step: NumericFunction, w: np.ndarray, p: np.ndarray, iterations
 
     At most ``most`` steps in all, and none once the residual grows (far from the solution,
     where Gauss-Newton without a line search diverges: a converged solve is the caller's
-    remedy). Returns the unknowns, the last multipliers and the number of steps taken. A step
+    remedy). Returns the unknowns, the last multipliers and the number of steps taken; the
+    last call of ``residual`` was at the unknowns returned (callers reuse what it read). A step
     costs a tenth of a millisecond, so a plan that one step leaves short of admissible (the
     robot off the previous plan by centimetres) gets another rather than a converged solve.
     """

@@ -154,10 +154,16 @@ def _solve_with(problem: TrackingProblem, initial_guess: Guess | None, stop: flo
     # a guess within the limits (a previous plan) is warm: near the optimum and its active set
     warm = initial_guess is not None and problem.limits.violation(
         knots_and_midpoints(q_g), v_g) <= VIOLATION_TOL
+    readouts: list[list[np.ndarray]] = []  # each Newton step's plan; the last is the one kept
     if tr.nlp is None:  # a real-time iteration without limits: Gauss-Newton steps
+
+        def admissibility(w: np.ndarray) -> float:
+            readouts.append(tr.readout(w, p))
+            return float(readouts[-1][3][0])
+
         w_new, lam_g, taken = newton_steps(
             tr.newton, w0, p, iterations,  # type: ignore[arg-type]
-            lambda w: float(tr.readout(w, p)[3][0]), RTI_RESIDUAL, iterations + RTI_EXTRA_STEPS)
+            admissibility, RTI_RESIDUAL, iterations + RTI_EXTRA_STEPS)
         outcome = Outcome({'x': w_new, 'lam_g': lam_g}, bool(np.all(np.isfinite(w_new))),
                           taken, 'real-time iteration')
     else:
@@ -165,7 +171,7 @@ def _solve_with(problem: TrackingProblem, initial_guess: Guess | None, stop: flo
                                **bounds)
     elapsed = time.perf_counter() - start
     w = np.array(outcome.result['x']).ravel()[:tr.unknowns]
-    q, v, u, residual, running = tr.readout(w, p)
+    q, v, u, residual, running = readouts[-1] if readouts else tr.readout(w, p)
     q, v, u, max_residual = q.T.copy(), v.T.copy(), u.T.copy(), float(residual[0])
     lam_g = np.array(outcome.result['lam_g']).ravel()
     # The paper's multipliers are lambda^k = (h/2) c_k (c_k: multiplier of the stage form of
