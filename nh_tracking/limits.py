@@ -228,8 +228,10 @@ def clear_of_start(discs: np.ndarray, point: np.ndarray, velocity: np.ndarray,
     Each such disc is shrunk to leave the robot where it is, less what its approach speed
     carries it in one ``interval`` (so the plan's first midpoint can be clear too): a
     replanning robot that drifted a little inside the margin it keeps (model error, a disc
-    redrawn) gets a plan from the NLP it has that comes no closer, instead of no plan. At rest
-    nothing is given away, so replans cannot ratchet the robot in. A disc the robot is within
+    redrawn) gets a plan from the NLP it has, instead of no plan; it comes closer by at most
+    that one interval's approach per replan, while the plan brakes it (a robot at 0.41 m of a
+    disc when its clearance became 0.5 m stopped at 0.36 m). At rest nothing is given away, so
+    replans cannot ratchet a stopped robot in. A disc the robot is within
     its radius of is shrunk to a point and still breaks the limit: the least-violating plan's.
     """
     discs = np.array(discs, dtype=float).reshape(-1, 3)

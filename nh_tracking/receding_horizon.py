@@ -264,10 +264,13 @@ class RecedingHorizonPlanner:
                                sol.message, reference)
         if self.previous is not None and self.previous.t[-1] > t:
             shifted = self._shifted(problem, self.previous)
-            self.previous = shifted
-            self.stats.shifted += 1
-            return PlanOutcome(shifted, PlanStatus.SHIFTED, solve_time, missed,
-                               f'kept the previous plan, shifted ({error})', reference)
+            if avoidance.no_deeper(problem, shifted, discs):
+                self.previous = shifted
+                self.stats.shifted += 1
+                return PlanOutcome(shifted, PlanStatus.SHIFTED, solve_time, missed,
+                                   f'kept the previous plan, shifted ({error})', reference)
+            # made before an obstacle appeared or the limits changed: it would drive into them
+            error = f'{error}; the previous plan breaks the limits in force'
         plan, what = fallback(problem, avoidance.limits(discs))
         status = PlanStatus.STOP if plan.route == 'stop' else PlanStatus.FALLBACK
         self.previous = plan  # the plan in force: shifted if the next solve fails too

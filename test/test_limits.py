@@ -308,3 +308,39 @@ def test_a_robot_inside_an_obstacle_is_given_the_way_out():
     if outcome.status == 'least-violating':  # only if it goes no deeper than it is
         clearance = ahead.clearance(outcome.plan.q)
         assert clearance.min() >= clearance[0].min() - TOL
+
+
+@pytest.mark.parametrize('change', [None, 'an obstacle appears', 'the robot grows',
+                                    'u_max tightens'])
+def test_a_previous_plan_that_breaks_the_limits_now_in_force_is_not_kept(change):
+    """A failed replan keeps the previous plan, shifted, only if it keeps the limits in force.
+
+    The plan was made before the obstacle was known (or for a smaller robot, or looser
+    torques): following it on would drive into what the planner now knows. A deployed
+    planner did exactly that after robot_radius was raised with the robot already inside the
+    new clearance (the soft NLP not yet built, every replan failed): it kept its old plan down
+    to the bare disc's edge.
+    """
+    import nh_tracking.receding_horizon as rh
+
+    unicycle = nht.models.unicycle()
+    planner = rh.RecedingHorizonPlanner(unicycle, rh.PlannerSettings(horizon=5.0, steps=50))
+    planner.prepare()
+    planner.set_reference(_line())
+    planner.obstacles = np.array([[1.2, 0.25, 0.2]])  # 0.05 m off the plan: clear at radius 0
+    start = (np.array([0.1, 0.0, 0.0]), np.array([0.5, 0.0]))
+    assert planner.plan(0.0, *start).status == 'optimal'
+    changes: dict = {None: {}, 'an obstacle appears': {}, 'the robot grows': {'robot_radius': 0.3},
+                     'u_max tightens': {'u_min': (-0.01,), 'u_max': (0.01,)}}[change]
+    planner.update(max_solve_time=1e-6, **changes)  # every replan now misses its deadline
+    if change == 'an obstacle appears':
+        planner.obstacles = np.vstack([planner.obstacles, [1.5, 0.0, 0.3]])
+    outcome = planner.plan(0.1, *start)
+    if change is None:  # nothing changed: the plan still holds, and is kept
+        assert outcome.status == 'shifted', outcome.message
+        return
+    assert outcome.status in ('fallback', 'stop'), outcome.message
+    assert 'breaks the limits in force' in outcome.message
+    if change != 'u_max tightens':
+        grown = planner.avoidance.limits(planner.obstacles)
+        assert grown.clearance(outcome.plan.q).min() > 0.0  # it brakes short of the disc
