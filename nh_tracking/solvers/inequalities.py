@@ -82,6 +82,7 @@ class Rows:
     plane: tuple[int, int] | None
     obstacles: ca.SX = field(init=False)  # parameters: (x, y, R, on) per slot
     kinds: list[tuple[int, int, str]] = field(default_factory=list)  # (first row, size, kind)
+    _index: dict[str, tuple[np.ndarray, np.ndarray]] = field(default_factory=dict, repr=False)
 
     def __post_init__(self) -> None:
         self.obstacles = ca.SX.sym('obstacles', 4 * self.shape.slots)
@@ -119,17 +120,28 @@ class Rows:
     def bounds(self, rows: int, limits: Limits) -> tuple[np.ndarray, np.ndarray]:
         """Lower and upper bounds of all ``rows`` of g: 0 for equalities, the limits else."""
         lower, upper = np.zeros(rows), np.zeros(rows)
-        for start, size, kind in self.kinds:
-            pair = {'u': limits.controls, 'v': limits.velocities,
-                    'clear': np.vstack([np.zeros(size), np.full(size, np.inf)])}[kind]
-            lower[start:start + size], upper[start:start + size] = pair[0], pair[1]
+        for kind, pair in (('u', limits.controls), ('v', limits.velocities)):
+            index, channel = self._rows(kind)
+            lower[index], upper[index] = pair[0][channel], pair[1][channel]
+        upper[self._rows('clear')[0]] = np.inf
         return lower, upper
 
-    def inequality_mask(self, rows: int) -> np.ndarray:
+    def inequality_mask(self, rows: int, kinds: tuple[str, ...] = ('u', 'v', 'clear')
+                        ) -> np.ndarray:
+        """Which of ``rows`` rows of g are limits of these kinds."""
         mask = np.zeros(rows, dtype=bool)
-        for start, size, _ in self.kinds:
-            mask[start:start + size] = True
+        for kind in kinds:
+            mask[self._rows(kind)[0]] = True
         return mask
+
+    def _rows(self, kind: str) -> tuple[np.ndarray, np.ndarray]:
+        """Return the rows of g of one kind and their channels (or slots): read every solve."""
+        if kind not in self._index:
+            blocks = [(start, size) for start, size, k in self.kinds if k == kind]
+            self._index[kind] = (
+                np.array([start + j for start, size in blocks for j in range(size)], dtype=int),
+                np.array([j for _, size in blocks for j in range(size)], dtype=int))
+        return self._index[kind]
 
 
 def soften(nlp: dict[str, ca.SX], rows: Rows) -> tuple[dict[str, ca.SX], np.ndarray]:

@@ -32,7 +32,7 @@ from nh_tracking.numeric import NumericFunction
 from nh_tracking.problem import tracking_lagrangian, tracking_residual, TrackingProblem
 from nh_tracking.solvers.cache import PerSystemCache
 from nh_tracking.solvers.inequalities import ConstraintStack, Rows, Shape, soft_bounds, soften
-from nh_tracking.solvers.newton import gauss_newton_step
+from nh_tracking.solvers.newton import GaussNewtonStep
 from nh_tracking.solvers.nlp import BoundedNlp
 from nh_tracking.system import NonholonomicSystem
 
@@ -64,7 +64,10 @@ class Transcription:
     rows: int  # of the hard NLP's g
     unknowns: int  # of the hard NLP's x
     soft_index: np.ndarray | None  # softened: the inequality rows given slacks
-    newton: NumericFunction | None  # real-time iterations without limits: (w, p) -> (w, lam_g)
+    # Gauss-Newton steps (real-time iterations; warm replanning with hard limits):
+    # (w, p, active, target) -> (w + dw, lam_g, linearised g)
+    newton: GaussNewtonStep | None
+    constraints: NumericFunction | None  # with newton: (w, p) -> g
 
     def parameters(self, problem: TrackingProblem) -> np.ndarray:
         q_knots, v_knots, q_mid, v_mid = problem.reference_samples
@@ -187,11 +190,13 @@ def _build(system: NonholonomicSystem, steps: int, terminal: str, solver: str,
         options.update({'structure_detection': 'auto',
                         'equality': [bool(e) for e in
                                      ~limits.inequality_mask(constraints.shape[0])]})
-    # a real-time iteration without limits is one Gauss-Newton step in one call: no NLP solver
-    newton, bounded_nlp = None, None
-    if iterations and not limits.kinds:
-        newton = gauss_newton_step(unknowns, p, ca.vertcat(*cost_residuals), constraints)
-    else:
+    # a real-time iteration without limits is one Gauss-Newton step in one call: no NLP
+    # solver; with hard limits the same step, with a working set, replans from a warm plan
+    newton, rows, bounded_nlp = None, None, None
+    if (iterations or limits.kinds) and not shape.soft:
+        newton = GaussNewtonStep(unknowns, p, ca.vertcat(*cost_residuals), constraints)
+        rows = NumericFunction(ca.Function('constraints', [unknowns, p], [constraints]))
+    if limits.kinds or not iterations:
         bounded_nlp = BoundedNlp(f'variational_{system.name}_{big_n}', solver, nlp, options,
                                  bounded, compiled, bool(limits.kinds), iterations)
     knots_q = ca.horzcat(*[x[:n] for x in xs])
@@ -204,5 +209,5 @@ def _build(system: NonholonomicSystem, steps: int, terminal: str, solver: str,
         readout=NumericFunction(readout), admissibility_rows=np.array(adm_rows, dtype=int),
         dynamics_rows=np.array(dyn_rows, dtype=int), limits=limits,
         rows=constraints.shape[0], unknowns=unknowns.shape[0], soft_index=soft_index,
-        newton=newton,
+        newton=newton, constraints=rows,
     )

@@ -39,22 +39,69 @@ REGULARISATION = 1e-10  # of JᵀJ: the step only, no bias at the solution
 DUAL_REGULARISATION = 1e-13  # of the (2, 2) block: the solution moves by about this times λ
 
 
-def gauss_newton_step(w: ca.SX, p: ca.SX, residual: ca.SX, g: ca.SX) -> NumericFunction:
-    """Return (w, p) -> (w + dw, λ) for min 1/2 |residual|^2 subject to g = 0."""
-    jac_r, jac_g = ca.jacobian(residual, w), ca.jacobian(g, w)
-    nw, ng = w.shape[0], g.shape[0]
-    hessian = ca.mtimes(jac_r.T, jac_r) + REGULARISATION * ca.SX.eye(nw)
-    kkt = ca.blockcat([[hessian, jac_g.T], [jac_g, -DUAL_REGULARISATION * ca.SX.eye(ng)]])
-    rhs = ca.vertcat(-ca.mtimes(jac_r.T, residual), -g)
-    assemble = ca.Function('gauss_newton_kkt', [w, p], [kkt, rhs])
-    w_mx, p_mx = ca.MX.sym('w', nw), ca.MX.sym('p', p.shape[0])
-    matrix, vector = assemble(w_mx, p_mx)
-    step = ca.solve(matrix, vector, 'ldl')
-    return NumericFunction(ca.Function('gauss_newton_step', [w_mx, p_mx],
-                                       [w_mx + step[:nw], step[nw:]]))
+class GaussNewtonStep:
+    """(w, p, active, target, curvature) -> (w + dw, λ, g + G dw, |stationarity|).
+
+    The step of min 1/2 |residual|^2 subject to the rows of g in the working set (``active``
+    1) held at ``target`` — linearised, g_i + G_i dw = target_i — and the others left free
+    (their λ_i = 0): a free row becomes -λ_i = 0 in the same matrix, so one function, one
+    sparsity and one factorisation pattern serve every working set. Equalities are rows always
+    active with target 0. The Hessian is JᵀJ plus the constraints' own curvature weighted by
+    ``curvature`` (the last multipliers; zeros: pure Gauss-Newton, positive semi-definite).
+    Stationarity is |Jᵀr + Gᵀλ|∞ at w with the new multipliers: zero at a KKT point.
+    """
+
+    def __init__(self, w: ca.SX, p: ca.SX, residual: ca.SX, g: ca.SX) -> None:
+        jac_r, jac_g = ca.jacobian(residual, w), ca.jacobian(g, w)
+        nw, self.rows = w.shape[0], g.shape[0]
+        active, target = ca.SX.sym('active', self.rows), ca.SX.sym('target', self.rows)
+        curvature, exact = ca.SX.sym('curvature', self.rows), ca.SX.sym('exact')
+        held = ca.times(ca.repmat(active, 1, nw), jac_g)  # the sparsity of G, rows off
+        weights = ca.SX.sym('weights', residual.shape[0])  # the residuals' own curvature:
+        second = ca.substitute(ca.hessian(ca.dot(weights, residual), w)[0], weights,
+                               exact * residual)  # sum r_i Hess r_i, the rest of Hess 1/2|r|^2
+        hessian = (ca.mtimes(jac_r.T, jac_r) + REGULARISATION * ca.SX.eye(nw) + second
+                   + ca.hessian(ca.dot(curvature, g), w)[0])
+        dual = ca.diag(1 - active + DUAL_REGULARISATION * active)
+        kkt = ca.blockcat([[hessian, held.T], [held, -dual]])
+        gradient = ca.mtimes(jac_r.T, residual)
+        rhs = ca.vertcat(-gradient, active * (target - g))
+        inputs = [w, p, active, target, curvature, exact]
+        self._sparsity = kkt.sparsity()  # the matrix as its nonzeros: a fast buffered call
+        self._kkt = NumericFunction(ca.Function('gauss_newton_kkt', inputs, [kkt.nz[:]]))
+        assemble = ca.Function('gauss_newton_system', inputs, [kkt, rhs, g, jac_g, gradient])
+        symbols = [ca.MX.sym('w', nw), ca.MX.sym('p', p.shape[0])] + [
+            ca.MX.sym(name, self.rows) for name in ('active', 'target', 'curvature')] + [
+            ca.MX.sym('exact')]
+        matrix, vector, values, jacobian, grad = assemble(*symbols)
+        step = ca.solve(matrix, vector, 'ldl')
+        dw, multipliers = step[:nw], step[nw:]
+        stationarity = ca.mmax(ca.fabs(grad + ca.mtimes(jacobian.T, multipliers)))
+        self._step = NumericFunction(ca.Function(
+            'gauss_newton_step', symbols,
+            [symbols[0] + dw, multipliers, values + ca.mtimes(jacobian, dw), stationarity]))
+        self._inertia: ca.Linsol | None = None
+
+    def __call__(self, *args: np.ndarray | float) -> list[np.ndarray]:
+        return self._step(*args)
+
+    def minimum(self, *args: np.ndarray | float) -> bool:
+        """Whether the model at (w, p, active, target, curvature) curves up on the held rows.
+
+        Its KKT matrix then has exactly one negative eigenvalue per row of g (Sylvester's law
+        of inertia on an LDLᵀ factorisation); one more is a direction of negative curvature
+        along the held limits — a saddle, which Newton's method converges to as readily as
+        to a minimum (going round an obstacle is not convex).
+        """
+        matrix = ca.DM(self._sparsity, self._kkt(*args)[0])
+        if self._inertia is None:
+            self._inertia = ca.Linsol('gauss_newton_inertia', 'ldl', self._sparsity)
+            self._inertia.sfact(matrix)
+        self._inertia.nfact(matrix)
+        return int(self._inertia.neig(matrix)) == self.rows
 
 
-def newton_steps(step: NumericFunction, w: np.ndarray, p: np.ndarray, iterations: int,
+def newton_steps(step: GaussNewtonStep, w: np.ndarray, p: np.ndarray, iterations: int,
                  residual: Callable[[np.ndarray], float], tolerance: float, most: int
                  ) -> tuple[np.ndarray, np.ndarray, int]:
     """Take ``iterations`` steps from w, then more while the residual is above ``tolerance``.
@@ -67,8 +114,9 @@ def newton_steps(step: NumericFunction, w: np.ndarray, p: np.ndarray, iterations
     robot off the previous plan by centimetres) gets another rather than a converged solve.
     """
     multipliers, taken, last = np.zeros(0), 0, np.inf
+    every, zero = np.ones(step.rows), np.zeros(step.rows)  # equalities: all held at 0
     while taken < most:
-        w, multipliers = step(w, p)
+        w, multipliers = step(w, p, every, zero, zero, 0.0)[:2]
         taken += 1
         if taken >= iterations:
             now = residual(w)

@@ -41,9 +41,10 @@ from nh_tracking.problem import Solution, terminal_cost, terminal_error, Trackin
 from nh_tracking.solvers.base import Guess, Method, Structure
 from nh_tracking.solvers.cache import NotPrepared
 from nh_tracking.solvers.inequalities import Shape, start_violation, VIOLATION_TOL
-from nh_tracking.solvers.midpoint import BACKENDS, transcription
+from nh_tracking.solvers.midpoint import BACKENDS, Transcription, transcription
 from nh_tracking.solvers.newton import newton_steps
 from nh_tracking.solvers.nlp import DEADLINE, deadline_after, Outcome
+from nh_tracking.solvers.working_set import working_set_solve
 from nh_tracking.system import NonholonomicSystem
 
 RTI_RESIDUAL = 1e-3  # a real-time iteration's plan must be this close to admissible
@@ -155,7 +156,9 @@ def _solve_with(problem: TrackingProblem, initial_guess: Guess | None, stop: flo
     warm = initial_guess is not None and problem.limits.violation(
         knots_and_midpoints(q_g), v_g) <= VIOLATION_TOL
     readouts: list[list[np.ndarray]] = []  # each Newton step's plan; the last is the one kept
+    route = solver if tr.soft_index is None else 'ipopt (soft limits)'
     if tr.nlp is None:  # a real-time iteration without limits: Gauss-Newton steps
+        route = 'gauss-newton'
 
         def admissibility(w: np.ndarray) -> float:
             readouts.append(tr.readout(w, p))
@@ -167,8 +170,12 @@ def _solve_with(problem: TrackingProblem, initial_guess: Guess | None, stop: flo
         outcome = Outcome({'x': w_new, 'lam_g': lam_g}, bool(np.all(np.isfinite(w_new))),
                           taken, 'real-time iteration')
     else:
-        outcome = tr.nlp.solve(stop, warm, x0=np.concatenate([w0, np.zeros(slacks)]), p=p,
-                               **bounds)
+        held = _working_set(tr, w0, p, bounds, stop) if warm else None
+        if held is not None:
+            outcome, route = held, 'gauss-newton (working set)'
+        else:  # cold, or the working set did not settle: interior point
+            outcome = tr.nlp.solve(stop, warm, x0=np.concatenate([w0, np.zeros(slacks)]), p=p,
+                                   **bounds)
     elapsed = time.perf_counter() - start
     w = np.array(outcome.result['x']).ravel()[:tr.unknowns]
     q, v, u, residual, running = readouts[-1] if readouts else tr.readout(w, p)
@@ -192,13 +199,25 @@ def _solve_with(problem: TrackingProblem, initial_guess: Guess | None, stop: flo
         t=problem.grid, q=q, v=v, u=u, cost=cost, success=success,
         iterations=outcome.iterations, solve_time=elapsed,
         terminal_error=terminal_error(problem, q[-1], v[-1]), method='variational',
-        message=message, route=('gauss-newton' if tr.nlp is None else solver)
-        if tr.soft_index is None else 'ipopt (soft limits)',
+        message=message, route=route,
         costates=(lam, mu),
         details={'admissibility_residual': max_residual, 'violation': violation,
                  'least_violating': tr.soft_index is not None and outcome.success
                  and bool(np.all(np.isfinite(w)))},  # the best plan a broken start has
     )
+
+
+def _working_set(tr: Transcription, w0: np.ndarray, p: np.ndarray,
+                 bounds: dict[str, np.ndarray], stop: float | None) -> Outcome | None:
+    """Replan with hard limits by Gauss-Newton steps on a working set (None: not settled)."""
+    if tr.newton is None or tr.constraints is None:  # soft limits
+        return None
+    found = working_set_solve(tr.newton, tr.constraints, w0, p, bounds['lbg'], bounds['ubg'],
+                              tr.limits.inequality_mask(tr.rows, ('clear',)), stop)
+    if found is None:
+        return None
+    return Outcome({'x': found.w, 'lam_g': found.multipliers}, True, found.factorisations,
+                   f'converged ({found.active} limit rows active)')
 
 
 def _failed(problem: TrackingProblem, q: np.ndarray, v: np.ndarray, elapsed: float,

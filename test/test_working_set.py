@@ -1,0 +1,113 @@
+# Copyright 2026 nh_tracking maintainers
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+
+"""Warm replanning with limits by Gauss-Newton steps on a working set, against the interior point.
+
+The working set is checked against fatrop solving the same problem from the same guess (the
+independent solver), on models and limits no issue names, and its saddle test on a problem
+whose two KKT points are known by hand.
+"""
+import casadi as ca
+import numpy as np
+import pytest
+
+import nh_tracking as nht
+import nh_tracking.receding_horizon as rh
+from nh_tracking.solvers import sample_plan, variational
+from nh_tracking.solvers.newton import GaussNewtonStep
+from nh_tracking.solvers.working_set import working_set_solve
+from systems import inclined_knife_edge
+
+
+def test_the_working_set_tells_the_minimum_beside_an_obstacle_from_the_saddle():
+    """Nearest point to (0.5, 0) outside the unit disc: (1, 0); (-1, 0) is a KKT point too.
+
+    There the multiplier has the right sign (-0.75) but the distance is largest along the
+    circle: a saddle, which Newton's method converges to from (-1, 0.05) — and must refuse.
+    """
+    w, p = ca.SX.sym('w', 2), ca.SX.sym('p', 0)
+    g = ca.sumsqr(w)
+    step = GaussNewtonStep(w, p, w - ca.DM([0.5, 0.0]), g)
+    values = nht.numeric.NumericFunction(ca.Function('g', [w, p], [g]))
+    lower, upper, convex = np.ones(1), np.full(1, np.inf), np.ones(1, dtype=bool)
+    found = working_set_solve(step, values, np.array([0.9, 0.5]), np.zeros(0), lower, upper,
+                              convex, None)
+    assert found is not None and found.active == 1
+    assert np.allclose(found.w, [1.0, 0.0], atol=1e-8)
+    assert found.multipliers[0] == pytest.approx(-0.25, abs=1e-8)  # CasADi's sign: lower bound
+    assert working_set_solve(step, values, np.array([-1.0, 0.05]), np.zeros(0), lower, upper,
+                             convex, None) is None
+    # unconstrained in effect (the target outside the disc): no row held, no check needed
+    found = working_set_solve(GaussNewtonStep(w, p, w - ca.DM([2.0, 1.0]), g), values,
+                              np.array([1.5, 0.5]), np.zeros(0), lower, upper, convex, None)
+    assert found is not None and found.active == 0 and np.allclose(found.w, [2.0, 1.0])
+
+
+def _line(duration: float, speed: float = 0.5) -> nht.Trajectory:
+    t = np.linspace(0.0, duration, int(duration * 10) + 1)
+    return nht.Trajectory(t, np.stack([speed * t, 0 * t, 0 * t], axis=1),
+                          np.tile([speed, 0.0], (len(t), 1)), np.zeros((len(t) - 1, 2)))
+
+
+CASES = {  # model, start (q, v), reference, settings, obstacles
+    'sleigh, |u| bounded': (
+        nht.models.chaplygin_sleigh, ([0.0, 0.0, 0.3], [0.0, 0.0]), 'sleigh',
+        {'u_min': (-0.2, -0.2), 'u_max': (0.2, 0.2)}, ()),
+    'unicycle, v bounded and two discs': (
+        nht.models.unicycle, ([0.0, 0.3, 0.0], [0.5, 0.0]), 'line',
+        {'v_min': (-0.55, -0.6), 'v_max': (0.55, 0.6), 'robot_radius': 0.15},
+        ((2.0, 0.05, 0.25), (4.0, -0.1, 0.2))),
+    'knife edge on a slope, torque bounded, a disc': (
+        inclined_knife_edge, ([0.0, -0.2, 0.0], [0.5, 0.0]), 'line',
+        {'u_min': (-2.0, -1.0), 'u_max': (2.0, 1.0), 'robot_radius': 0.1},
+        ((2.5, 0.0, 0.3),)),
+}
+
+
+@pytest.mark.parametrize('case', CASES)
+def test_warm_replans_with_limits_take_the_working_set_and_match_the_interior_point(
+        case, monkeypatch):
+    build, (q, v), kind, settings, discs = CASES[case]
+    model = build()
+    reference = (nht.simulate(model, [0.0, 0.0, 0.0], [0.6, 0.25, 0.0][:model.k],
+                              np.linspace(0, 20, 401)) if kind == 'sleigh' else _line(30.0))
+    planner = rh.RecedingHorizonPlanner(model, rh.PlannerSettings(horizon=4.0, steps=40,
+                                                                  **settings))
+    planner.prepare()
+    planner.set_reference(reference)
+    planner.obstacles = np.array(discs).reshape(-1, 3)
+    q, v, t = np.array(q, dtype=float), np.array(v, dtype=float), 0.0
+    compared, worst_cost, worst_q, active = 0, 0.0, 0.0, 0
+    for _ in range(60):
+        previous = planner.previous
+        plan = planner.plan(t, q, v).plan
+        assert plan.success and plan.details['violation'] <= 1e-6
+        if plan.route == 'gauss-newton (working set)':
+            problem = planner.problem(t, q, v)
+            with monkeypatch.context() as patch:
+                patch.setattr(variational, 'working_set_solve', lambda *args: None)
+                reference_plan = variational.solve_variational(problem,
+                                                               sample_plan(problem, previous))
+            assert reference_plan.success and 'working set' not in reference_plan.route
+            compared += 1
+            worst_cost = max(worst_cost, abs(plan.cost - reference_plan.cost)
+                             / reference_plan.cost)
+            worst_q = max(worst_q, float(np.abs(plan.q - reference_plan.q).max()))
+            active += 'limit rows active' in plan.message and '(0 limit' not in plan.message
+        step = nht.simulate(model, q, v, plan.t[:2], plan.u[:1])
+        q, v, t = step.q[-1], step.v[-1], t + 0.1
+    assert compared >= 45, f'only {compared} of 60 replans took the working set'
+    assert active >= 5  # the limits mattered
+    assert worst_cost <= 1e-6 and worst_q <= 1e-4, (worst_cost, worst_q)
+    assert planner.stats.optimal == planner.stats.plans
