@@ -194,7 +194,8 @@ def _build(system: NonholonomicSystem, steps: int, terminal: str, solver: str,
     # solver; with hard limits the same step, with a working set, replans from a warm plan
     newton, rows, bounded_nlp = None, None, None
     if (iterations or limits.kinds) and not shape.soft:
-        newton = GaussNewtonStep(unknowns, p, ca.vertcat(*cost_residuals), constraints)
+        newton = GaussNewtonStep(unknowns, p, ca.vertcat(*cost_residuals), constraints,
+                                 exact=bool(limits.kinds))
         rows = NumericFunction(ca.Function('constraints', [unknowns, p], [constraints]))
     if limits.kinds or not iterations:
         bounded_nlp = BoundedNlp(f'variational_{system.name}_{big_n}', solver, nlp, options,

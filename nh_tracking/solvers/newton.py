@@ -40,33 +40,37 @@ DUAL_REGULARISATION = 1e-13  # of the (2, 2) block: the solution moves by about 
 
 
 class GaussNewtonStep:
-    """(w, p, active, target, curvature) -> (w + dw, λ, g + G dw, |stationarity|).
+    """(w, p, active, target, curvature, weight) -> (w + dw, λ, g + G dw, |stationarity|).
 
     The step of min 1/2 |residual|^2 subject to the rows of g in the working set (``active``
     1) held at ``target`` — linearised, g_i + G_i dw = target_i — and the others left free
     (their λ_i = 0): a free row becomes -λ_i = 0 in the same matrix, so one function, one
     sparsity and one factorisation pattern serve every working set. Equalities are rows always
-    active with target 0. The Hessian is JᵀJ plus the constraints' own curvature weighted by
-    ``curvature`` (the last multipliers; zeros: pure Gauss-Newton, positive semi-definite).
-    Stationarity is |Jᵀr + Gᵀλ|∞ at w with the new multipliers: zero at a KKT point.
+    active with target 0. The Hessian is JᵀJ (Gauss-Newton, positive semi-definite); built
+    ``exact``, it adds ``weight`` times the residuals' own curvature and the constraints'
+    curvature weighted by ``curvature`` (the last multipliers): the Lagrangian's Hessian at
+    weight 1. Built not exact (a real-time iteration's step), the last two inputs are unused
+    and the matrix has less fill-in. Stationarity is |Jᵀr + Gᵀλ|∞ at w with the new
+    multipliers: zero at a KKT point.
     """
 
-    def __init__(self, w: ca.SX, p: ca.SX, residual: ca.SX, g: ca.SX) -> None:
+    def __init__(self, w: ca.SX, p: ca.SX, residual: ca.SX, g: ca.SX, exact: bool) -> None:
         jac_r, jac_g = ca.jacobian(residual, w), ca.jacobian(g, w)
         nw, self.rows = w.shape[0], g.shape[0]
         active, target = ca.SX.sym('active', self.rows), ca.SX.sym('target', self.rows)
-        curvature, exact = ca.SX.sym('curvature', self.rows), ca.SX.sym('exact')
+        curvature, weight = ca.SX.sym('curvature', self.rows), ca.SX.sym('exact')
         held = ca.times(ca.repmat(active, 1, nw), jac_g)  # the sparsity of G, rows off
-        weights = ca.SX.sym('weights', residual.shape[0])  # the residuals' own curvature:
-        second = ca.substitute(ca.hessian(ca.dot(weights, residual), w)[0], weights,
-                               exact * residual)  # sum r_i Hess r_i, the rest of Hess 1/2|r|^2
-        hessian = (ca.mtimes(jac_r.T, jac_r) + REGULARISATION * ca.SX.eye(nw) + second
-                   + ca.hessian(ca.dot(curvature, g), w)[0])
+        hessian = ca.mtimes(jac_r.T, jac_r) + REGULARISATION * ca.SX.eye(nw)
+        if exact:  # + sum r_i Hess r_i (the rest of Hess 1/2|r|^2) + sum lambda_i Hess g_i
+            weights = ca.SX.sym('weights', residual.shape[0])
+            hessian += ca.substitute(ca.hessian(ca.dot(weights, residual), w)[0], weights,
+                                     weight * residual)
+            hessian += ca.hessian(ca.dot(curvature, g), w)[0]
         dual = ca.diag(1 - active + DUAL_REGULARISATION * active)
         kkt = ca.blockcat([[hessian, held.T], [held, -dual]])
         gradient = ca.mtimes(jac_r.T, residual)
         rhs = ca.vertcat(-gradient, active * (target - g))
-        inputs = [w, p, active, target, curvature, exact]
+        inputs = [w, p, active, target, curvature, weight]
         self._sparsity = kkt.sparsity()  # the matrix as its nonzeros: a fast buffered call
         self._kkt = NumericFunction(ca.Function('gauss_newton_kkt', inputs, [kkt.nz[:]]))
         assemble = ca.Function('gauss_newton_system', inputs, [kkt, rhs, g, jac_g, gradient])
