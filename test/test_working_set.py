@@ -25,6 +25,8 @@ import pytest
 import nh_tracking as nht
 import nh_tracking.receding_horizon as rh
 from nh_tracking.solvers import sample_plan, variational
+from nh_tracking.solvers.inequalities import Shape
+from nh_tracking.solvers.midpoint import working_set_step
 from nh_tracking.solvers.newton import GaussNewtonStep
 from nh_tracking.solvers.working_set import working_set_solve
 from systems import inclined_knife_edge
@@ -84,9 +86,12 @@ def test_warm_replans_with_limits_take_the_working_set_and_match_the_interior_po
                               np.linspace(0, 20, 401)) if kind == 'sleigh' else _line(30.0))
     planner = rh.RecedingHorizonPlanner(model, rh.PlannerSettings(horizon=4.0, steps=40,
                                                                   **settings))
-    planner.prepare()
+    planner.prepare()  # builds the working set's step for its bounds; obstacles' on first need
     planner.set_reference(reference)
     planner.obstacles = np.array(discs).reshape(-1, 3)
+    shape = Shape.of(planner.problem(0.0, np.array(q, dtype=float), np.array(v, dtype=float),
+                                     planner.obstacles).limits)
+    working_set_step(model, 40, 'cost', shape)  # as the background build would
     q, v, t = np.array(q, dtype=float), np.array(v, dtype=float), 0.0
     compared, worst_cost, worst_q, active = 0, 0.0, 0.0, 0
     for _ in range(60):

@@ -64,10 +64,7 @@ class Transcription:
     rows: int  # of the hard NLP's g
     unknowns: int  # of the hard NLP's x
     soft_index: np.ndarray | None  # softened: the inequality rows given slacks
-    # Gauss-Newton steps (real-time iterations; warm replanning with hard limits):
-    # (w, p, active, target) -> (w + dw, lam_g, linearised g)
-    newton: GaussNewtonStep | None
-    constraints: NumericFunction | None  # with newton: (w, p) -> g
+    newton: GaussNewtonStep | None  # real-time iterations without limits: Gauss-Newton steps
 
     def parameters(self, problem: TrackingProblem) -> np.ndarray:
         q_knots, v_knots, q_mid, v_mid = problem.reference_samples
@@ -117,8 +114,23 @@ def transcription(system: NonholonomicSystem, steps: int, terminal: str,
                                      shape, iterations))
 
 
-def _build(system: NonholonomicSystem, steps: int, terminal: str, solver: str,
-           compiled: bool, bounded: bool, shape: Shape, iterations: int = 0) -> Transcription:
+@dataclass
+class _StageForm:
+    """The symbolic NLP of one structure, before any solver is made of it."""
+
+    unknowns: ca.SX
+    p: ca.SX
+    objective: ca.SX
+    constraints: ca.SX
+    cost_residuals: ca.SX  # the objective is 1/2 |cost_residuals|^2 (Gauss-Newton steps)
+    limits: Rows
+    readout: ca.Function
+    admissibility_rows: list[int]
+    dynamics_rows: list[int]
+
+
+def _stage_form(system: NonholonomicSystem, steps: int, terminal: str,
+                shape: Shape) -> _StageForm:
     n, k, r, big_n = system.n, system.k, system.r, steps
     eliminated = system.fully_actuated
     nx = n + k
@@ -132,7 +144,7 @@ def _build(system: NonholonomicSystem, steps: int, terminal: str, solver: str,
     p = ca.vertcat(q0, v0, q_mid, v_mid, q_end, v_end, h, eps, omega, limits.obstacles)
 
     lagrangian, residual = tracking_lagrangian(system), tracking_residual(system)
-    cost_residuals: list[ca.SX] = []  # the objective is 1/2 |r|^2 (Gauss-Newton steps)
+    cost_residuals: list[ca.SX] = []
     zero = ca.DM.zeros(r)
     w: list[ca.SX] = []
     g = ConstraintStack()
@@ -180,8 +192,20 @@ def _build(system: NonholonomicSystem, steps: int, terminal: str, solver: str,
         cost_residuals.append(ca.sqrt(omega) * (xs[-1][:n] - q_end))
     else:
         g.add(xs[-1] - ca.vertcat(q_end, v_end))
-    unknowns, constraints = ca.vertcat(*w), ca.vertcat(*g.blocks)
-    nlp = {'x': unknowns, 'p': p, 'f': objective, 'g': constraints}
+    unknowns = ca.vertcat(*w)
+    readout = ca.Function('readout', [unknowns, p],
+                          [ca.horzcat(*[x[:n] for x in xs]), ca.horzcat(*[x[n:] for x in xs]),
+                           ca.horzcat(*controls), ca.mmax(ca.fabs(ca.horzcat(*residuals))),
+                           running])
+    return _StageForm(unknowns, p, objective, ca.vertcat(*g.blocks), ca.vertcat(*cost_residuals),
+                      limits, readout, adm_rows, dyn_rows)
+
+
+def _build(system: NonholonomicSystem, steps: int, terminal: str, solver: str,
+           compiled: bool, bounded: bool, shape: Shape, iterations: int = 0) -> Transcription:
+    form = _stage_form(system, steps, terminal, shape)
+    limits, constraints = form.limits, form.constraints
+    nlp = {'x': form.unknowns, 'p': form.p, 'f': form.objective, 'g': constraints}
     soft_index = None
     if shape.soft:
         nlp, soft_index = soften(nlp, limits)
@@ -190,25 +214,53 @@ def _build(system: NonholonomicSystem, steps: int, terminal: str, solver: str,
         options.update({'structure_detection': 'auto',
                         'equality': [bool(e) for e in
                                      ~limits.inequality_mask(constraints.shape[0])]})
-    # a real-time iteration without limits is one Gauss-Newton step in one call: no NLP
-    # solver; with hard limits the same step, with a working set, replans from a warm plan
-    newton, rows, bounded_nlp = None, None, None
-    if (iterations or limits.kinds) and not shape.soft:
-        newton = GaussNewtonStep(unknowns, p, ca.vertcat(*cost_residuals), constraints,
-                                 exact=bool(limits.kinds))
-        rows = NumericFunction(ca.Function('constraints', [unknowns, p], [constraints]))
-    if limits.kinds or not iterations:
-        bounded_nlp = BoundedNlp(f'variational_{system.name}_{big_n}', solver, nlp, options,
+    # a real-time iteration without limits is one Gauss-Newton step in one call: no NLP solver
+    newton, bounded_nlp = None, None
+    if iterations and not limits.kinds:
+        newton = GaussNewtonStep(form.unknowns, form.p, form.cost_residuals, constraints,
+                                 exact=False)
+    else:
+        bounded_nlp = BoundedNlp(f'variational_{system.name}_{steps}', solver, nlp, options,
                                  bounded, compiled, bool(limits.kinds), iterations)
-    knots_q = ca.horzcat(*[x[:n] for x in xs])
-    knots_v = ca.horzcat(*[x[n:] for x in xs])
-    readout = ca.Function('readout', [unknowns, p],
-                          [knots_q, knots_v, ca.horzcat(*controls),
-                           ca.mmax(ca.fabs(ca.horzcat(*residuals))), running])
     return Transcription(
-        controls=0 if eliminated else r, steps=big_n, terminal=terminal, nlp=bounded_nlp,
-        readout=NumericFunction(readout), admissibility_rows=np.array(adm_rows, dtype=int),
-        dynamics_rows=np.array(dyn_rows, dtype=int), limits=limits,
-        rows=constraints.shape[0], unknowns=unknowns.shape[0], soft_index=soft_index,
-        newton=newton, constraints=rows,
-    )
+        controls=0 if system.fully_actuated else system.r, steps=steps, terminal=terminal,
+        nlp=bounded_nlp, readout=NumericFunction(form.readout),
+        admissibility_rows=np.array(form.admissibility_rows, dtype=int),
+        dynamics_rows=np.array(form.dynamics_rows, dtype=int), limits=limits,
+        rows=constraints.shape[0], unknowns=form.unknowns.shape[0], soft_index=soft_index,
+        newton=newton)
+
+
+@dataclass
+class WorkingSetStep:
+    """The exact Newton step of an NLP with hard limits, and what a working set needs of it."""
+
+    step: GaussNewtonStep
+    constraints: NumericFunction  # (w, p) -> g
+    nonconvex: np.ndarray  # the clearance rows: a plan held at one is checked for a saddle
+
+
+_STEPS: PerSystemCache[WorkingSetStep] = PerSystemCache()
+
+
+def working_set_step(system: NonholonomicSystem, steps: int, terminal: str,
+                     shape: Shape) -> WorkingSetStep:
+    """Return the step for warm replans with hard limits of this shape, built on first use.
+
+    Inside a replanning loop it is built in the background (NotPrepared until then); it costs
+    a fifth of the NLP's own build, so a planner prepares it only for the limits it starts with.
+    """
+    return _STEPS.get(system, (steps, terminal, shape),
+                      lambda: _working_set_step(system, steps, terminal, shape))
+
+
+def _working_set_step(system: NonholonomicSystem, steps: int, terminal: str,
+                      shape: Shape) -> WorkingSetStep:
+    form = _stage_form(system, steps, terminal, shape)
+    rows = form.constraints.shape[0]
+    return WorkingSetStep(
+        GaussNewtonStep(form.unknowns, form.p, form.cost_residuals, form.constraints,
+                        exact=True),
+        NumericFunction(ca.Function('constraints', [form.unknowns, form.p],
+                                    [form.constraints])),
+        form.limits.inequality_mask(rows, ('clear',)))

@@ -41,7 +41,8 @@ from nh_tracking.problem import Solution, terminal_cost, terminal_error, Trackin
 from nh_tracking.solvers.base import Guess, Method, Structure
 from nh_tracking.solvers.cache import NotPrepared
 from nh_tracking.solvers.inequalities import Shape, start_violation, VIOLATION_TOL
-from nh_tracking.solvers.midpoint import BACKENDS, Transcription, transcription
+from nh_tracking.solvers.midpoint import (BACKENDS, Transcription, transcription,
+                                          working_set_step)
 from nh_tracking.solvers.newton import newton_steps
 from nh_tracking.solvers.nlp import DEADLINE, deadline_after, Outcome
 from nh_tracking.solvers.working_set import working_set_solve
@@ -170,7 +171,8 @@ def _solve_with(problem: TrackingProblem, initial_guess: Guess | None, stop: flo
         outcome = Outcome({'x': w_new, 'lam_g': lam_g}, bool(np.all(np.isfinite(w_new))),
                           taken, 'real-time iteration')
     else:
-        held = _working_set(tr, w0, p, bounds, stop) if warm else None
+        held = _working_set(problem, tr, w0, p, bounds, stop) \
+            if warm and problem.limits.active else None
         if held is not None:
             outcome, route = held, 'gauss-newton (working set)'
         else:  # cold, or the working set did not settle: interior point
@@ -207,17 +209,25 @@ def _solve_with(problem: TrackingProblem, initial_guess: Guess | None, stop: flo
     )
 
 
-def _working_set(tr: Transcription, w0: np.ndarray, p: np.ndarray,
+def _working_set(problem: TrackingProblem, tr: Transcription, w0: np.ndarray, p: np.ndarray,
                  bounds: dict[str, np.ndarray], stop: float | None) -> Outcome | None:
-    """Replan with hard limits by Gauss-Newton steps on a working set (None: not settled)."""
-    if tr.newton is None or tr.constraints is None:  # soft limits
+    """Replan with hard limits by Newton steps on a working set (None: it did not settle).
+
+    None also while its step is being built in the background.
+    """
+    if tr.soft_index is not None:
         return None
-    found = working_set_solve(tr.newton, tr.constraints, w0, p, bounds['lbg'], bounds['ubg'],
-                              tr.limits.inequality_mask(tr.rows, ('clear',)), stop)
-    if found is None:
+    try:
+        found = working_set_step(problem.system, problem.steps, problem.terminal,
+                                 Shape.of(problem.limits))
+    except NotPrepared:
         return None
-    return Outcome({'x': found.w, 'lam_g': found.multipliers}, True, found.factorisations,
-                   f'converged ({found.active} limit rows active)')
+    held = working_set_solve(found.step, found.constraints, w0, p, bounds['lbg'],
+                             bounds['ubg'], found.nonconvex, stop)
+    if held is None:
+        return None
+    return Outcome({'x': held.w, 'lam_g': held.multipliers}, True, held.factorisations,
+                   f'converged ({held.active} limit rows active)')
 
 
 def _failed(problem: TrackingProblem, q: np.ndarray, v: np.ndarray, elapsed: float,
@@ -261,6 +271,8 @@ class Variational(Method):
             transcription(system, structure.steps, structure.terminal,
                           structure.deadline is not None, self.backend, self.compiled,
                           structure.limits, iterations)
+        if structure.limits != Shape() and not structure.limits.slots:  # bounds it starts with
+            working_set_step(system, structure.steps, structure.terminal, structure.limits)
 
     def solve_until(self, problem: TrackingProblem, guess: Guess | None,
                     stop: float | None) -> Solution:
