@@ -27,7 +27,7 @@ import nh_tracking.receding_horizon as rh
 from nh_tracking.solvers import sample_plan, variational
 from nh_tracking.solvers.inequalities import Shape
 from nh_tracking.solvers.midpoint import working_set_step
-from nh_tracking.solvers.newton import GaussNewtonStep
+from nh_tracking.solvers.newton import NewtonStep
 from nh_tracking.solvers.working_set import working_set_solve
 from systems import inclined_knife_edge
 
@@ -40,7 +40,7 @@ def test_the_working_set_tells_the_minimum_beside_an_obstacle_from_the_saddle():
     """
     w, p = ca.SX.sym('w', 2), ca.SX.sym('p', 0)
     g = ca.sumsqr(w)
-    step = GaussNewtonStep(w, p, w - ca.DM([0.5, 0.0]), g, exact=True)
+    step = NewtonStep(w, p, w - ca.DM([0.5, 0.0]), g)
     values = nht.numeric.NumericFunction(ca.Function('g', [w, p], [g]))
     lower, upper, convex = np.ones(1), np.full(1, np.inf), np.ones(1, dtype=bool)
     found = working_set_solve(step, values, np.array([0.9, 0.5]), np.zeros(0), lower, upper,
@@ -51,7 +51,7 @@ def test_the_working_set_tells_the_minimum_beside_an_obstacle_from_the_saddle():
     assert working_set_solve(step, values, np.array([-1.0, 0.05]), np.zeros(0), lower, upper,
                              convex, None) is None
     # unconstrained in effect (the target outside the disc): no row held, no check needed
-    found = working_set_solve(GaussNewtonStep(w, p, w - ca.DM([2.0, 1.0]), g, exact=True), values,
+    found = working_set_solve(NewtonStep(w, p, w - ca.DM([2.0, 1.0]), g), values,
                               np.array([1.5, 0.5]), np.zeros(0), lower, upper, convex, None)
     assert found is not None and found.active == 0 and np.allclose(found.w, [2.0, 1.0])
 

@@ -32,7 +32,7 @@ from nh_tracking.numeric import NumericFunction
 from nh_tracking.problem import tracking_lagrangian, tracking_residual, TrackingProblem
 from nh_tracking.solvers.cache import PerSystemCache
 from nh_tracking.solvers.inequalities import ConstraintStack, Rows, Shape, soft_bounds, soften
-from nh_tracking.solvers.newton import GaussNewtonStep
+from nh_tracking.solvers.newton import gauss_newton_step, NewtonStep
 from nh_tracking.solvers.nlp import BoundedNlp
 from nh_tracking.system import NonholonomicSystem
 
@@ -64,7 +64,7 @@ class Transcription:
     rows: int  # of the hard NLP's g
     unknowns: int  # of the hard NLP's x
     soft_index: np.ndarray | None  # softened: the inequality rows given slacks
-    newton: GaussNewtonStep | None  # real-time iterations without limits: Gauss-Newton steps
+    newton: NumericFunction | None  # real-time iterations without limits: (w, p) -> (w, lam_g)
 
     def parameters(self, problem: TrackingProblem) -> np.ndarray:
         q_knots, v_knots, q_mid, v_mid = problem.reference_samples
@@ -217,8 +217,7 @@ def _build(system: NonholonomicSystem, steps: int, terminal: str, solver: str,
     # a real-time iteration without limits is one Gauss-Newton step in one call: no NLP solver
     newton, bounded_nlp = None, None
     if iterations and not limits.kinds:
-        newton = GaussNewtonStep(form.unknowns, form.p, form.cost_residuals, constraints,
-                                 exact=False)
+        newton = gauss_newton_step(form.unknowns, form.p, form.cost_residuals, constraints)
     else:
         bounded_nlp = BoundedNlp(f'variational_{system.name}_{steps}', solver, nlp, options,
                                  bounded, compiled, bool(limits.kinds), iterations)
@@ -235,7 +234,7 @@ def _build(system: NonholonomicSystem, steps: int, terminal: str, solver: str,
 class WorkingSetStep:
     """The exact Newton step of an NLP with hard limits, and what a working set needs of it."""
 
-    step: GaussNewtonStep
+    step: NewtonStep
     constraints: NumericFunction  # (w, p) -> g
     nonconvex: np.ndarray  # the clearance rows: a plan held at one is checked for a saddle
 
@@ -259,8 +258,7 @@ def _working_set_step(system: NonholonomicSystem, steps: int, terminal: str,
     form = _stage_form(system, steps, terminal, shape)
     rows = form.constraints.shape[0]
     return WorkingSetStep(
-        GaussNewtonStep(form.unknowns, form.p, form.cost_residuals, form.constraints,
-                        exact=True),
+        NewtonStep(form.unknowns, form.p, form.cost_residuals, form.constraints),
         NumericFunction(ca.Function('constraints', [form.unknowns, form.p],
                                     [form.constraints])),
         form.limits.inequality_mask(rows, ('clear',)))

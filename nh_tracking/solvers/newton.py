@@ -39,57 +39,77 @@ REGULARISATION = 1e-10  # of JᵀJ: the step only, no bias at the solution
 DUAL_REGULARISATION = 1e-13  # of the (2, 2) block: the solution moves by about this times λ
 
 
-class GaussNewtonStep:
-    """(w, p, active, target, curvature, weight) -> (w + dw, λ, g + G dw, |stationarity|).
+def _kkt(w: ca.SX, residual: ca.SX, g: ca.SX, active: ca.SX | ca.DM, target: ca.SX | ca.DM,
+         curvature: ca.SX | int) -> tuple[ca.SX, ca.SX, ca.SX, ca.SX]:
+    """Return the KKT matrix and right-hand side of a step, G and Jᵀr.
 
-    The step of min 1/2 |residual|^2 subject to the rows of g in the working set (``active``
-    1) held at ``target`` — linearised, g_i + G_i dw = target_i — and the others left free
-    (their λ_i = 0): a free row becomes -λ_i = 0 in the same matrix, so one function, one
-    sparsity and one factorisation pattern serve every working set. Equalities are rows always
-    active with target 0. The Hessian is JᵀJ (Gauss-Newton, positive semi-definite); built
-    ``exact``, it adds ``weight`` times the residuals' own curvature and the constraints'
-    curvature weighted by ``curvature`` (the last multipliers): the Lagrangian's Hessian at
-    weight 1. Built not exact (a real-time iteration's step), the last two inputs are unused
-    and the matrix has less fill-in. Stationarity is |Jᵀr + Gᵀλ|∞ at w with the new
+    Rows of g with ``active`` 1 are held at ``target`` (linearised: g_i + G_i Δw = target_i),
+    the others are free (their λ_i = 0: the row reads -λ_i = 0 in the same matrix, so one
+    sparsity and one factorisation pattern serve every working set). The Hessian is JᵀJ plus
+    ``curvature`` (0 for Gauss-Newton).
+    """
+    jac_r, jac_g = ca.jacobian(residual, w), ca.jacobian(g, w)
+    held = ca.times(ca.repmat(active, 1, w.shape[0]), jac_g)  # the sparsity of G, rows off
+    hessian = ca.mtimes(jac_r.T, jac_r) + REGULARISATION * ca.SX.eye(w.shape[0]) + curvature
+    dual = ca.diag(1 - active + DUAL_REGULARISATION * active)
+    gradient = ca.mtimes(jac_r.T, residual)
+    return (ca.blockcat([[hessian, held.T], [held, -dual]]),
+            ca.vertcat(-gradient, active * (target - g)), jac_g, gradient)
+
+
+def _solve(w: ca.SX, p: ca.SX, inputs: list[ca.SX], matrix: ca.SX, vector: ca.SX,
+           extra: list[ca.SX]) -> tuple[list[ca.MX], ca.MX, ca.MX, list[ca.MX]]:
+    """Return MX inputs, Δw, λ and ``extra`` of the step: assembled as SX, factorised as MX."""
+    assemble = ca.Function('gauss_newton_system', [w, p, *inputs], [matrix, vector, *extra])
+    symbols = [ca.MX.sym(f'input{i}', x.sparsity()) for i, x in enumerate([w, p, *inputs])]
+    matrix_mx, vector_mx, *extra_mx = assemble(*symbols)
+    step = ca.solve(matrix_mx, vector_mx, 'ldl')
+    return symbols, step[:w.shape[0]], step[w.shape[0]:], extra_mx
+
+
+def gauss_newton_step(w: ca.SX, p: ca.SX, residual: ca.SX, g: ca.SX) -> NumericFunction:
+    """Return (w, p) -> (w + dw, λ) for min 1/2 |residual|^2 subject to g = 0."""
+    rows = g.shape[0]
+    matrix, vector, _, _ = _kkt(w, residual, g, ca.DM.ones(rows), ca.DM.zeros(rows), 0)
+    symbols, dw, multipliers, _ = _solve(w, p, [], matrix, vector, [])
+    return NumericFunction(ca.Function('gauss_newton_step', symbols,
+                                       [symbols[0] + dw, multipliers]))
+
+
+class NewtonStep:
+    """(w, p, active, target, curvature) -> (w + dw, λ, g + G dw, |stationarity|).
+
+    The Newton step of min 1/2 |residual|^2 subject to the rows of g in the working set
+    (``active`` 1) held at ``target``, the others free (see :func:`_kkt`); equalities are rows
+    always held at 0. Its Hessian is the Lagrangian's: JᵀJ + Σ r_i ∇²r_i + Σ λ_i ∇²g_i with λ
+    = ``curvature`` (the last multipliers) — an obstacle's curvature 2λ on the held positions
+    is what Gauss-Newton leaves out. Stationarity is |Jᵀr + Gᵀλ|∞ at w with the new
     multipliers: zero at a KKT point.
     """
 
-    def __init__(self, w: ca.SX, p: ca.SX, residual: ca.SX, g: ca.SX, exact: bool) -> None:
-        jac_r, jac_g = ca.jacobian(residual, w), ca.jacobian(g, w)
-        nw, self.rows = w.shape[0], g.shape[0]
-        active, target = ca.SX.sym('active', self.rows), ca.SX.sym('target', self.rows)
-        curvature, weight = ca.SX.sym('curvature', self.rows), ca.SX.sym('exact')
-        held = ca.times(ca.repmat(active, 1, nw), jac_g)  # the sparsity of G, rows off
-        hessian = ca.mtimes(jac_r.T, jac_r) + REGULARISATION * ca.SX.eye(nw)
-        if exact:  # + sum r_i Hess r_i (the rest of Hess 1/2|r|^2) + sum lambda_i Hess g_i
-            weights = ca.SX.sym('weights', residual.shape[0])
-            hessian += ca.substitute(ca.hessian(ca.dot(weights, residual), w)[0], weights,
-                                     weight * residual)
-            hessian += ca.hessian(ca.dot(curvature, g), w)[0]
-        dual = ca.diag(1 - active + DUAL_REGULARISATION * active)
-        kkt = ca.blockcat([[hessian, held.T], [held, -dual]])
-        gradient = ca.mtimes(jac_r.T, residual)
-        rhs = ca.vertcat(-gradient, active * (target - g))
-        inputs = [w, p, active, target, curvature, weight]
-        self._sparsity = kkt.sparsity()  # the matrix as its nonzeros: a fast buffered call
-        self._kkt = NumericFunction(ca.Function('gauss_newton_kkt', inputs, [kkt.nz[:]]))
-        assemble = ca.Function('gauss_newton_system', inputs, [kkt, rhs, g, jac_g, gradient])
-        symbols = [ca.MX.sym('w', nw), ca.MX.sym('p', p.shape[0])] + [
-            ca.MX.sym(name, self.rows) for name in ('active', 'target', 'curvature')] + [
-            ca.MX.sym('exact')]
-        matrix, vector, values, jacobian, grad = assemble(*symbols)
-        step = ca.solve(matrix, vector, 'ldl')
-        dw, multipliers = step[:nw], step[nw:]
+    def __init__(self, w: ca.SX, p: ca.SX, residual: ca.SX, g: ca.SX) -> None:
+        self.rows = g.shape[0]
+        active, target, curvature = (ca.SX.sym(name, self.rows)
+                                     for name in ('active', 'target', 'curvature'))
+        weights = ca.SX.sym('weights', residual.shape[0])  # the residuals' own curvature
+        second = (ca.substitute(ca.hessian(ca.dot(weights, residual), w)[0], weights, residual)
+                  + ca.hessian(ca.dot(curvature, g), w)[0])
+        matrix, vector, jac_g, gradient = _kkt(w, residual, g, active, target, second)
+        inputs = [active, target, curvature]
+        self._sparsity = matrix.sparsity()  # the matrix as its nonzeros: a fast buffered call
+        self._kkt = NumericFunction(ca.Function('newton_kkt', [w, p, *inputs], [matrix.nz[:]]))
+        symbols, dw, multipliers, (values, jacobian, grad) = _solve(
+            w, p, inputs, matrix, vector, [g, jac_g, gradient])
         stationarity = ca.mmax(ca.fabs(grad + ca.mtimes(jacobian.T, multipliers)))
         self._step = NumericFunction(ca.Function(
-            'gauss_newton_step', symbols,
+            'newton_step', symbols,
             [symbols[0] + dw, multipliers, values + ca.mtimes(jacobian, dw), stationarity]))
         self._inertia: ca.Linsol | None = None
 
-    def __call__(self, *args: np.ndarray | float) -> list[np.ndarray]:
+    def __call__(self, *args: np.ndarray) -> list[np.ndarray]:
         return self._step(*args)
 
-    def minimum(self, *args: np.ndarray | float) -> bool:
+    def minimum(self, *args: np.ndarray) -> bool:
         """Whether the model at (w, p, active, target, curvature) curves up on the held rows.
 
         Its KKT matrix then has exactly one negative eigenvalue per row of g (Sylvester's law
@@ -99,13 +119,13 @@ class GaussNewtonStep:
         """
         matrix = ca.DM(self._sparsity, self._kkt(*args)[0])
         if self._inertia is None:
-            self._inertia = ca.Linsol('gauss_newton_inertia', 'ldl', self._sparsity)
+            self._inertia = ca.Linsol('newton_inertia', 'ldl', self._sparsity)
             self._inertia.sfact(matrix)
         self._inertia.nfact(matrix)
         return int(self._inertia.neig(matrix)) == self.rows
 
 
-def newton_steps(step: GaussNewtonStep, w: np.ndarray, p: np.ndarray, iterations: int,
+def newton_steps(step: NumericFunction, w: np.ndarray, p: np.ndarray, iterations: int,
                  residual: Callable[[np.ndarray], float], tolerance: float, most: int
                  ) -> tuple[np.ndarray, np.ndarray, int]:
     """Take ``iterations`` steps from w, then more while the residual is above ``tolerance``.
@@ -118,9 +138,8 @@ def newton_steps(step: GaussNewtonStep, w: np.ndarray, p: np.ndarray, iterations
     robot off the previous plan by centimetres) gets another rather than a converged solve.
     """
     multipliers, taken, last = np.zeros(0), 0, np.inf
-    every, zero = np.ones(step.rows), np.zeros(step.rows)  # equalities: all held at 0
     while taken < most:
-        w, multipliers = step(w, p, every, zero, zero, 0.0)[:2]
+        w, multipliers = step(w, p)
         taken += 1
         if taken >= iterations:
             now = residual(w)

@@ -20,7 +20,7 @@ where the same plan without limits takes 2. Near the previous plan the set of ac
 rarely changes. Each Gauss-Newton step here solves its QP (the Gauss-Newton model subject to
 the linearised limits) by a primal active-set method: the rows of a working set are held at
 their bounds, which is one factorisation of one fixed-pattern KKT matrix
-(:func:`.newton.gauss_newton_step`); a step that would break a free row stops at it and takes
+(:class:`.newton.NewtonStep`); a step that would break a free row stops at it and takes
 it in; a held row whose multiplier has the wrong sign is let go, one at a time. The steps go on
 until they stop moving the plan, each starting from the last step's working set. Started from
 a plan within the limits (a previous plan), the active limits of which start the set. Nothing
@@ -35,7 +35,7 @@ import time
 import numpy as np
 
 from nh_tracking.numeric import NumericFunction
-from nh_tracking.solvers.newton import GaussNewtonStep
+from nh_tracking.solvers.newton import NewtonStep
 
 MAX_STEPS = 12  # Gauss-Newton steps (linear convergence: a warm plan needs 2-5)
 MAX_FACTORISATIONS = 24  # in all: a set that needs more is not near the previous plan's
@@ -102,7 +102,7 @@ class _WorkingSet:
         return row if wrong[row] > DUAL_TOL else -1
 
 
-def working_set_solve(step: GaussNewtonStep, constraints: NumericFunction, w: np.ndarray,
+def working_set_solve(step: NewtonStep, constraints: NumericFunction, w: np.ndarray,
                       p: np.ndarray, lower: np.ndarray, upper: np.ndarray,
                       nonconvex: np.ndarray, stop: float | None) -> WorkingSetSolution | None:
     """Solve min 1/2 |r|^2 s.t. lower <= g <= upper from w, or None (see the module).
@@ -122,7 +122,7 @@ def working_set_solve(step: GaussNewtonStep, constraints: NumericFunction, w: np
         while True:
             if factorisations >= MAX_FACTORISATIONS:
                 return None
-            w_full, multipliers, full, stationarity = step(w, p, *rows.arguments(), curvature, 1.0)
+            w_full, multipliers, full, stationarity = step(w, p, *rows.arguments(), curvature)
             factorisations += 1
             fraction, row = rows.blocking(now, full)
             target = w_full - w
@@ -146,7 +146,7 @@ def working_set_solve(step: GaussNewtonStep, constraints: NumericFunction, w: np
         if (not changed and stationarity[0] <= STATIONARITY_TOL
                 and moved <= STEP_TOL * max(1.0, float(np.max(np.abs(w))))):
             if np.any(nonconvex & (rows.held != 0)) and not step.minimum(
-                    w, p, *rows.arguments(), multipliers, 1.0):
+                    w, p, *rows.arguments(), multipliers):
                 return None  # a saddle: the interior point finds the minimum beside it
             return WorkingSetSolution(w, multipliers, factorisations,
                                       int(np.count_nonzero(np.abs(rows.held) == 1)))
