@@ -78,13 +78,14 @@ class Avoidance:
         """Whether a plan from a start that breaks a limit breaks none more than the start does.
 
         Over every disc, not only the problem's, and the problem's bounds, at knots and
-        midpoints after the start: a least-violating plan minimises the summed violation, and
-        driving through an obstacle and out can sum to less than braking inside it.
+        midpoints after the start (the robot's: a kept plan, shifted, may begin elsewhere): a
+        least-violating plan minimises the summed violation, and driving through an obstacle
+        and out can sum to less than braking inside it.
         """
         every = self.limits(discs)
         after = knots_and_midpoints(sol.q, first=1)
-        start = max(problem.limits.violation(sol.q[:1], sol.v[:1]),
-                    float(np.max(-every.clearance(sol.q[:1]), initial=0.0)))
+        start = max(problem.limits.violation(problem.q0[None], problem.v0[None]),
+                    float(np.max(-every.clearance(problem.q0[None]), initial=0.0)))
         worst = max(problem.limits.violation(after, sol.v[1:], sol.u),
                     float(np.max(-every.clearance(after), initial=0.0)))
         return worst <= start + VIOLATION_TOL

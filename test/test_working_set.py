@@ -12,7 +12,7 @@
 # See the License for the specific language governing permissions and
 # limitations under the License.
 
-"""Warm replanning with limits by Gauss-Newton steps on a working set, against the interior point.
+"""Warm replanning with limits by Newton steps on a working set, against the interior point.
 
 The working set is checked against fatrop solving the same problem from the same guess (the
 independent solver), on models and limits no issue names, and its saddle test on a problem
@@ -98,7 +98,7 @@ def test_warm_replans_with_limits_take_the_working_set_and_match_the_interior_po
         previous = planner.previous
         plan = planner.plan(t, q, v).plan
         assert plan.success and plan.details['violation'] <= 1e-6
-        if plan.route == 'gauss-newton (working set)':
+        if plan.route == 'newton (working set)':
             problem = planner.problem(t, q, v)
             with monkeypatch.context() as patch:
                 patch.setattr(variational, 'working_set_solve', lambda *args: None)

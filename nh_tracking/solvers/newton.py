@@ -12,7 +12,7 @@
 # See the License for the specific language governing permissions and
 # limitations under the License.
 
-"""One Gauss-Newton step on the KKT conditions: a real-time iteration in a single call.
+"""Steps on the KKT conditions, each one CasADi call: real-time iterations and working sets.
 
 The tracking cost is a sum of squares, 1/2 |r(w, p)|^2, so its Gauss-Newton Hessian JᵀJ needs
 no multipliers and is positive definite wherever the controls enter r (they always do: eps > 0).
@@ -24,7 +24,10 @@ Without inequalities a real-time iteration is then the equality-constrained QP
 (ρ, δ tiny: the matrix becomes quasi-definite, so a sparse LDLᵀ needs no pivoting; δ shifts the
 fixed point by δλ in g, so it is kept far below any tolerance), assembled and
 factorised inside one CasADi function: no solver set-up per call, one call per step. λ are the
-multipliers of g = 0 in CasADi's sign convention (∇f + Gᵀλ = 0 at a solution).
+multipliers of g = 0 in CasADi's sign convention (∇f + Gᵀλ = 0 at a solution). The working
+set's step (:class:`NewtonStep`) holds only some rows and takes the Lagrangian's exact Hessian,
+which may be indefinite: the same LDLᵀ then leaves a residual (about 4e-4 relative) that the
+next step corrects (docs/theory.md §5).
 """
 from __future__ import annotations
 

@@ -42,12 +42,13 @@ from nh_tracking.solvers.base import Guess, Method, Structure
 from nh_tracking.solvers.cache import NotPrepared
 from nh_tracking.solvers.inequalities import Shape, start_violation, VIOLATION_TOL
 from nh_tracking.solvers.midpoint import (BACKENDS, Transcription, transcription,
-                                          working_set_step)
+                                          working_set_step, WorkingSetStep)
 from nh_tracking.solvers.newton import newton_steps
 from nh_tracking.solvers.nlp import DEADLINE, deadline_after, Outcome
 from nh_tracking.solvers.working_set import working_set_solve
 from nh_tracking.system import NonholonomicSystem
 
+PAUSE_AFTER, PAUSE = 3, 4  # working-set failures in a row, then one try in this many solves
 RTI_RESIDUAL = 1e-3  # a real-time iteration's plan must be this close to admissible
 RTI_EXTRA_STEPS = 4  # Gauss-Newton steps beyond the budget while a plan is not yet that close
 CONTINUATION_MIN_STEPS = 100  # cold solves with this many intervals or more start coarse
@@ -143,6 +144,7 @@ def _solve_with(problem: TrackingProblem, initial_guess: Guess | None, stop: flo
     if problem.terminal == 'equality':
         q_g[-1], v_g[-1] = problem.reference_samples[0][-1], problem.reference_samples[1][-1]
     p = tr.parameters(problem)
+    newton = _newton(problem, tr) if initial_guess is not None else None  # built untimed
     start = time.perf_counter()
     w0 = tr.pack(q_g, v_g, u_g)
     if not all(np.all(np.isfinite(a)) for a in tr.readout(w0, p)):
@@ -155,7 +157,7 @@ def _solve_with(problem: TrackingProblem, initial_guess: Guess | None, stop: flo
     slacks = 0 if tr.soft_index is None else len(tr.soft_index)
     # a guess within the limits (a previous plan) is warm: near the optimum and its active set
     warm = initial_guess is not None and problem.limits.violation(
-        knots_and_midpoints(q_g), v_g) <= VIOLATION_TOL
+        knots_and_midpoints(q_g), v_g, u_g) <= VIOLATION_TOL
     readouts: list[list[np.ndarray]] = []  # each Newton step's plan; the last is the one kept
     route = solver if tr.soft_index is None else 'ipopt (soft limits)'
     if tr.nlp is None:  # a real-time iteration without limits: Gauss-Newton steps
@@ -171,10 +173,9 @@ def _solve_with(problem: TrackingProblem, initial_guess: Guess | None, stop: flo
         outcome = Outcome({'x': w_new, 'lam_g': lam_g}, bool(np.all(np.isfinite(w_new))),
                           taken, 'real-time iteration')
     else:
-        held = _working_set(problem, tr, w0, p, bounds, stop) \
-            if warm and problem.limits.active else None
+        held = _working_set(newton, w0, p, bounds, stop) if warm and newton else None
         if held is not None:
-            outcome, route = held, 'gauss-newton (working set)'
+            outcome, route = held, 'newton (working set)'
         else:  # cold, or the working set did not settle: interior point
             outcome = tr.nlp.solve(stop, warm, x0=np.concatenate([w0, np.zeros(slacks)]), p=p,
                                    **bounds)
@@ -209,21 +210,30 @@ def _solve_with(problem: TrackingProblem, initial_guess: Guess | None, stop: flo
     )
 
 
-def _working_set(problem: TrackingProblem, tr: Transcription, w0: np.ndarray, p: np.ndarray,
+def _newton(problem: TrackingProblem, tr: Transcription) -> WorkingSetStep | None:
+    """Return the working set's step of a warm solve with hard limits (None: none yet)."""
+    if tr.soft_index is not None or not problem.limits.active:
+        return None
+    try:
+        return working_set_step(problem.system, problem.steps, problem.terminal,
+                                Shape.of(problem.limits))
+    except NotPrepared:  # replanning: built in the background, ready next time
+        return None
+
+
+def _working_set(newton: WorkingSetStep, w0: np.ndarray, p: np.ndarray,
                  bounds: dict[str, np.ndarray], stop: float | None) -> Outcome | None:
     """Replan with hard limits by Newton steps on a working set (None: it did not settle).
 
-    None also while its step is being built in the background.
+    Where it keeps failing (a degenerate set: a robot turning on the spot at a disc's edge),
+    it is tried only every PAUSE-th solve: each failure costs up to 24 factorisations.
     """
-    if tr.soft_index is not None:
+    newton.tries += 1
+    if newton.failures >= PAUSE_AFTER and newton.tries % PAUSE:
         return None
-    try:
-        found = working_set_step(problem.system, problem.steps, problem.terminal,
-                                 Shape.of(problem.limits))
-    except NotPrepared:
-        return None
-    held = working_set_solve(found.step, found.constraints, w0, p, bounds['lbg'],
-                             bounds['ubg'], found.nonconvex, stop)
+    held = working_set_solve(newton.step, newton.constraints, w0, p, bounds['lbg'],
+                             bounds['ubg'], newton.nonconvex, stop)
+    newton.failures = 0 if held is not None else newton.failures + 1
     if held is None:
         return None
     return Outcome({'x': held.w, 'lam_g': held.multipliers}, True, held.factorisations,
@@ -271,8 +281,9 @@ class Variational(Method):
             transcription(system, structure.steps, structure.terminal,
                           structure.deadline is not None, self.backend, self.compiled,
                           structure.limits, iterations)
-        if structure.limits != Shape() and not structure.limits.slots:  # bounds it starts with
-            working_set_step(system, structure.steps, structure.terminal, structure.limits)
+        limits = structure.limits
+        if limits != Shape() and not limits.slots and not limits.soft:  # the bounds it has
+            working_set_step(system, structure.steps, structure.terminal, limits)
 
     def solve_until(self, problem: TrackingProblem, guess: Guess | None,
                     stop: float | None) -> Solution:
