@@ -124,7 +124,7 @@ class _StageForm:
     constraints: ca.SX
     cost_residuals: ca.SX  # the objective is 1/2 |cost_residuals|^2 (Gauss-Newton steps)
     limits: Rows
-    readout: ca.Function
+    readout: list[ca.SX]  # q (n, N+1), v (k, N+1), u (r, N), max |Psi_d|, running cost
     admissibility_rows: list[int]
     dynamics_rows: list[int]
 
@@ -192,13 +192,10 @@ def _stage_form(system: NonholonomicSystem, steps: int, terminal: str,
         cost_residuals.append(ca.sqrt(omega) * (xs[-1][:n] - q_end))
     else:
         g.add(xs[-1] - ca.vertcat(q_end, v_end))
-    unknowns = ca.vertcat(*w)
-    readout = ca.Function('readout', [unknowns, p],
-                          [ca.horzcat(*[x[:n] for x in xs]), ca.horzcat(*[x[n:] for x in xs]),
-                           ca.horzcat(*controls), ca.mmax(ca.fabs(ca.horzcat(*residuals))),
-                           running])
-    return _StageForm(unknowns, p, objective, ca.vertcat(*g.blocks), ca.vertcat(*cost_residuals),
-                      limits, readout, adm_rows, dyn_rows)
+    readout = [ca.horzcat(*[x[:n] for x in xs]), ca.horzcat(*[x[n:] for x in xs]),
+               ca.horzcat(*controls), ca.mmax(ca.fabs(ca.horzcat(*residuals))), running]
+    return _StageForm(ca.vertcat(*w), p, objective, ca.vertcat(*g.blocks),
+                      ca.vertcat(*cost_residuals), limits, readout, adm_rows, dyn_rows)
 
 
 def _build(system: NonholonomicSystem, steps: int, terminal: str, solver: str,
@@ -223,7 +220,8 @@ def _build(system: NonholonomicSystem, steps: int, terminal: str, solver: str,
                                  bounded, compiled, bool(limits.kinds), iterations)
     return Transcription(
         controls=0 if system.fully_actuated else system.r, steps=steps, terminal=terminal,
-        nlp=bounded_nlp, readout=NumericFunction(form.readout),
+        nlp=bounded_nlp,
+        readout=NumericFunction(ca.Function('readout', [form.unknowns, form.p], form.readout)),
         admissibility_rows=np.array(form.admissibility_rows, dtype=int),
         dynamics_rows=np.array(form.dynamics_rows, dtype=int), limits=limits,
         rows=constraints.shape[0], unknowns=form.unknowns.shape[0], soft_index=soft_index,

@@ -144,7 +144,10 @@ def _solve_with(problem: TrackingProblem, initial_guess: Guess | None, stop: flo
     if problem.terminal == 'equality':
         q_g[-1], v_g[-1] = problem.reference_samples[0][-1], problem.reference_samples[1][-1]
     p = tr.parameters(problem)
-    newton = _newton(problem, tr) if initial_guess is not None else None  # built untimed
+    # a guess within the limits (a previous plan) is warm: near the optimum and its active set
+    warm = initial_guess is not None and problem.limits.violation(
+        knots_and_midpoints(q_g), v_g, u_g) <= VIOLATION_TOL
+    held_step = _held_step(problem, tr) if warm else None  # built (once) outside the timing
     start = time.perf_counter()
     w0 = tr.pack(q_g, v_g, u_g)
     if not all(np.all(np.isfinite(a)) for a in tr.readout(w0, p)):
@@ -155,9 +158,6 @@ def _solve_with(problem: TrackingProblem, initial_guess: Guess | None, stop: flo
                        'NaN or Inf there)')
     bounds = tr.bounds(problem)
     slacks = 0 if tr.soft_index is None else len(tr.soft_index)
-    # a guess within the limits (a previous plan) is warm: near the optimum and its active set
-    warm = initial_guess is not None and problem.limits.violation(
-        knots_and_midpoints(q_g), v_g, u_g) <= VIOLATION_TOL
     readouts: list[list[np.ndarray]] = []  # each Newton step's plan; the last is the one kept
     route = solver if tr.soft_index is None else 'ipopt (soft limits)'
     if tr.nlp is None:  # a real-time iteration without limits: Gauss-Newton steps
@@ -173,7 +173,7 @@ def _solve_with(problem: TrackingProblem, initial_guess: Guess | None, stop: flo
         outcome = Outcome({'x': w_new, 'lam_g': lam_g}, bool(np.all(np.isfinite(w_new))),
                           taken, 'real-time iteration')
     else:
-        held = _working_set(newton, w0, p, bounds, stop) if warm and newton else None
+        held = _working_set(held_step, w0, p, bounds, stop) if held_step else None
         if held is not None:
             outcome, route = held, 'newton (working set)'
         else:  # cold, or the working set did not settle: interior point
@@ -210,7 +210,7 @@ def _solve_with(problem: TrackingProblem, initial_guess: Guess | None, stop: flo
     )
 
 
-def _newton(problem: TrackingProblem, tr: Transcription) -> WorkingSetStep | None:
+def _held_step(problem: TrackingProblem, tr: Transcription) -> WorkingSetStep | None:
     """Return the working set's step of a warm solve with hard limits (None: none yet)."""
     if tr.soft_index is not None or not problem.limits.active:
         return None
@@ -221,19 +221,19 @@ def _newton(problem: TrackingProblem, tr: Transcription) -> WorkingSetStep | Non
         return None
 
 
-def _working_set(newton: WorkingSetStep, w0: np.ndarray, p: np.ndarray,
+def _working_set(step: WorkingSetStep, w0: np.ndarray, p: np.ndarray,
                  bounds: dict[str, np.ndarray], stop: float | None) -> Outcome | None:
     """Replan with hard limits by Newton steps on a working set (None: it did not settle).
 
     Where it keeps failing (a degenerate set: a robot turning on the spot at a disc's edge),
     it is tried only every PAUSE-th solve: each failure costs up to 24 factorisations.
     """
-    newton.tries += 1
-    if newton.failures >= PAUSE_AFTER and newton.tries % PAUSE:
+    step.tries += 1
+    if step.failures >= PAUSE_AFTER and step.tries % PAUSE:
         return None
-    held = working_set_solve(newton.step, newton.constraints, w0, p, bounds['lbg'],
-                             bounds['ubg'], newton.nonconvex, stop)
-    newton.failures = 0 if held is not None else newton.failures + 1
+    held = working_set_solve(step.step, step.constraints, w0, p, bounds['lbg'], bounds['ubg'],
+                             step.nonconvex, stop)
+    step.failures = 0 if held is not None else step.failures + 1
     if held is None:
         return None
     return Outcome({'x': held.w, 'lam_g': held.multipliers}, True, held.factorisations,
