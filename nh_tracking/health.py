@@ -55,6 +55,8 @@ def session_health(session: TrackingSession, problem: str, counts: dict[str, int
     if problem and level == 'ok':
         level, message = 'warn', problem
     times = np.array(stats.solve_times)[-RECENT:] if stats.solve_times else np.zeros(1)
+    recent = list(session.latencies)[-RECENT:]
+    latency = np.array([row[0] for row in recent]) if recent else np.zeros(1)
     values: dict[str, object] = {
         'status': str(outcome.status) if outcome else 'none', 'plans': stats.plans,
         'optimal': stats.optimal, 'shifted': stats.shifted, 'fallbacks': stats.fallbacks,
@@ -63,5 +65,9 @@ def session_health(session: TrackingSession, problem: str, counts: dict[str, int
         'solve_time_last_ms': f'{(outcome.solve_time if outcome else 0.0) * 1e3:.2f}',
         'solve_time_p50_ms': f'{np.percentile(times, 50) * 1e3:.2f}',
         'solve_time_p99_ms': f'{np.percentile(times, 99) * 1e3:.2f}',
+        # odometry receipt -> control_sequence published: how old the state is that a plan
+        # starts from when the robot gets it
+        'latency_p50_ms': f'{np.percentile(latency, 50) * 1e3:.2f}',
+        'latency_p99_ms': f'{np.percentile(latency, 99) * 1e3:.2f}',
     }
     return Health(level, message, values)

@@ -21,6 +21,7 @@ input is checked once, here, and a ValueError names the argument.
 from __future__ import annotations
 
 from dataclasses import dataclass
+import functools
 
 import numpy as np
 from numpy.typing import ArrayLike
@@ -103,8 +104,9 @@ class Limits:
     def bounded_velocities(self) -> bool:
         return bool(np.isfinite(self.velocities).any())
 
-    @property
+    @functools.cached_property
     def active(self) -> bool:
+        """Whether anything is limited (asked several times per replan, so cached)."""
         return self.bounded_controls or self.bounded_velocities or len(self.obstacles) > 0
 
     def clearance(self, q: np.ndarray) -> np.ndarray:
@@ -117,6 +119,8 @@ class Limits:
 
     def violation(self, q: np.ndarray, v: np.ndarray, u: np.ndarray | None = None) -> float:
         """Largest amount by which states q (., n), v (., k) and controls u break a limit."""
+        if not self.active:
+            return 0.0
         worst = [0.0, float(np.max(-self.clearance(q), initial=0.0))]
         for value, (lo, hi) in ((v, self.velocities), (u, self.controls)):
             if value is not None and len(value):

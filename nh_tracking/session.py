@@ -79,7 +79,7 @@ class TrackingSession:
         self.active = False  # plans are made only while active (the lifecycle's "active")
         self.stale = False
         self.outcome: PlanOutcome | None = None
-        self.plan_trajectory: Trajectory | None = None
+        self._commanded: tuple[PlanOutcome, Trajectory] | None = None  # and its interpolant
         # (odometry receipt -> plan published, of which the numerical planner, of which the
         # NLP solver) [s], for the recent plans
         self.latencies: deque[tuple[float, float, float]] = deque(maxlen=2000)
@@ -91,7 +91,6 @@ class TrackingSession:
         self._wake, self._rebuild, self._stop = (threading.Event() for _ in range(3))
         self._threads: list[threading.Thread] = []
         self._on_plan: Callable[[PlanResult], None] = lambda result: None
-        self._on_display: Callable[[PlanResult], None] = lambda result: None
 
     @property
     def system(self) -> NonholonomicSystem:
@@ -107,14 +106,13 @@ class TrackingSession:
         return self.epoch_ns + int(round(seconds * 1e9))
 
     # threads ----------------------------------------------------------------------------------
-    def start(self, on_plan: Callable[[PlanResult], None],
-              on_display: Callable[[PlanResult], None] = lambda result: None) -> None:
-        """Start the solver and builder threads.
+    def start(self, on_plan: Callable[[PlanResult], None]) -> None:
+        """Start the solver and builder threads; every new plan goes to ``on_plan`` at once.
 
-        Every new plan goes to ``on_plan`` (commands: at once), then to ``on_display`` (what
-        people look at).
+        Nothing else runs on the solver thread between two plans: what people look at is read
+        from :attr:`outcome` at its own rate.
         """
-        self._on_plan, self._on_display = on_plan, on_display
+        self._on_plan = on_plan
         self._stop.clear()
         self._threads = [threading.Thread(target=self._loop, args=(self._wake, self.replan),
                                           name='nh_tracking_solver', daemon=True),
@@ -247,13 +245,11 @@ class TrackingSession:
         self._on_plan(result)  # the commands first: the robot waits for them
         self.latencies.append((time.perf_counter() - state.received, planning,
                                outcome.solve_time))
-        self._on_display(result)
-        trajectory = outcome.plan.trajectory()
         with self._lock:
             if self.stale:
                 self.log('info', 'odometry is fresh again: planning resumed')
             self.stale = False
-            self.outcome, self.plan_trajectory = outcome, trajectory
+            self.outcome = outcome
         return result
 
     def _why_not(self, state: StateEstimate | None) -> str:
@@ -297,14 +293,17 @@ class TrackingSession:
         return solution, ''
 
     def command(self, now_ns: int) -> np.ndarray | None:
-        """Return the plan's body twist now (zero when stale or outside the plan).
-
-        None before the first plan.
-        """
+        """Return the plan's body twist now (zero if stale or outside it); None before one."""
         with self._lock:
-            trajectory, stale = self.plan_trajectory, self.stale
-        if trajectory is None:
+            outcome, stale, commanded = self.outcome, self.stale, self._commanded
+        if outcome is None:
             return None
+        if commanded is None or commanded[0] is not outcome:
+            # here, not on the solver thread: when replanning outpaces commanding, most are not
+            commanded = (outcome, outcome.plan.trajectory())
+            with self._lock:
+                self._commanded = commanded
+        trajectory = commanded[1]
         t = self.seconds(now_ns)
         if stale or not self.active or not trajectory.t[0] <= t <= trajectory.t[-1]:
             return np.zeros(4)

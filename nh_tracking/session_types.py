@@ -33,6 +33,9 @@ class SessionSettings:
     replan_period: float = setting(0.1, 'time between replans', 's', (1e-3, 60.0))
     replan_on_odom: bool = setting(False, 'also replan on every odometry message')
     cmd_rate: float = setting(20.0, 'velocity command rate', 'Hz', (0.1, 1000.0))
+    display_rate: float = setting(10.0, 'planned_path and planned_markers rate, at most one '
+                                  'per plan (what people look at, off the replanning path)',
+                                  'Hz', (0.1, 1000.0))
     odom_timeout: float = setting(0.5, 'odometry older than this is stale: zero command, no '
                                   'plans', 's', (1e-3, 3600.0))
 

@@ -27,6 +27,7 @@ from nav_msgs.srv import GetPlan
 import numpy as np
 import pytest
 from rclpy.parameter import Parameter
+from rclpy.qos import QoSProfile
 from trajectory_msgs.msg import JointTrajectory
 
 from nh_tracking.ros import conversions as cv
@@ -159,7 +160,11 @@ def test_service_calls_do_not_hold_up_cmd_vel(graph):
     pair = WallClockPair(graph, planner_params={'cmd_rate': 50.0})
     cmd = Stream(pair.node, Twist, 'cmd_vel')
     pair.send_reference()
-    client = pair.node.create_client(GetPlan, f'{pair.ns}/plan')
+    # a client as deep as the burst: with the default depth (10) a reliable keep-last writer
+    # may drop requests not yet acknowledged, and the reader answers not yet taken (both
+    # seen: 30 futures never done in 60 s, before and after the odometry thread came in)
+    client = pair.node.create_client(GetPlan, f'{pair.ns}/plan',
+                                     qos_profile=QoSProfile(depth=100))
     assert client.wait_for_service(10.0)
     since = time.monotonic()
     futures = [client.call_async(GetPlan.Request()) for _ in range(30)]

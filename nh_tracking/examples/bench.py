@@ -250,8 +250,10 @@ def run_bench(out: Path, log: Callable[[str], None] = print, ros: bool = True) -
     ]
     if ros:
         from nh_tracking.examples.fleet import fleet
-        from nh_tracking.examples.latency import ros_latency
-        sections += [('ros_latency', lambda: ros_latency(log)), ('fleet', lambda: fleet(log))]
+        from nh_tracking.examples.latency import deployed_latency, ros_latency
+        sections += [('ros_latency', lambda: ros_latency(log)),
+                     ('ros_latency_deployed', lambda: deployed_latency(log)),
+                     ('fleet', lambda: fleet(log))]
     results: dict[str, dict] = {}
     for i, (name, run) in enumerate(sections, 1):
         log(f'[{i}/{len(sections)}] {name}')
@@ -289,12 +291,13 @@ def acceptance(results: dict) -> dict:
             'value': f"cold {limits['worst_ratio']:.2f}x, replanning {worst_warm:.2f}x "
                      f"(bounds {warm['|u| <= 0.15']['ratio']:.2f}x)",
             'pass': limits['worst_ratio'] <= 2 and worst_warm <= 2}
-    ros = results.get('ros_latency')
-    if ros:
+    ros, deployed = results.get('ros_latency'), results.get('ros_latency_deployed')
+    if ros and deployed:
         verdicts['ROS odom -> control_sequence p50 <= 1.5 ms'] = {
-            'value': f"{ros['latency_ms']['p50']:.2f} ms, of which "
+            'value': f"deployed {deployed['latency_ms']['p50']:.2f} ms; in one process with "
+                     f"the odometry's source {ros['latency_ms']['p50']:.2f} ms, of which "
                      f"{ros['overhead_ms']['p50']:.2f} ms beyond the numerical planner",
-            'pass': ros['latency_ms']['p50'] <= 1.5}
+            'pass': deployed['latency_ms']['p50'] <= 1.5}
     crowd = results.get('fleet')
     if crowd:
         verdicts['fleet figure (reported, no bar)'] = {

@@ -181,7 +181,12 @@ def plot_bench(results: dict, path: Path) -> Path:
         axes[3].bar(keys, solve, label='NLP solver')
         axes[3].bar(keys, planner - solve, bottom=solve, label='rest of the planner')
         axes[3].bar(keys, ros_layer, bottom=planner, label='ROS layer')
-        axes[3].set(ylabel='odom -> control_sequence [ms]', title='ROS latency (in process)')
+        deployed = results.get('ros_latency_deployed')
+        if deployed:
+            axes[3].plot(keys, [deployed['latency_ms'][k] for k in keys], 'kD', ms=8,
+                         label='deployed (planner process)')
+        axes[3].set(ylabel='odom -> control_sequence [ms]',
+                    title='ROS latency (bars: in one process)')
         axes[3].legend()
     crowd = results.get('fleet')
     if crowd:

@@ -138,10 +138,7 @@ def path_to_arrays(msg: Path, frame: str, receipt_ns: int) -> tuple[np.ndarray, 
 
 def multidof_to_arrays(msg: MultiDOFJointTrajectory, frame: str, receipt_ns: int
                        ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Return (times [ns], poses (N, 4), body twists (N.
-
-    4)) of a one-joint MultiDOFJointTrajectory.
-    """
+    """Return (times [ns], poses (N, 4), body twists (N, 4)) of a one-joint trajectory."""
     if not msg.points:
         raise InputRejected('trajectory has no points')
     if len(msg.joint_names) != 1:
@@ -196,16 +193,33 @@ def controls_to_arrays(msg: JointTrajectory, names: Sequence[str]
 
 
 # outputs --------------------------------------------------------------------------------------
-def pose_msg(pose: np.ndarray) -> Pose:
-    return Pose(position=Point(x=float(pose[0]), y=float(pose[1]), z=float(pose[2])),
-                orientation=quaternion_of(float(pose[3])))
+def pose_msg(pose: np.ndarray, into: Pose | None = None) -> Pose:
+    """(x, y, z, yaw) as a Pose, filled ``into`` an existing one if given."""
+    msg = Pose() if into is None else into
+    x, y, z, yaw = (float(c) for c in pose)
+    msg.position.x, msg.position.y, msg.position.z = x, y, z
+    msg.orientation.z, msg.orientation.w = math.sin(yaw / 2), math.cos(yaw / 2)
+    return msg
+
+
+def _stamp(header: Header, frame: str, ns: int) -> Header:
+    """Fill ``header`` in place: several times cheaper than keyword construction (replans)."""
+    header.frame_id = frame
+    header.stamp.sec, header.stamp.nanosec = divmod(int(ns), 1_000_000_000)
+    return header
 
 
 def path_msg(frame: str, stamps_ns: Sequence[int], poses: np.ndarray) -> Path:
-    header = Header(frame_id=frame, stamp=time_msg(stamps_ns[0]))
-    return Path(header=header, poses=[
-        PoseStamped(header=Header(frame_id=frame, stamp=time_msg(ns)), pose=pose_msg(p))
-        for ns, p in zip(stamps_ns, poses)])
+    msg = Path()
+    _stamp(msg.header, frame, stamps_ns[0])
+    stamped = []
+    for ns, pose in zip(stamps_ns, np.asarray(poses, dtype=float)):
+        ps = PoseStamped()
+        _stamp(ps.header, frame, ns)
+        pose_msg(pose, ps.pose)
+        stamped.append(ps)
+    msg.poses = stamped
+    return msg
 
 
 def multidof_msg(frame: str, start_ns: int, offsets: np.ndarray, poses: np.ndarray,
@@ -226,11 +240,19 @@ def multidof_msg(frame: str, start_ns: int, offsets: np.ndarray, poses: np.ndarr
 def control_sequence_msg(frame: str, start_ns: int, offsets: np.ndarray, names: Sequence[str],
                          efforts: np.ndarray) -> JointTrajectory:
     """One point per control interval: ``effort`` held from ``time_from_start`` on."""
-    return JointTrajectory(
-        header=Header(frame_id=frame, stamp=time_msg(start_ns)), joint_names=list(names),
-        points=[JointTrajectoryPoint(effort=[float(e) for e in u],
-                                     time_from_start=duration_msg(float(dt)))
-                for dt, u in zip(offsets, efforts)])
+    msg = JointTrajectory()
+    _stamp(msg.header, frame, start_ns)
+    msg.joint_names = list(names)
+    points = []
+    offsets_ns = np.round(np.asarray(offsets, dtype=float) * 1e9).astype(np.int64).tolist()
+    for ns, effort in zip(offsets_ns, np.asarray(efforts, dtype=float).tolist()):
+        point = JointTrajectoryPoint()
+        point.effort = effort
+        since = point.time_from_start
+        since.sec, since.nanosec = divmod(ns, 1_000_000_000)
+        points.append(point)
+    msg.points = points
+    return msg
 
 
 def twist_msg(body_twist: np.ndarray) -> Twist:
@@ -245,8 +267,9 @@ def twist_stamped_msg(frame: str, stamp: int, body_twist: np.ndarray) -> TwistSt
 
 def odometry_msg(frame: str, child: str, stamp: int, pose: np.ndarray,
                  body_twist: np.ndarray) -> Odometry:
-    msg = Odometry(header=Header(frame_id=frame, stamp=time_msg(stamp)), child_frame_id=child)
-    msg.pose.pose = pose_msg(pose)
+    msg = Odometry(child_frame_id=child)
+    _stamp(msg.header, frame, stamp)
+    pose_msg(pose, msg.pose.pose)
     msg.twist.twist = twist_msg(body_twist)
     return msg
 
@@ -271,10 +294,7 @@ def plan_markers(frame: str, stamp: int, plan_poses: np.ndarray,
 
 def reference_message(reference: Trajectory, pose_map: PoseMap, start: float, kind: str,
                       frame: str = 'odom'):
-    """Return the reference as a Path (poses) or MultiDOFJointTrajectory (poses, twists).
-
-    It starts at ``start`` seconds on the clock.
-    """
+    """Return the reference as a Path or MultiDOFJointTrajectory, from ``start`` s on."""
     start_ns = int(round(start * 1e9))
     poses = np.array([pose_map.pose(q) for q in reference.q])
     if kind == 'path':

@@ -17,12 +17,15 @@
 The numerics live in a ROS-free :class:`~nh_tracking.session.TrackingSession`: its solver
 thread plans, its builder thread rebuilds after a parameter change while the plan in force keeps
 going. Executor callbacks only convert messages; services run on a thread of their own, so a
-solve behind ``plan`` or ``replan`` never stops ``cmd_vel``. Lifecycle as in Nav2: configure
+solve behind ``plan`` or ``replan`` never stops ``cmd_vel``. Odometry arrives on a thread of its
+own too (:mod:`~nh_tracking.ros.odometry_receiver`); with ``replan_on_odom`` the plan is made
+there, on receipt, rather than handed to the solver thread. Lifecycle as in Nav2: configure
 builds the model and NLP, activate commands, deactivate stops with a zero ``cmd_vel``, cleanup
 frees; ``autostart`` (default true) goes to active at start-up, no lifecycle manager needed.
 """
 from __future__ import annotations
 
+import threading
 import time
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
@@ -40,6 +43,7 @@ from nh_tracking.receding_horizon import PlannerSettings
 from nh_tracking.ros import conversions as cv
 from nh_tracking.ros.obstacle_listener import DISC_SIZE, ObstacleListener
 from nh_tracking.ros.obstacle_messages import obstacle_markers
+from nh_tracking.ros.odometry_receiver import OdometryReceiver
 from nh_tracking.ros.parameters import declare_all, declare_model
 from nh_tracking.ros.planner_interface import LATCHED, PARAMETERS, REFERENCE_QOS
 from nh_tracking.ros.planner_parameters import RuntimeParameters
@@ -51,6 +55,8 @@ from nh_tracking.session import PlanResult, TrackingSession
 class PlannerNode(RuntimeParameters, ObstacleListener, LifecycleNode):
     """``nh_tracking_planner``: topics, services and parameters in the README's table."""
 
+    _displayed: object  # the outcome last shown on planned_path
+
     def __init__(self, **kwargs) -> None:
         super().__init__('nh_tracking_planner', **kwargs)
         self.model, self.physical = declare_model(self)
@@ -61,6 +67,9 @@ class PlannerNode(RuntimeParameters, ObstacleListener, LifecycleNode):
         self._command_timers: list = []
         self._entities: list = []
         self._service_host: PlannerServices | None = None
+        self._odometry: OdometryReceiver | None = None
+        self._obstacles_lock = threading.Lock()
+        self._planned_ns = 0  # system time the last plan made on receipt of odometry ended
         self._last_reference: tuple[object, object] | None = None
         self._configure_error = ''  # why the last configure failed
         self.add_on_set_parameters_callback(self._validate_parameters)
@@ -129,11 +138,12 @@ class PlannerNode(RuntimeParameters, ObstacleListener, LifecycleNode):
                 self.create_subscription(MultiDOFJointTrajectory, 'reference_trajectory',
                                          self.on_reference_trajectory, qos,
                                          event_callbacks=quiet)]
-        self._entities.append(self.create_subscription(Odometry, 'odom', self.on_odom, 10))
         self._entities += self.listen_for_obstacles()
-        self._discs, self._discs_centre = np.zeros((0, 3)), np.zeros(2)
+        self._discs, self._discs_centre, self._displayed = np.zeros((0, 3)), np.zeros(2), None
         self._service_host = PlannerServices(self)
-        session.start(self._publish_plan, self._publish_display)
+        session.start(self._publish_plan)
+        # last: its callbacks start at once, on their own thread, and need all of the above
+        self._odometry = OdometryReceiver(self, 'odom', self.on_odom)
         self.get_logger().info(f'planning for {self.model} {self.physical} with '
                                f'{session.planner.settings}')
         return TransitionCallbackReturn.SUCCESS
@@ -141,7 +151,8 @@ class PlannerNode(RuntimeParameters, ObstacleListener, LifecycleNode):
     def on_activate(self, state: LifecycleState) -> TransitionCallbackReturn:
         self._command_timers = [
             self.create_timer(self.params['replan_period'], self.live.wake),
-            self.create_timer(1.0 / self.params['cmd_rate'], self.publish_cmd_vel)]
+            self.create_timer(1.0 / self.params['cmd_rate'], self.publish_cmd_vel),
+            self.create_timer(1.0 / self.params['display_rate'], self.publish_display)]
         self.live.active = True
         self.live.wake()
         return super().on_activate(state)
@@ -164,6 +175,9 @@ class PlannerNode(RuntimeParameters, ObstacleListener, LifecycleNode):
         return self.on_cleanup(state)
 
     def _release(self) -> None:
+        if self._odometry is not None:
+            self._odometry.close()
+            self._odometry = None
         if self._service_host is not None:
             self._service_host.close()
             self._service_host = None
@@ -185,10 +199,7 @@ class PlannerNode(RuntimeParameters, ObstacleListener, LifecycleNode):
         self.publish_diagnostics()
 
     def _first_delivery(self, info: dict | None) -> bool:
-        """Return False for the second copy of a sample.
-
-        Both reference subscriptions match a latched publisher, so it arrives twice.
-        """
+        """Return False for the second copy of a sample (both reference subscriptions get it)."""
         if not info:
             return True
         key = (info.get('source_timestamp'), info.get('publication_sequence_number'))
@@ -213,14 +224,18 @@ class PlannerNode(RuntimeParameters, ObstacleListener, LifecycleNode):
         self.live.wake()
 
     @guarded('odom')
-    def on_odom(self, msg: Odometry) -> None:
+    def on_odom(self, msg: Odometry, info: dict) -> None:
+        """Take the state; replan_on_odom: plan here, unless it waited (odometry_receiver)."""
         received = time.perf_counter()
         stamp, pose, twist = cv.odom_to_arrays(msg, self.frame)
         self.live.set_odometry(stamp, pose, twist, received)
         if len(self.costmap[0]) and np.hypot(*(pose[:2] - self._discs_centre)) > DISC_SIZE:
             self.obstacles_changed()  # re-choose the costmap discs near the robot
-        if self.params['replan_on_odom']:
-            self.live.wake()
+        if self.params['replan_on_odom'] and info['received_timestamp'] < self._planned_ns:
+            self.live.wake()  # it waited behind the last plan: plan for the latest, there
+        elif self.params['replan_on_odom']:
+            self.live.replan()
+            self._planned_ns = time.time_ns()  # the clock of DDS's reception stamps
 
     # outputs ----------------------------------------------------------------------------------
     @guarded('publishing the plan')
@@ -234,11 +249,13 @@ class PlannerNode(RuntimeParameters, ObstacleListener, LifecycleNode):
                 session.system.control_names, plan.u))
 
     @guarded('publishing the plan display')
-    def _publish_display(self, result: PlanResult) -> None:
-        """Publish planned_path, and planned_markers when someone listens."""
-        outcome, session = result.outcome, self.live
-        if outcome is None:
+    def publish_display(self) -> None:
+        """Publish the newest plan (path; markers if listened to) at display_rate."""
+        session = self.live
+        outcome = session.outcome
+        if outcome is None or outcome is self._displayed:
             return
+        self._displayed = outcome
         plan, pose = outcome.plan, session.pose_map.pose
         stamps = [session.ns(t) for t in plan.t]
         poses = np.array([pose(q) for q in plan.q])
@@ -250,11 +267,14 @@ class PlannerNode(RuntimeParameters, ObstacleListener, LifecycleNode):
             self.pub_markers.publish(markers)
 
     def obstacles_changed(self) -> None:
-        state, session = self.live.state, self.live
-        centre = np.zeros(2) if state is None else session.pose_map.pose(state.q)[:2]
-        self._discs_centre = centre
-        self._discs = self.obstacle_discs(centre, self.params['costmap_reach'], MAX_OBSTACLES)
-        session.set_obstacles(self._discs)
+        """Choose the discs in force, one call at a time (executor and odometry threads)."""
+        with self._obstacles_lock:
+            state, session = self.live.state, self.live
+            centre = np.zeros(2) if state is None else session.pose_map.pose(state.q)[:2]
+            self._discs_centre = centre
+            self._discs = self.obstacle_discs(centre, self.params['costmap_reach'],
+                                              MAX_OBSTACLES)
+            session.set_obstacles(self._discs)
 
     @guarded('cmd_vel')
     def publish_cmd_vel(self) -> None:

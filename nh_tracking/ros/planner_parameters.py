@@ -57,7 +57,7 @@ class RuntimeParameters(SafeNode):
                 self.params[p.name] = p.value
             if p.name in self.physical:
                 self.physical[p.name] = float(p.value)
-        timers = {'replan_period': 0, 'cmd_rate': 1}
+        timers = {'replan_period': 0, 'cmd_rate': 1, 'display_rate': 2}
         for name in names & timers.keys():
             if self._command_timers:
                 period = self.params[name] if name == 'replan_period' else 1 / self.params[name]
