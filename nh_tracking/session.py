@@ -230,26 +230,25 @@ class TrackingSession:
 
     # planning ---------------------------------------------------------------------------------
     def replan(self) -> PlanResult:
-        """Plan from the latest state; the result goes to ``on_plan`` as well."""
-        state = self.state
-        reason = self._why_not(state)
-        if reason or state is None:
-            return PlanResult(None, state, reason)
+        """Plan from the latest state, to ``on_plan`` too; under one lock (threads take turns)."""
         with self._solve_lock:
+            state = self.state
+            reason = self._why_not(state)
+            if reason or state is None:
+                return PlanResult(None, state, reason)
             planner = self.planner
             planner.obstacles = self._obstacles
             outcome = planner.plan(self.seconds(state.ns), state.q, state.v)
-            planning = planner.stats.plan_durations[-1]
-        result = PlanResult(outcome, state, f'{outcome.status}: {outcome.message} '
-                                            f'({outcome.solve_time * 1e3:.1f} ms)')
-        self._on_plan(result)  # the commands first: the robot waits for them
-        self.latencies.append((time.perf_counter() - state.received, planning,
-                               outcome.solve_time))
-        with self._lock:
-            if self.stale:
-                self.log('info', 'odometry is fresh again: planning resumed')
-            self.stale = False
-            self.outcome = outcome
+            result = PlanResult(outcome, state, f'{outcome.status}: {outcome.message} '
+                                                f'({outcome.solve_time * 1e3:.1f} ms)')
+            self._on_plan(result)  # the commands first: the robot waits for them
+            self.latencies.append((time.perf_counter() - state.received,
+                                   planner.stats.plan_durations[-1], outcome.solve_time))
+            with self._lock:
+                if self.stale:
+                    self.log('info', 'odometry is fresh again: planning resumed')
+                self.stale = False
+                self.outcome = outcome
         return result
 
     def _why_not(self, state: StateEstimate | None) -> str:

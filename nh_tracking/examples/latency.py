@@ -68,13 +68,13 @@ def deployed_latency(log: Callable[[str], None], duration: float = 8.0, rate: fl
     percentiles over the planner's last 200 plans; the figures are their medians (p99: worst).
     """
     env = dict(os.environ, ROS_DOMAIN_ID=str(DOMAIN), ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST')
+    health: list[dict[str, str]] = []
+    graph = InProcessGraph(domain_id=DOMAIN)
     planner = subprocess.Popen(
         [str(Path(sys.executable).parent / 'planner'), '--ros-args', '-r', '__ns:=/latency',
          '-p', 'replan_on_odom:=true', '-p', 'replan_period:=60.0',
          '-p', f"iterations:={REAL_TIME['iterations']}"],
         env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-    health: list[dict[str, str]] = []
-    graph = InProcessGraph(domain_id=DOMAIN)
     try:
         node = graph.plain_node('odometry_replay', '/latency')
 
@@ -84,8 +84,9 @@ def deployed_latency(log: Callable[[str], None], duration: float = 8.0, rate: fl
 
         node.create_subscription(DiagnosticArray, '/diagnostics', on_diagnostics, 10)
         reference_pub = node.create_publisher(PathMsg, 'reference_path', LATCHED)
-        if not wait_until(lambda: bool(health), 60.0):
-            raise RuntimeError('the planner did not come up within 60 s')
+        if not wait_until(lambda: bool(health) or planner.poll() is not None, 60.0) or (
+                planner.poll() is not None):
+            raise RuntimeError(f'the planner did not come up within 60 s (exit {planner.poll()})')
         reference, pose_map = sleigh_reference(duration + 30.0), PoseMap(models.create(
             'chaplygin_sleigh'))
         start = node.get_clock().now().nanoseconds * 1e-9

@@ -26,52 +26,29 @@ with every plan slower than the odometry; the solver thread plans for the latest
 from __future__ import annotations
 
 from collections.abc import Callable
-import threading
 
 from nav_msgs.msg import Odometry
-from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.qos import QoSProfile, ReliabilityPolicy
+
+from nh_tracking.ros.companion import CompanionNode
 
 # every message is looked at (a bad one is reported); the callback coalesces plans itself
 ODOM_QOS = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
 
 
-class OdometryReceiver:
+class OdometryReceiver(CompanionNode):
     """Calls ``callback(msg, info)`` on its own thread for each ``topic`` message ``owner`` gets.
 
     The topic name is resolved by ``owner`` (its namespace and remappings), so the receiver node
     takes no command-line arguments of its own.
     """
 
-    def __init__(self, owner: Node, topic: str,
-                 callback: Callable[..., None]) -> None:
-        self.node = Node(f'{owner.get_name()}_odometry', namespace=owner.get_namespace(),
-                         context=owner.context, use_global_arguments=False,
-                         enable_rosout=False, start_parameter_services=False,
-                         parameter_overrides=[Parameter('start_type_description_service',
-                                                        value=False)])
+    def __init__(self, owner: Node, topic: str, callback: Callable[..., None]) -> None:
+        super().__init__(owner, 'odometry', use_global_arguments=False, enable_rosout=False,
+                         start_parameter_services=False, parameter_overrides=[
+                             Parameter('start_type_description_service', value=False)])
         self.subscription = self.node.create_subscription(
             Odometry, owner.resolve_topic_name(topic), callback, ODOM_QOS)
-        self._executor = SingleThreadedExecutor(context=owner.context)
-        self._executor.add_node(self.node)
-        self._thread = threading.Thread(target=self._spin, name='nh_tracking_odometry',
-                                        daemon=True)
-        self._thread.start()
-
-    def _spin(self) -> None:
-        try:
-            self._executor.spin()
-        except ExternalShutdownException:
-            pass
-        except RuntimeError:  # the context shut down while the executor made its wait set
-            if self.node.context.ok():
-                raise
-
-    def close(self) -> None:
-        """Stop the thread (no callback runs after this returns), then free the node."""
-        self._executor.shutdown(timeout_sec=5.0)
-        if self._thread is not threading.current_thread():
-            self._thread.join(timeout=5.0)
-        self.node.destroy_node()
+        self.start()

@@ -231,7 +231,8 @@ class PlannerNode(RuntimeParameters, ObstacleListener, LifecycleNode):
         self.live.set_odometry(stamp, pose, twist, received)
         if len(self.costmap[0]) and np.hypot(*(pose[:2] - self._discs_centre)) > DISC_SIZE:
             self.obstacles_changed()  # re-choose the costmap discs near the robot
-        if self.params['replan_on_odom'] and info['received_timestamp'] < self._planned_ns:
+        arrived = info.get('received_timestamp') or 0  # 0: not known (rmw_cyclonedds)
+        if self.params['replan_on_odom'] and 0 < arrived < self._planned_ns:
             self.live.wake()  # it waited behind the last plan: plan for the latest, there
         elif self.params['replan_on_odom']:
             self.live.replan()

@@ -61,7 +61,9 @@ class RuntimeParameters(SafeNode):
         for name in names & timers.keys():
             if self._command_timers:
                 period = self.params[name] if name == 'replan_period' else 1 / self.params[name]
-                self._command_timers[timers[name]].timer_period_ns = int(period * 1e9)
+                timer = self._command_timers[timers[name]]
+                timer.timer_period_ns = int(period * 1e9)
+                timer.reset()  # from now: else the call already due at the old period comes first
         session = self.session
         if session is not None:
             session.odom_timeout = self.params['odom_timeout']

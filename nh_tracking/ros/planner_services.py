@@ -23,18 +23,16 @@ planner's) spun by a single-threaded executor of its own.
 """
 from __future__ import annotations
 
-import threading
 from typing import TYPE_CHECKING
 
 from nav_msgs.msg import Path
 from nav_msgs.srv import GetPlan
 import numpy as np
-import rclpy
-from rclpy.executors import SingleThreadedExecutor
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 from std_srvs.srv import Trigger
 
 from nh_tracking.ros import conversions as cv
+from nh_tracking.ros.companion import CompanionNode
 
 if TYPE_CHECKING:
     from nh_tracking.ros.planner_node import PlannerNode
@@ -47,30 +45,15 @@ class PlannerServices:
 
     def __init__(self, planner: PlannerNode) -> None:
         self.planner = planner
-        self.node = rclpy.create_node(f'{planner.get_name()}_services',
-                                      namespace=planner.get_namespace(),
-                                      context=planner.context,
-                                      start_parameter_services=False)
+        self.companion = CompanionNode(planner, 'services', start_parameter_services=False)
         requests = QoSProfile(depth=SERVICE_QUEUE, reliability=ReliabilityPolicy.RELIABLE)
-        self.node.create_service(GetPlan, 'plan', self.on_plan, qos_profile=requests)
-        self.node.create_service(Trigger, 'replan', self.on_replan, qos_profile=requests)
-        self.executor = SingleThreadedExecutor(context=planner.context)
-        self.executor.add_node(self.node)
-        self._thread = threading.Thread(target=self._spin, name='nh_tracking_services',
-                                        daemon=True)
-        self._thread.start()
-
-    def _spin(self) -> None:
-        try:
-            self.executor.spin()
-        except Exception:  # noqa: BLE001 - a context shut down under us ends the thread
-            pass
+        self.companion.node.create_service(GetPlan, 'plan', self.on_plan, qos_profile=requests)
+        self.companion.node.create_service(Trigger, 'replan', self.on_replan,
+                                           qos_profile=requests)
+        self.companion.start()
 
     def close(self) -> None:
-        self.executor.shutdown(timeout_sec=5.0)
-        if threading.current_thread() is not self._thread:
-            self._thread.join(timeout=5.0)
-        self.node.destroy_node()
+        self.companion.close()
 
     def on_plan(self, request: GetPlan.Request, response: GetPlan.Response
                 ) -> GetPlan.Response:
