@@ -271,11 +271,21 @@ def test_two_pairs_in_namespaces_do_not_cross_talk(graph):
     b = WallClockPair(graph, offset=(0.0, 10.0))
     a.send_reference()
     b.send_reference()
-    count_a, count_b = len(a.odom), len(b.odom)
-    assert wait_until(lambda: len(a.odom) > count_a + 100 and len(b.odom) > count_b + 100, 20.0)
-    for pair in (a, b):
+
+    def recent_error(pair: WallClockPair) -> float:
+        """Worst cross-track error over the last second of odometry (50 messages at 50 Hz)."""
+        if len(pair.odom) < 50:
+            return math.inf
         xy = np.array([[m.pose.pose.position.x, m.pose.pose.position.y] for m in pair.odom[-50:]])
-        assert cross_track_error(xy, pair.reference.q[:, :2] + pair.offset).max() < 0.2
+        return float(cross_track_error(xy, pair.reference.q[:, :2] + pair.offset).max())
+
+    # each robot converges onto its own reference (how soon depends on the machine's load: the
+    # two planners start while the first one is already planning)
+    count_a, count_b = len(a.odom), len(b.odom)
+    assert wait_until(lambda: len(a.odom) > count_a + 100 and len(b.odom) > count_b + 100
+                      and max(recent_error(a), recent_error(b)) < 0.2, 30.0, period=0.1), \
+        (recent_error(a), recent_error(b))
+    for pair in (a, b):
         assert pair.planner.planner.reference.q[0, 1] == pytest.approx(0.5 + pair.offset[1])
     # the same reference shape 10 m apart, started together: the robots stay 10 m apart (a
     # robot driven by the other's planner would close that gap)
