@@ -154,8 +154,7 @@ def _bad_messages(pair):
         """Return a fresh copy of the first 20 poses (no shared sub-messages), then ``edit``."""
         msg = Path(header=Header(frame_id='odom', stamp=cv.time_msg(0)), poses=[
             PoseStamped(header=Header(frame_id=p.header.frame_id, stamp=p.header.stamp),
-                        pose=cv.pose_msg(np.array([p.pose.position.x, p.pose.position.y, 0.0,
-                                                   cv.yaw_of(p.pose.orientation)])))
+                        pose=cv.pose_msg(cv.pose_array(p.pose, 'pose')))
             for p in good.poses[:20]])
         edit(msg)
         return msg

@@ -39,7 +39,7 @@ from nh_tracking.metrics import cross_track_error
 from nh_tracking.poses import PoseMap
 from nh_tracking.ros import conversions as cv
 from nh_tracking.ros.graph import InProcessGraph, parameters, wait_until
-from nh_tracking.ros.obstacle_messages import obstacle_markers
+from nh_tracking.ros.markers import obstacle_markers
 from nh_tracking.ros.planner_node import LATCHED, PlannerNode
 from nh_tracking.ros.simulator_node import SimulatorNode
 from nh_tracking.trajectory import Trajectory

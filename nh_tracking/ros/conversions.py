@@ -25,16 +25,16 @@ import math
 
 from builtin_interfaces.msg import Duration, Time
 from diagnostic_msgs.msg import DiagnosticStatus, KeyValue
-from geometry_msgs.msg import (Point, Pose, PoseStamped, Quaternion, Transform, Twist,
-                               TwistStamped, Vector3)
+from geometry_msgs.msg import (Pose, PoseStamped, Quaternion, Transform, Twist, TwistStamped,
+                               Vector3)
 from nav_msgs.msg import Odometry, Path
 import numpy as np
-from std_msgs.msg import ColorRGBA, Header
+from std_msgs.msg import Header
 from trajectory_msgs.msg import (JointTrajectory, JointTrajectoryPoint, MultiDOFJointTrajectory,
                                  MultiDOFJointTrajectoryPoint)
-from visualization_msgs.msg import Marker, MarkerArray
 
 from nh_tracking.poses import PoseMap
+from nh_tracking.ros import cdr
 from nh_tracking.trajectory import Trajectory
 
 QUATERNION_TOLERANCE = 1e-3  # |q| may differ from 1 by this much (float32 round trips)
@@ -65,15 +65,14 @@ def duration_msg(seconds: float) -> Duration:
 
 
 # orientation ----------------------------------------------------------------------------------
-def yaw_of(q: Quaternion) -> float:
-    """Yaw of a unit quaternion; rejects non-finite and non-unit ones."""
-    values = (q.x, q.y, q.z, q.w)
-    if not all(math.isfinite(c) for c in values):
+def _yaw(x: float, y: float, z: float, w: float) -> float:
+    """Yaw of a unit quaternion (x, y, z, w); rejects non-finite and non-unit ones."""
+    if not all(math.isfinite(c) for c in (x, y, z, w)):
         raise InputRejected('orientation has non-finite components')
-    norm = math.sqrt(sum(c * c for c in values))
+    norm = math.sqrt(x * x + y * y + z * z + w * w)
     if abs(norm - 1.0) > QUATERNION_TOLERANCE:
         raise InputRejected(f'orientation quaternion is not unit (norm {norm:.4g})')
-    return math.atan2(2.0 * (q.w * q.z + q.x * q.y), 1.0 - 2.0 * (q.y * q.y + q.z * q.z))
+    return math.atan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
 
 
 def quaternion_of(yaw: float) -> Quaternion:
@@ -89,16 +88,26 @@ def _finite(values: Sequence[float], what: str, bound: float = MAX_POSITION) -> 
 
 def pose_array(pose: Pose, what: str) -> np.ndarray:
     """(x, y, z, yaw) of a pose, validated."""
-    p = pose.position
-    _finite((p.x, p.y, p.z), f'{what} position')
-    return np.array([p.x, p.y, p.z, yaw_of(pose.orientation)])
+    p, o = pose.position, pose.orientation
+    return _pose((p.x, p.y, p.z, o.x, o.y, o.z, o.w), what)
+
+
+def _pose(values: Sequence[float], what: str) -> np.ndarray:
+    """(x, y, z, yaw) of (x, y, z, qx, qy, qz, qw), validated."""
+    _finite(values[:3], f'{what} position')
+    return np.array([*values[:3], _yaw(*values[3:])])
 
 
 def twist_array(twist: Twist, what: str = 'twist') -> np.ndarray:
     """(vx, vy, vz, wz) of a twist, validated (roll and pitch rates are ignored)."""
-    values = (twist.linear.x, twist.linear.y, twist.linear.z, twist.angular.z)
-    _finite(values + (twist.angular.x, twist.angular.y), what, MAX_RATE)
-    return np.array(values)
+    linear, angular = twist.linear, twist.angular
+    return _twist((linear.x, linear.y, linear.z, angular.x, angular.y, angular.z), what)
+
+
+def _twist(values: Sequence[float], what: str) -> np.ndarray:
+    """(vx, vy, vz, wz) of (vx, vy, vz, wx, wy, wz), validated."""
+    _finite(values, what, MAX_RATE)
+    return np.array([*values[:3], values[5]])
 
 
 def check_frame(frame_id: str, expected: str, what: str) -> None:
@@ -151,10 +160,9 @@ def multidof_to_arrays(msg: MultiDOFJointTrajectory, frame: str, receipt_ns: int
             raise InputRejected(
                 f'trajectory point {i} has {len(pt.transforms)} transforms and '
                 f'{len(pt.velocities)} velocities for 1 joint')
-        tr = pt.transforms[0]
-        _finite((tr.translation.x, tr.translation.y, tr.translation.z), f'point {i} translation')
-        poses.append([tr.translation.x, tr.translation.y, tr.translation.z,
-                      yaw_of(tr.rotation)])
+        xyz, rotation = pt.transforms[0].translation, pt.transforms[0].rotation
+        poses.append(_pose((xyz.x, xyz.y, xyz.z, rotation.x, rotation.y, rotation.z,
+                            rotation.w), f'point {i}'))
         twists.append(twist_array(pt.velocities[0], f'point {i} velocity'))
         times.append(base + int(round(duration_seconds(pt.time_from_start) * 1e9)))
     stamps = np.array(times, dtype=np.int64)
@@ -162,11 +170,21 @@ def multidof_to_arrays(msg: MultiDOFJointTrajectory, frame: str, receipt_ns: int
     return stamps, np.array(poses), np.array(twists)
 
 
-def odom_to_arrays(msg: Odometry, frame: str) -> tuple[int, np.ndarray, np.ndarray]:
-    """(stamp [ns], pose (4,), body twist (4,)) of an Odometry message."""
-    check_frame(msg.header.frame_id, frame, 'odometry')
-    return (stamp_ns(msg.header.stamp), pose_array(msg.pose.pose, 'odometry pose'),
-            twist_array(msg.twist.twist, 'odometry twist'))
+def odom_to_arrays(msg: Odometry | bytes, frame: str) -> tuple[int, np.ndarray, np.ndarray]:
+    """(stamp [ns], pose (4,), body twist (4,)) of an Odometry message or of its CDR bytes."""
+    if isinstance(msg, bytes):  # from a raw subscription: read without building the message
+        try:
+            stamp, frame_id, values = cdr.odometry_values(msg)
+        except cdr.Unreadable as exc:
+            raise InputRejected(str(exc)) from None
+    else:
+        p, o = msg.pose.pose.position, msg.pose.pose.orientation
+        linear, angular = msg.twist.twist.linear, msg.twist.twist.angular
+        stamp, frame_id = stamp_ns(msg.header.stamp), msg.header.frame_id
+        values = (p.x, p.y, p.z, o.x, o.y, o.z, o.w, linear.x, linear.y, linear.z, angular.x,
+                  angular.y, angular.z)
+    check_frame(frame_id, frame, 'odometry')
+    return stamp, _pose(values[:7], 'odometry pose'), _twist(values[7:], 'odometry twist')
 
 
 def controls_to_arrays(msg: JointTrajectory, names: Sequence[str]
@@ -272,24 +290,6 @@ def odometry_msg(frame: str, child: str, stamp: int, pose: np.ndarray,
     pose_msg(pose, msg.pose.pose)
     msg.twist.twist = twist_msg(body_twist)
     return msg
-
-
-def line_strip(frame: str, stamp: int, ns: str, points: np.ndarray, rgba: tuple,
-               width: float = 0.03) -> Marker:
-    return Marker(
-        header=Header(frame_id=frame, stamp=time_msg(stamp)), ns=ns, id=0,
-        type=Marker.LINE_STRIP, action=Marker.ADD, scale=Vector3(x=width),
-        color=ColorRGBA(r=rgba[0], g=rgba[1], b=rgba[2], a=rgba[3]),
-        points=[Point(x=float(p[0]), y=float(p[1]), z=float(p[2])) for p in points])
-
-
-def plan_markers(frame: str, stamp: int, plan_poses: np.ndarray,
-                 reference_poses: np.ndarray) -> MarkerArray:
-    """Return the plan (green) and the reference over the same horizon (grey), for RViz."""
-    return MarkerArray(markers=[
-        line_strip(frame, stamp, 'planned_path', plan_poses, (0.1, 0.8, 0.2, 1.0)),
-        line_strip(frame, stamp, 'reference', reference_poses, (0.6, 0.6, 0.6, 0.8), 0.02),
-    ])
 
 
 def reference_message(reference: Trajectory, pose_map: PoseMap, start: float, kind: str,

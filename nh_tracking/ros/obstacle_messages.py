@@ -23,10 +23,8 @@ negative numbers is refused whole: the set in force stays.
 """
 from __future__ import annotations
 
-from geometry_msgs.msg import Point, Vector3
 from nav_msgs.msg import OccupancyGrid
 import numpy as np
-from std_msgs.msg import ColorRGBA, Header
 from visualization_msgs.msg import Marker, MarkerArray
 
 from nh_tracking.ros import conversions as cv
@@ -83,21 +81,3 @@ def occupied_cells(msg: OccupancyGrid, frame: str) -> tuple[np.ndarray, float]:
     c, s = np.cos(origin[3]), np.sin(origin[3])
     world = local @ np.array([[c, s], [-s, c]]) + origin[:2]
     return world, float(size)
-
-
-def obstacle_markers(frame: str, stamp: int, discs: np.ndarray) -> list[Marker]:
-    """Discs as flat cylinders for RViz (namespace ``obstacles``), after a DELETEALL."""
-    header = Header(frame_id=frame, stamp=cv.time_msg(stamp))
-    markers = [Marker(header=header, ns='obstacles', action=Marker.DELETEALL)]
-    for i, (x, y, r) in enumerate(discs):
-        marker = Marker(header=header, ns='obstacles', id=i, type=Marker.CYLINDER,
-                        action=Marker.ADD, scale=Vector3(x=2 * r, y=2 * r, z=0.05),
-                        color=ColorRGBA(r=0.8, g=0.2, b=0.2, a=0.6))
-        marker.pose.position = Point(x=float(x), y=float(y), z=0.0)
-        marker.pose.orientation.w = 1.0
-        markers.append(marker)
-    return markers
-
-
-def marker_array(markers: list[Marker]) -> MarkerArray:
-    return MarkerArray(markers=markers)

@@ -32,6 +32,7 @@ from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 
+from nh_tracking.ros import cdr
 from nh_tracking.ros.companion import CompanionNode
 
 # every message is looked at (a bad one is reported); the callback coalesces plans itself
@@ -40,6 +41,8 @@ ODOM_QOS = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
 
 class OdometryReceiver(CompanionNode):
     """Calls ``callback(msg, info)`` on its own thread for each ``topic`` message ``owner`` gets.
+
+    ``msg`` is the message's CDR bytes where :mod:`cdr` reads them (else the message).
 
     The topic name is resolved by ``owner`` (its namespace and remappings), so the receiver node
     takes no command-line arguments of its own.
@@ -50,5 +53,6 @@ class OdometryReceiver(CompanionNode):
                          start_parameter_services=False, parameter_overrides=[
                              Parameter('start_type_description_service', value=False)])
         self.subscription = self.node.create_subscription(
-            Odometry, owner.resolve_topic_name(topic), callback, ODOM_QOS)
+            Odometry, owner.resolve_topic_name(topic), callback, ODOM_QOS,
+            raw=cdr.agrees_with_rmw())
         self.start()

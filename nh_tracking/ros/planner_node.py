@@ -40,9 +40,9 @@ from visualization_msgs.msg import MarkerArray
 from nh_tracking.avoidance import MAX_OBSTACLES
 from nh_tracking.health import session_health
 from nh_tracking.receding_horizon import PlannerSettings
-from nh_tracking.ros import conversions as cv
+from nh_tracking.ros import cdr, conversions as cv
+from nh_tracking.ros.markers import obstacle_markers, plan_markers
 from nh_tracking.ros.obstacle_listener import DISC_SIZE, ObstacleListener
-from nh_tracking.ros.obstacle_messages import obstacle_markers
 from nh_tracking.ros.odometry_receiver import OdometryReceiver
 from nh_tracking.ros.parameters import declare_all, declare_model
 from nh_tracking.ros.planner_interface import LATCHED, PARAMETERS, REFERENCE_QOS
@@ -224,7 +224,7 @@ class PlannerNode(RuntimeParameters, ObstacleListener, LifecycleNode):
         self.live.wake()
 
     @guarded('odom')
-    def on_odom(self, msg: Odometry, info: dict) -> None:
+    def on_odom(self, msg: Odometry | bytes, info: dict) -> None:
         """Take the state; replan_on_odom: plan here, unless it waited (odometry_receiver)."""
         received = time.perf_counter()
         stamp, pose, twist = cv.odom_to_arrays(msg, self.frame)
@@ -241,13 +241,13 @@ class PlannerNode(RuntimeParameters, ObstacleListener, LifecycleNode):
     # outputs ----------------------------------------------------------------------------------
     @guarded('publishing the plan')
     def _publish_plan(self, result: PlanResult) -> None:
-        """Publish a new plan's control sequence, on the solver thread."""
-        outcome, session = result.outcome, self.live
-        if outcome is not None:
-            plan = outcome.plan
-            self.pub_controls.publish(cv.control_sequence_msg(
-                self.frame, session.ns(plan.t[0]), plan.t[:-1] - plan.t[0],
-                session.system.control_names, plan.u))
+        """Publish a new plan's control sequence, on the solver thread (as bytes: :mod:`cdr`)."""
+        if result.outcome is not None:
+            plan, session = result.outcome.plan, self.live
+            fields = (self.frame, session.ns(plan.t[0]), plan.t[:-1] - plan.t[0],
+                      session.system.control_names, plan.u)
+            self.pub_controls.publish(cdr.control_sequence(*fields) if cdr.agrees_with_rmw()
+                                      else cv.control_sequence_msg(*fields))
 
     @guarded('publishing the plan display')
     def publish_display(self) -> None:
@@ -263,7 +263,7 @@ class PlannerNode(RuntimeParameters, ObstacleListener, LifecycleNode):
         self.pub_path.publish(cv.path_msg(self.frame, stamps, poses))
         if self.pub_markers.get_subscription_count() > 0:
             reference = np.array([pose(q) for q in outcome.reference])
-            markers = cv.plan_markers(self.frame, stamps[0], poses[:, :3], reference[:, :3])
+            markers = plan_markers(self.frame, stamps[0], poses[:, :3], reference[:, :3])
             markers.markers += obstacle_markers(self.frame, stamps[0], self._discs)
             self.pub_markers.publish(markers)
 

@@ -1,0 +1,160 @@
+# Copyright 2026 nh_tracking maintainers
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+
+"""The wire bytes (CDR) of the two messages on the replanning path, read and written directly.
+
+rclpy turns a received Odometry into ~10 Python objects before the callback runs, and a
+published JointTrajectory of 30 points is built from ~100 objects (~170 us) that rclpy then
+walks again to convert (~90 us): half of a real-time replan's latency. The bytes themselves are
+a fixed layout — the encapsulation header, then each field little-endian at its natural
+alignment (at most 8) counted from the end of that header, strings as a length (with the
+terminating NUL) and the characters — read with one ``struct.unpack_from`` and written with
+one ``struct.pack``. Raw subscriptions and publishers carry them (the pattern of
+rclpy's ``raw=True``). :func:`agrees_with_rmw` checks both directions against the middleware's
+own serializer; where they differ the nodes use messages as usual.
+"""
+from __future__ import annotations
+
+from collections.abc import Sequence
+import functools
+import math
+import struct
+
+import numpy as np
+from rclpy.serialization import deserialize_message, serialize_message
+from trajectory_msgs.msg import JointTrajectory
+
+ENCAPSULATION = b'\x00\x01\x00\x00'  # plain CDR, little-endian
+_HEAD = len(ENCAPSULATION)
+_ODOMETRY_DOUBLES = struct.Struct('<85d')  # pose (7), its covariance (36), twist (6), its (36)
+
+
+class Unreadable(ValueError):
+    """Bytes that are not a little-endian CDR message of the expected type."""
+
+
+def _aligned(position: int, size: int) -> int:
+    """``position`` (from the start of the bytes) moved to a multiple of ``size`` in the body."""
+    return position + (-(position - _HEAD) % size)
+
+
+def _string(data: bytes, position: int) -> tuple[str, int]:
+    position = _aligned(position, 4)
+    (length,) = struct.unpack_from('<I', data, position)
+    end = position + 4 + length
+    if length < 1 or end > len(data) or data[end - 1] != 0:
+        raise Unreadable('a string runs past the end of the message')
+    return data[position + 4:end - 1].decode('utf-8', 'replace'), end
+
+
+def odometry_values(data: bytes) -> tuple[int, str, tuple[float, ...]]:
+    """(stamp [ns], frame_id, (x, y, z, qx, qy, qz, qw, vx, vy, vz, wx, wy, wz)) of an Odometry."""
+    if data[:_HEAD] != ENCAPSULATION:
+        raise Unreadable(f'odometry is not little-endian CDR (header {data[:_HEAD].hex()})')
+    try:
+        sec, nanosec = struct.unpack_from('<iI', data, _HEAD)
+        frame, position = _string(data, _HEAD + 8)
+        _, position = _string(data, position)  # child_frame_id
+        values = _ODOMETRY_DOUBLES.unpack_from(data, _aligned(position, 8))
+    except struct.error:
+        raise Unreadable('odometry message is truncated') from None
+    return sec * 1_000_000_000 + nanosec, frame, values[:7] + values[43:49]
+
+
+class _Writer:
+    """One ``struct`` format and its values, with the position kept for alignment."""
+
+    def __init__(self) -> None:
+        self.format, self.position = ['<'], _HEAD
+        self.values: list[object] = []
+
+    def align(self, size: int) -> None:
+        pad = _aligned(self.position, size) - self.position
+        if pad:
+            self.format.append(f'{pad}x')
+            self.position += pad
+
+    def add(self, code: str, size: int, *values: object) -> None:
+        """Append ``values`` packed by ``code`` (``size`` bytes each, aligned to ``size``)."""
+        self.align(min(size, 8))
+        self.format.append(f'{len(values)}{code}')
+        self.values += values
+        self.position += size * len(values)
+
+    def string(self, text: str) -> None:
+        data = text.encode() + b'\0'
+        self.add('I', 4, len(data))
+        self.format.append(f'{len(data)}s')
+        self.values.append(data)
+        self.position += len(data)
+
+    def packed(self) -> bytes:
+        return ENCAPSULATION + struct.pack(''.join(self.format), *self.values)
+
+
+def control_sequence(frame: str, start_ns: int, offsets: np.ndarray, names: Sequence[str],
+                     efforts: np.ndarray) -> bytes:
+    """Return the JointTrajectory of :func:`conversions.control_sequence_msg` as wire bytes.
+
+    Its points in one numpy record array: each is (0, 0, 0, r) — no positions, velocities,
+    accelerations; r efforts — the efforts, then time_from_start. Only the first point can need
+    padding before its efforts: each ends at a multiple of 8, so the next needs none.
+    """
+    efforts = np.asarray(efforts, dtype=float).reshape(len(offsets), -1)
+    head, position = _trajectory_head(frame, tuple(names))
+    width = efforts.shape[1]
+    points = np.zeros(len(efforts), dtype=[('counts', '<u4', 4), ('effort', '<f8', width),
+                                           ('sec', '<i4'), ('nanosec', '<u4')])
+    points['counts'][:, 3] = width
+    points['effort'] = efforts
+    offsets_ns = np.round(np.asarray(offsets, dtype=float) * 1e9).astype(np.int64)
+    points['sec'], points['nanosec'] = np.divmod(offsets_ns, 1_000_000_000)
+    block = points.tobytes()
+    if width and len(points) and _aligned(position + 4 + 16, 8) != position + 4 + 16:
+        block = block[:16] + bytes(4) + block[16:]
+    stamp = struct.pack('<iI', *divmod(int(start_ns), 1_000_000_000))
+    return ENCAPSULATION + stamp + head + struct.pack('<I', len(points)) + block
+
+
+@functools.lru_cache(maxsize=16)
+def _trajectory_head(frame: str, names: tuple[str, ...]) -> tuple[bytes, int]:
+    """Return the frame and joint names after a header stamp, and where they end (per node)."""
+    out = _Writer()
+    out.position += 8  # the stamp
+    out.string(frame)
+    out.add('I', 4, len(names))
+    for name in names:
+        out.string(name)
+    out.align(4)
+    return out.packed()[_HEAD:], out.position
+
+
+@functools.cache
+def agrees_with_rmw() -> bool:
+    """Whether the middleware's serializer writes and reads these bytes (checked once)."""
+    from nh_tracking.ros import conversions as cv  # (conversions uses this module)
+    pose = np.array([1.5, -2.25, 0.125, 0.75])
+    odometry = cv.odometry_msg('odom_x', 'base', 1_700_000_000_123_456_789, pose,
+                               np.array([0.5, -0.25, 0.0, 0.125]))
+    odometry.twist.twist.angular.x = 0.0625
+    stamp, frame, values = odometry_values(serialize_message(odometry))
+    p, o, tw = odometry.pose.pose.position, odometry.pose.pose.orientation, odometry.twist.twist
+    expected = (p.x, p.y, p.z, o.x, o.y, o.z, o.w, tw.linear.x, tw.linear.y, tw.linear.z,
+                tw.angular.x, tw.angular.y, tw.angular.z)
+    offsets, efforts = np.array([0.0, 0.1, 0.25]), np.array([[1.0, -2.0], [3.5, 0.0], [-1e-3, 7]])
+    sequence = ('odom', 1_700_000_000_987_654_321, offsets, ['u_a', 'torque'], efforts)
+    written = deserialize_message(control_sequence(*sequence), JointTrajectory)
+    return (stamp == 1_700_000_000_123_456_789 and frame == 'odom_x'
+            and all(math.isclose(a, b, abs_tol=0.0) for a, b in zip(values, expected))
+            and written == cv.control_sequence_msg(*sequence))
