@@ -37,7 +37,7 @@ BoundsLike = tuple[ArrayLike, ArrayLike] | None
 def bounds(value: BoundsLike, size: int, name: str) -> np.ndarray:
     """(2, size) array [lo; hi] from a (lo, hi) pair of scalars or length-``size`` arrays."""
     if value is None:
-        return np.vstack([np.full(size, -np.inf), np.full(size, np.inf)])
+        return _unbounded(size)
     try:
         lo, hi = value
         pair = np.vstack([np.broadcast_to(np.asarray(b, dtype=float), (size,)) for b in (lo, hi)])
@@ -46,8 +46,16 @@ def bounds(value: BoundsLike, size: int, name: str) -> np.ndarray:
                          f'{size}, got {value!r}') from None
     if np.isnan(pair).any():
         raise ValueError(f'{name} has NaN: {value!r}')
-    if np.any(pair[0] > pair[1]):
+    if (pair[0] > pair[1]).any():
         raise ValueError(f'{name} has lo > hi: {pair[0].tolist()} > {pair[1].tolist()}')
+    return pair
+
+
+@functools.lru_cache(maxsize=None)
+def _unbounded(size: int) -> np.ndarray:
+    """[-inf; inf] of ``size`` (read-only and shared: every problem without limits has one)."""
+    pair = np.vstack([np.full(size, -np.inf), np.full(size, np.inf)])
+    pair.flags.writeable = False
     return pair
 
 
@@ -58,9 +66,9 @@ def obstacle_discs(value: ArrayLike, name: str = 'obstacles') -> np.ndarray:
         return np.zeros((0, 3))
     if discs.ndim != 2 or discs.shape[1] != 3:
         raise ValueError(f'{name} must be a list of (x, y, r) discs, got shape {discs.shape}')
-    if not np.all(np.isfinite(discs)):
+    if not np.isfinite(discs).all():
         raise ValueError(f'{name} must have finite centres and radii')
-    if np.any(discs[:, 2] < 0):
+    if (discs[:, 2] < 0).any():
         raise ValueError(f'{name} radii must be >= 0, got {discs[:, 2].tolist()}')
     return discs
 
@@ -126,6 +134,10 @@ class Limits:
             if value is not None and len(value):
                 worst.append(float(np.max(np.maximum(lo - value, value - hi), initial=0.0)))
         return max(worst)
+
+    def plan_violation(self, q: np.ndarray, v: np.ndarray, u: np.ndarray | None) -> float:
+        """:meth:`violation` of a plan's knots q, v and controls u, midpoints included."""
+        return self.violation(knots_and_midpoints(q), v, u) if self.active else 0.0
 
 
 def costmap_discs(cells: np.ndarray, cell_size: float, size: float) -> np.ndarray:

@@ -15,6 +15,7 @@
 """Fast numeric calls of CasADi Functions from Python hot loops (ODE right-hand sides)."""
 from __future__ import annotations
 
+import threading
 from typing import Any
 
 import casadi as ca
@@ -26,7 +27,9 @@ class NumericFunction:
 
     A plain call converts every argument to a DM and back: ~60 us, which dominates an ODE
     right-hand side evaluated 10^5 times per shooting solve. The buffer interface costs ~10 us.
-    Outputs are densified and returned as fresh numpy arrays of the output shapes.
+    Outputs are densified and returned as fresh numpy arrays of the output shapes (a column
+    as 1-D). One call at a time: the buffers are shared, so calls from several threads (a
+    planner's odometry, solver and executor threads) take turns.
     """
 
     def __init__(self, fn: ca.Function) -> None:
@@ -38,14 +41,16 @@ class NumericFunction:
         self._args = [np.zeros(dense.nnz_in(i)) for i in range(dense.n_in())]
         self._res = [np.zeros(dense.nnz_out(i)) for i in range(dense.n_out())]
         self._shapes = [dense.size_out(i) for i in range(dense.n_out())]
+        self._lock = threading.Lock()
         for i, a in enumerate(self._args):
             self._buffer.set_arg(i, memoryview(a))  # type: ignore[call-arg, arg-type]
         for i, r in enumerate(self._res):
             self._buffer.set_res(i, memoryview(r))  # type: ignore[call-arg, arg-type]
 
     def __call__(self, *args: np.ndarray | float) -> list[np.ndarray]:
-        for buf, value in zip(self._args, args):
-            buf[:] = np.ravel(value)
-        self._trigger()
-        return [r.reshape(shape, order='F') if shape[1] > 1 else r.copy()
-                for r, shape in zip(self._res, self._shapes)]
+        with self._lock:
+            for buf, value in zip(self._args, args):
+                buf[:] = np.ravel(value)
+            self._trigger()
+            return [r.copy().reshape(shape, order='F') if shape[1] > 1 else r.copy()
+                    for r, shape in zip(self._res, self._shapes)]

@@ -85,7 +85,7 @@ class TrackingProblem:
         set_ = functools.partial(object.__setattr__, self)
         set_('q0', sys.check_configuration(self.q0, 'q0').copy())
         set_('v0', sys.as_velocity(self.v0).copy())
-        if not np.all(np.isfinite(self.v0)):
+        if not np.isfinite(self.v0).all():
             raise ValueError('initial state (q0, v0) must be finite')
         for name in ('horizon', 'epsilon', 'omega'):
             value = _number(name, getattr(self, name))
@@ -114,8 +114,8 @@ class TrackingProblem:
                                  self.robot_radius))
         set_('angle_shift', np.zeros(sys.n))
         if self.wrap_angles and sys.angle_mask.any():
-            q_ref0 = self._raw_reference(np.array([self.t0]))[0][0]
-            turns = np.round((self.q0 - q_ref0) / (2 * np.pi))
+            q_ref0 = self._raw_point(t0)[0]
+            turns = np.rint((self.q0 - q_ref0) / (2 * np.pi))
             set_('angle_shift', np.where(sys.angle_mask, 2 * np.pi * turns, 0.0))
 
     @property
@@ -128,10 +128,12 @@ class TrackingProblem:
         """Return t0, where the problem starts on the reference's clock (set by then)."""
         return 0.0 if self.t0 is None else self.t0
 
-    @property
+    @functools.cached_property
     def grid(self) -> np.ndarray:
-        """The N+1 knot times on the reference's clock."""
-        return self.start + self.h * np.arange(self.steps + 1)
+        """The N+1 knot times on the reference's clock (read-only: computed once)."""
+        grid = self.start + self.h * np.arange(self.steps + 1)
+        grid.flags.writeable = False
+        return grid
 
     def reference_at(self, times: np.ndarray | float) -> tuple[np.ndarray, np.ndarray]:
         """Return Reference (q_r, v_r) at ``times``, angles on q0's branch when wrapping."""
@@ -150,28 +152,32 @@ class TrackingProblem:
 
     def reference_point(self, time: float) -> tuple[np.ndarray, np.ndarray]:
         """(q_r, v_r) at one time, as 1-D arrays (fast path for ODE right-hand sides)."""
+        q, v = self._raw_point(time)
+        return q + self.angle_shift, v
+
+    def _raw_point(self, time: float) -> tuple[np.ndarray, np.ndarray]:
         if isinstance(self.reference, Trajectory):
             q, v = self.reference.at(time)
             if not self.reference.t[0] <= time <= self.reference.t[-1]:
                 v = np.zeros_like(v)
-            return q + self.angle_shift, v
-        q, v = self.reference_at(time)
+            return q, v
+        q, v = self._raw_reference(np.array([time]))
         return q[0], v[0]
 
     def _raw_reference(self, times: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         n, k = self.system.n, self.system.k
-        if isinstance(self.reference, Trajectory):
+        if isinstance(self.reference, Trajectory):  # finite, as every Trajectory is
             q, v = self.reference.sample(times)
             outside = (times < self.reference.t[0]) | (times > self.reference.t[-1])
             v[outside] = 0.0  # held at rest outside the reference's span
-        else:
-            try:
-                q, v = self.reference(times)
-                q = np.asarray(q, dtype=float).reshape(len(times), n)
-                v = np.asarray(v, dtype=float).reshape(len(times), k)
-            except (TypeError, ValueError) as exc:
-                raise ValueError(f'reference(times) must return (q ({len(times)}, {n}), '
-                                 f'v ({len(times)}, {k})) arrays: {exc}') from None
+            return q, v
+        try:
+            q, v = self.reference(times)
+            q = np.asarray(q, dtype=float).reshape(len(times), n)
+            v = np.asarray(v, dtype=float).reshape(len(times), k)
+        except (TypeError, ValueError) as exc:
+            raise ValueError(f'reference(times) must return (q ({len(times)}, {n}), '
+                             f'v ({len(times)}, {k})) arrays: {exc}') from None
         if not (np.all(np.isfinite(q)) and np.all(np.isfinite(v))):
             raise ValueError('reference has non-finite values on the horizon')
         return q, v

@@ -296,4 +296,4 @@ class RecedingHorizonPlanner:
 
 
 def _finite(sol: Solution) -> bool:
-    return all(np.all(np.isfinite(a)) for a in (sol.q, sol.v, sol.u))
+    return bool(np.isfinite(sol.q).all() and np.isfinite(sol.v).all() and np.isfinite(sol.u).all())

@@ -70,7 +70,9 @@ class Domain:
 
     def check(self, q: np.ndarray, what: str = 'q') -> None:
         """Raise a ValueError naming each coordinate of ``q`` outside the domain."""
-        if not np.all(np.isfinite(q)):
+        if (self.lower < q).all() and (q < self.upper).all():  # (NaN fails both)
+            return
+        if not np.isfinite(q).all():
             raise ValueError(f'{what} must be finite, got {describe(self.coordinates, q)}')
         out = [f'{c} = {x:.6g} not in ({lo:.6g}, {hi:.6g})'
                for c, x, lo, hi in zip(self.coordinates, q, self.lower, self.upper)

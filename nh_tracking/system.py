@@ -38,6 +38,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from nh_tracking import geometry, lean, regularity
+from nh_tracking.numeric import NumericFunction
 from nh_tracking.regularity import Domain
 
 SymbolicMap = Callable[[ca.SX], Any]
@@ -106,6 +107,7 @@ class NonholonomicSystem:
         )
         self.actuators_fn = ca.Function('actuators', [q], [forces], ['q'], ['F'])
         self.rho_fn = ca.Function('rho', [q], [rho], ['q'], ['rho'])
+        self._rho = NumericFunction(self.rho_fn)  # every odometry message and command needs it
         self.metric_fn = ca.Function('metric', [q], [metric], ['q'], ['G'])
         self.constraints_fn = ca.Function('constraints', [q], [constraints], ['q'], ['mu'])
         self.potential_fn = ca.Function('potential', [q], [potential], ['q'], ['V'])
@@ -208,7 +210,7 @@ class NonholonomicSystem:
     # numpy interface -------------------------------------------------------------------------
     def rho(self, q: ArrayLike) -> np.ndarray:
         """(n, k) adapted basis at q: column A holds the components rho^i_A of e_A."""
-        return np.array(self.rho_fn(self.as_configuration(q)))
+        return self._rho(self.as_configuration(q))[0].reshape(self.n, self.k)
 
     def metric(self, q: ArrayLike) -> np.ndarray:
         """(n, n) kinetic-energy metric G(q)."""

@@ -107,12 +107,12 @@ def sample_plan(problem: TrackingProblem,
         raise ValueError(f'initial_guess has q, v, u of widths {widths}; {sys.name} needs '
                          f'({sys.n}, {sys.k}, {sys.r}): a plan of another system?')
     t = plan.t
-    grid = np.clip(problem.grid, t[0], t[-1])
-    i = np.clip(np.searchsorted(t, grid, side='right') - 1, 0, len(t) - 2)
+    grid = np.minimum(np.maximum(problem.grid, t[0]), t[-1])
+    i = np.minimum(t.searchsorted(grid, 'right') - 1, len(t) - 2)  # (grid >= t[0]: i >= 0)
     w = ((grid - t[i]) / (t[i + 1] - t[i]))[:, None]
     q = (1 - w) * plan.q[i] + w * plan.q[i + 1]
     v = (1 - w) * plan.v[i] + w * plan.v[i + 1]
-    turns = np.round((problem.q0 - q[0]) / (2 * np.pi)) * sys.angle_mask
+    turns = np.rint((problem.q0 - q[0]) / (2 * np.pi)) * sys.angle_mask
     mids = problem.grid[:-1] + 0.5 * problem.h
-    idx = np.clip(np.searchsorted(t, mids, side='right') - 1, 0, len(plan.u) - 1)
+    idx = np.minimum(np.maximum(t.searchsorted(mids, 'right') - 1, 0), len(plan.u) - 1)
     return q + 2 * np.pi * turns, v, plan.u[idx]

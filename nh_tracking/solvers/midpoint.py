@@ -214,7 +214,8 @@ def _build(system: NonholonomicSystem, steps: int, terminal: str, solver: str,
     # a real-time iteration without limits is one Gauss-Newton step in one call: no NLP solver
     newton, bounded_nlp = None, None
     if iterations and not limits.kinds:
-        newton = gauss_newton_step(form.unknowns, form.p, form.cost_residuals, constraints)
+        newton = gauss_newton_step(form.unknowns, form.p, form.cost_residuals, constraints,
+                                   form.readout)
     else:
         bounded_nlp = BoundedNlp(f'variational_{system.name}_{steps}', solver, nlp, options,
                                  bounded, compiled, bool(limits.kinds), iterations)

@@ -70,13 +70,19 @@ def _solve(w: ca.SX, p: ca.SX, inputs: list[ca.SX], matrix: ca.SX, vector: ca.SX
     return symbols, step[:w.shape[0]], step[w.shape[0]:], extra_mx
 
 
-def gauss_newton_step(w: ca.SX, p: ca.SX, residual: ca.SX, g: ca.SX) -> NumericFunction:
-    """Return (w, p) -> (w + dw, λ) for min 1/2 |residual|^2 subject to g = 0."""
+def gauss_newton_step(w: ca.SX, p: ca.SX, residual: ca.SX, g: ca.SX,
+                      readout: list[ca.SX]) -> NumericFunction:
+    """Return (w, p) -> (w + dw, λ, *readout at w + dw) for min 1/2 |residual|^2, g = 0.
+
+    The read-out of the new unknowns (the plan, its admissibility) comes with the step: one
+    call fewer per step.
+    """
     rows = g.shape[0]
     matrix, vector, _, _ = _kkt(w, residual, g, ca.DM.ones(rows), ca.DM.zeros(rows), 0)
     symbols, dw, multipliers, _ = _solve(w, p, [], matrix, vector, [])
+    read = ca.Function('readout', [w, p], readout)(symbols[0] + dw, symbols[1])
     return NumericFunction(ca.Function('gauss_newton_step', symbols,
-                                       [symbols[0] + dw, multipliers]))
+                                       [symbols[0] + dw, multipliers, *read]))
 
 
 class NewtonStep:
@@ -129,24 +135,24 @@ class NewtonStep:
 
 
 def newton_steps(step: NumericFunction, w: np.ndarray, p: np.ndarray, iterations: int,
-                 residual: Callable[[np.ndarray], float], tolerance: float, most: int
-                 ) -> tuple[np.ndarray, np.ndarray, int]:
+                 residual: Callable[[list[np.ndarray]], float], tolerance: float, most: int
+                 ) -> tuple[np.ndarray, np.ndarray, list[np.ndarray], int]:
     """Take ``iterations`` steps from w, then more while the residual is above ``tolerance``.
 
     At most ``most`` steps in all, and none once the residual grows (far from the solution,
     where Gauss-Newton without a line search diverges: a converged solve is the caller's
-    remedy). Returns the unknowns, the last multipliers and the number of steps taken; the
-    last call of ``residual`` was at the unknowns returned (callers reuse what it read). A step
+    remedy). ``residual`` reads it from what a step returns beside (w, λ). Returns the
+    unknowns, the last multipliers, what came with them and the number of steps taken. A step
     costs a tenth of a millisecond, so a plan that one step leaves short of admissible (the
     robot off the previous plan by centimetres) gets another rather than a converged solve.
     """
-    multipliers, taken, last = np.zeros(0), 0, np.inf
+    multipliers, read, taken, last = np.zeros(0), [], 0, np.inf
     while taken < most:
-        w, multipliers = step(w, p)
+        w, multipliers, *read = step(w, p)
         taken += 1
         if taken >= iterations:
-            now = residual(w)
+            now = residual(read)
             if now <= tolerance or now >= last:
                 break
             last = now
-    return w, multipliers, taken
+    return w, multipliers, read, taken

@@ -36,7 +36,6 @@ from typing import ClassVar, Literal
 
 import numpy as np
 
-from nh_tracking.limits import knots_and_midpoints
 from nh_tracking.problem import Solution, terminal_cost, terminal_error, TrackingProblem
 from nh_tracking.solvers.base import Guess, Method, Structure
 from nh_tracking.solvers.cache import NotPrepared
@@ -53,6 +52,8 @@ RTI_RESIDUAL = 1e-3  # a real-time iteration's plan must be this close to admiss
 RTI_EXTRA_STEPS = 4  # Gauss-Newton steps beyond the budget while a plan is not yet that close
 CONTINUATION_MIN_STEPS = 100  # cold solves with this many intervals or more start coarse
 COARSE_STEPS = 50
+NOT_FINITE = ('the NLP is not finite at the initial guess (the dynamics or cost give NaN or Inf '
+              'there)')
 
 
 def default_guess(problem: TrackingProblem) -> tuple[np.ndarray, np.ndarray]:
@@ -145,34 +146,27 @@ def _solve_with(problem: TrackingProblem, initial_guess: Guess | None, stop: flo
         q_g[-1], v_g[-1] = problem.reference_samples[0][-1], problem.reference_samples[1][-1]
     p = tr.parameters(problem)
     # a guess within the limits (a previous plan) is warm: near the optimum and its active set
-    warm = initial_guess is not None and problem.limits.violation(
-        knots_and_midpoints(q_g), v_g, u_g) <= VIOLATION_TOL
+    warm = initial_guess is not None and problem.limits.plan_violation(
+        q_g, v_g, u_g) <= VIOLATION_TOL
     held_step = _held_step(problem, tr) if warm else None  # built (once) outside the timing
     start = time.perf_counter()
     w0 = tr.pack(q_g, v_g, u_g)
-    if not all(np.all(np.isfinite(a)) for a in tr.readout(w0, p)):
-        # fatrop never returns from a non-finite starting point (its line search cannot
-        # recover): refuse to start, and say why
-        return _failed(problem, q_g, v_g, time.perf_counter() - start, solver,
-                       'the NLP is not finite at the initial guess (the dynamics or cost give '
-                       'NaN or Inf there)')
-    bounds = tr.bounds(problem)
-    slacks = 0 if tr.soft_index is None else len(tr.soft_index)
-    readouts: list[list[np.ndarray]] = []  # each Newton step's plan; the last is the one kept
+    read: list[np.ndarray] = []  # the plan read from the unknowns (a Newton step gives it)
     route = solver if tr.soft_index is None else 'ipopt (soft limits)'
     if tr.nlp is None:  # a real-time iteration without limits: Gauss-Newton steps
-        route = 'gauss-newton'
-
-        def admissibility(w: np.ndarray) -> float:
-            readouts.append(tr.readout(w, p))
-            return float(readouts[-1][3][0])
-
-        w_new, lam_g, taken = newton_steps(
+        w_new, lam_g, read, taken = newton_steps(
             tr.newton, w0, p, iterations,  # type: ignore[arg-type]
-            admissibility, RTI_RESIDUAL, iterations + RTI_EXTRA_STEPS)
-        outcome = Outcome({'x': w_new, 'lam_g': lam_g}, bool(np.all(np.isfinite(w_new))),
-                          taken, 'real-time iteration')
+            lambda read: float(read[3][0]), RTI_RESIDUAL, iterations + RTI_EXTRA_STEPS)
+        finite = bool(np.all(np.isfinite(w_new)))  # (a NaN at the guess spreads through)
+        outcome, route = Outcome({'x': w_new, 'lam_g': lam_g}, finite, taken, (
+            'real-time iteration' if finite else NOT_FINITE)), 'gauss-newton'
+    elif not all(np.all(np.isfinite(a)) for a in tr.readout(w0, p)):
+        # fatrop never returns from a non-finite starting point (its line search cannot
+        # recover): refuse to start, and say why
+        return _failed(problem, q_g, v_g, time.perf_counter() - start, solver, NOT_FINITE)
     else:
+        bounds = tr.bounds(problem)
+        slacks = 0 if tr.soft_index is None else len(tr.soft_index)
         held = _working_set(held_step, w0, p, bounds, stop) if held_step else None
         if held is not None:
             outcome, route = held, 'newton (working set)'
@@ -181,7 +175,7 @@ def _solve_with(problem: TrackingProblem, initial_guess: Guess | None, stop: flo
                                    **bounds)
     elapsed = time.perf_counter() - start
     w = np.array(outcome.result['x']).ravel()[:tr.unknowns]
-    q, v, u, residual, running = readouts[-1] if readouts else tr.readout(w, p)
+    q, v, u, residual, running = read or tr.readout(w, p)
     q, v, u, max_residual = q.T.copy(), v.T.copy(), u.T.copy(), float(residual[0])
     lam_g = np.array(outcome.result['lam_g']).ravel()
     # The paper's multipliers are lambda^k = (h/2) c_k (c_k: multiplier of the stage form of
@@ -192,7 +186,7 @@ def _solve_with(problem: TrackingProblem, initial_guess: Guess | None, stop: flo
     mu = (-problem.epsilon * u if sys.fully_actuated
           else -lam_g[tr.dynamics_rows].reshape(problem.steps, sys.k))
     cost = float(running[0]) + terminal_cost(problem, q[-1])
-    violation = problem.limits.violation(knots_and_midpoints(q), v, u)
+    violation = problem.limits.plan_violation(q, v, u)
     success = (outcome.success and bool(np.all(np.isfinite(w)))
                and violation <= VIOLATION_TOL)
     message = outcome.message
