@@ -104,17 +104,17 @@ class Limits:
                    bounds(velocity_bounds, system.k, 'velocity_bounds'), discs,
                    plane(system) if len(discs) else None)
 
-    @property
+    @functools.cached_property
     def bounded_controls(self) -> bool:
         return bool(np.isfinite(self.controls).any())
 
-    @property
+    @functools.cached_property
     def bounded_velocities(self) -> bool:
         return bool(np.isfinite(self.velocities).any())
 
     @functools.cached_property
     def active(self) -> bool:
-        """Whether anything is limited (asked several times per replan, so cached)."""
+        """Whether anything is limited (these are asked several times per replan: cached)."""
         return self.bounded_controls or self.bounded_velocities or len(self.obstacles) > 0
 
     def clearance(self, q: np.ndarray) -> np.ndarray:
