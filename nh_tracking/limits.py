@@ -98,7 +98,10 @@ class Limits:
         if isinstance(robot_radius, bool) or not isinstance(robot_radius, (int, float)) or not (
                 np.isfinite(robot_radius) and robot_radius >= 0):
             raise ValueError(f'robot_radius must be a finite number >= 0, got {robot_radius!r}')
-        discs = obstacle_discs(obstacles).copy()
+        discs = obstacle_discs(obstacles)
+        if control_bounds is None and velocity_bounds is None and not len(discs):
+            return _no_limits(system.r, system.k)
+        discs = discs.copy()
         discs[:, 2] += robot_radius
         return cls(bounds(control_bounds, system.r, 'control_bounds'),
                    bounds(velocity_bounds, system.k, 'velocity_bounds'), discs,
@@ -138,6 +141,14 @@ class Limits:
     def plan_violation(self, q: np.ndarray, v: np.ndarray, u: np.ndarray | None) -> float:
         """:meth:`violation` of a plan's knots q, v and controls u, midpoints included."""
         return self.violation(knots_and_midpoints(q), v, u) if self.active else 0.0
+
+
+@functools.lru_cache(maxsize=None)
+def _no_limits(controls: int, velocities: int) -> Limits:
+    """Return the limits of a problem that has none: one per size, shared (answers cached)."""
+    none = np.zeros((0, 3))
+    none.flags.writeable = False
+    return Limits(_unbounded(controls), _unbounded(velocities), none, None)
 
 
 def costmap_discs(cells: np.ndarray, cell_size: float, size: float) -> np.ndarray:

@@ -253,23 +253,25 @@ def test_a_library_is_keyed_by_content_and_no_compiler_means_interpreted(
     nlp = {'x': x, 'p': p, 'f': ca.sumsqr(x - p), 'g': x[0] * x[1]}
     monkeypatch.setattr(compiled, '_BUILDS', {})
     monkeypatch.setattr(compiled, 'compiler', lambda: ('/bin/false', 'cc 1.0'))
-    base = compiled.LibraryBuild('n', 'ipopt', nlp, {}).path
-    keys = {base, compiled.LibraryBuild('n', 'ipopt', {**nlp, 'f': ca.sumsqr(x)}, {}).path,
-            compiled.LibraryBuild('n', 'sqpmethod', nlp, {}).path}
+    build = compiled.LibraryBuild.of_nlp
+    base = build('n', 'ipopt', nlp, {}).path
+    keys = {base, build('n', 'ipopt', {**nlp, 'f': ca.sumsqr(x)}, {}).path,
+            build('n', 'sqpmethod', nlp, {}).path,
+            compiled.LibraryBuild.of_function(ca.Function('n', [x, p], [nlp['f']])).path}
     monkeypatch.setattr(compiled, 'compiler', lambda: ('/bin/false', 'cc 2.0'))
-    keys.add(compiled.LibraryBuild('n', 'ipopt', nlp, {}).path)
-    assert len(keys) == 4 and None not in keys  # expression, solver, compiler: new library
+    keys.add(build('n', 'ipopt', nlp, {}).path)
+    assert len(keys) == 5 and None not in keys  # expression, solver, kind, compiler: new one
     monkeypatch.setattr(compiled, 'compiler', lambda: ('/bin/false', 'cc 1.0'))
-    assert compiled.LibraryBuild('n', 'ipopt', nlp, {'ipopt.tol': 1e-3}).path == base
+    assert build('n', 'ipopt', nlp, {'ipopt.tol': 1e-3}).path == base
     compiled.wait_for_builds(60.0)
-    assert compiled.LibraryBuild('n', 'ipopt', nlp, {}).library() is None  # /bin/false failed
+    assert build('n', 'ipopt', nlp, {}).library() is None  # /bin/false failed
     monkeypatch.setattr(compiled, 'compiler', detect)
     monkeypatch.setenv('CC', 'no-such-compiler')
     caplog.set_level('INFO', logger='nh_tracking.solvers.compiled')
     detect.cache_clear()
     try:
         for _ in range(2):
-            assert compiled.LibraryBuild('n', 'ipopt', nlp, {}).library() is None
+            assert build('n', 'ipopt', nlp, {}).library() is None
     finally:
         detect.cache_clear()  # the next test finds the real compiler again
     assert sum('no C compiler' in r.message for r in caplog.records) == 1

@@ -13,15 +13,16 @@
 # limitations under the License.
 
 
-"""Compiled NLPs: C code of the NLP's derivatives, built in the background, cached on disk.
+"""Compiled NLPs and steps: C code of their functions, built in the background, cached on disk.
 
-Compiled, a solve's function evaluations cost a fifth of the interpreted ones. Building takes
+Compiled, a solve's function evaluations cost a fifth of the interpreted ones (a real-time
+iteration's Gauss-Newton step, with its factorisation written out, a quarter). Building takes
 seconds to tens of seconds (growing with N), so it never happens where a caller waits: a child
 process (at the lowest priority, one at a time) generates the C code from the serialized NLP
 and compiles it, while solves go on interpreted; the solver switches to the library when it is
 ready.
 
-A library is keyed by its content — the serialized NLP expressions, the solver and its options,
+A library is keyed by its content — the serialized expressions, the solver and its options,
 the CasADi version and the compiler's identity and flags — and kept in ``$NH_TRACKING_CACHE``
 (default ``~/.cache/nh_tracking``): a stale library is never loaded, and a structure built
 once per machine loads in milliseconds afterwards. Without a C compiler everything stays
@@ -86,42 +87,52 @@ def compiler() -> tuple[str, str] | None:
 
 
 class LibraryBuild:
-    """A shared library of one NLP's functions: found in the cache, or built in the background.
+    """A shared library of CasADi functions: found in the cache, or built in the background.
 
     ``library()`` is its path once it exists (None before, and for good if it cannot be built).
-    Solver settings (iteration limits, tolerances) are not part of the library: NLPs that
-    differ only in them share one.
+    Made by :meth:`of_nlp` (an NLP solver's functions: CasADi's nlpsol loads them by name;
+    solver settings — iteration limits, tolerances — are not part of the library, so NLPs that
+    differ only in them share one) or :meth:`of_function` (one function, for ``ca.external``).
     """
 
-    def __init__(self, name: str, backend: str, nlp: dict[str, ca.SX],
-                 options: dict[str, Any]) -> None:
+    def __init__(self, function: ca.Function, job: dict[str, Any]) -> None:
+        """Build ``function`` as the child's ``job`` says; both are the library's key."""
         tool = compiler()
         self.path: Path | None = None
         if tool is None:
             return
-        kept = {k: v for k, v in options.items()
-                if k not in SOLVER_SETTINGS and not k.startswith('ipopt.')}
-        function = ca.Function('nlp', [nlp['x'], nlp['p']], [nlp['f'], nlp['g']])
         serialized = function.serialize()
-        content = json.dumps([name, backend, kept, ca.CasadiMeta.version(), tool[1], FLAGS],
-                             sort_keys=True, default=str)
+        content = json.dumps([job, ca.CasadiMeta.version(), tool[1], FLAGS], sort_keys=True,
+                             default=str)
         digest = hashlib.sha256(serialized.encode() + content.encode()).hexdigest()[:24]
-        self.path = cache_dir() / f'nlp-{digest}.so'
+        self.path = cache_dir() / f"{job['kind']}-{digest}.so"
         if self.path.exists() or self.path in _BUILDS:
             return
         self.path.parent.mkdir(parents=True, exist_ok=True)
-        job = _Job(Path(tempfile.mkdtemp(prefix='nh_tracking_build_')), self.path)
-        (job.directory / 'nlp.casadi').write_text(serialized)
-        (job.directory / 'job.json').write_text(json.dumps({
-            'name': name, 'backend': backend, 'options': kept, 'library': str(self.path),
-            'compiler': tool[0]}))
-        LOG.info('compiling the NLP %s in the background into %s', name, self.path)
-        _BUILDS[self.path] = job
-        _QUEUE.put(job)
+        build = _Job(Path(tempfile.mkdtemp(prefix='nh_tracking_build_')), self.path)
+        (build.directory / 'function.casadi').write_text(serialized)
+        (build.directory / 'job.json').write_text(json.dumps({
+            **job, 'library': str(self.path), 'compiler': tool[0]}))
+        LOG.info('compiling %s in the background into %s', job['name'], self.path)
+        _BUILDS[self.path] = build
+        _QUEUE.put(build)
         if not _WORKER:
             _WORKER.append(threading.Thread(target=_work, name='nh_tracking_compiler',
                                             daemon=True))
             _WORKER[0].start()
+
+    @classmethod
+    def of_nlp(cls, name: str, backend: str, nlp: dict[str, ca.SX],
+               options: dict[str, Any]) -> LibraryBuild:
+        kept = {k: v for k, v in options.items()
+                if k not in SOLVER_SETTINGS and not k.startswith('ipopt.')}
+        function = ca.Function('nlp', [nlp['x'], nlp['p']], [nlp['f'], nlp['g']])
+        return cls(function, {'kind': 'nlp', 'name': name, 'backend': backend,
+                              'options': kept})
+
+    @classmethod
+    def of_function(cls, function: ca.Function) -> LibraryBuild:
+        return cls(function, {'kind': 'function', 'name': function.name()})
 
     def when_ready(self, use: Callable[[Path], None]) -> None:
         """Call ``use(library)`` on the compiler's thread once it is built (never if it fails).
@@ -143,7 +154,7 @@ class LibraryBuild:
             return self.path
         job = _BUILDS.get(self.path)
         if job is not None and job.done.is_set():
-            LOG.warning('compiling the NLP failed, staying interpreted: %s', job.error)
+            LOG.warning('compiling failed, staying interpreted: %s', job.error)
             self.path = None
         return None
 
@@ -168,7 +179,7 @@ def _work() -> None:
             try:
                 use(job.library)
             except Exception as exc:  # noqa: BLE001 - a bad library must not stop the others
-                LOG.warning('loading the compiled NLP %s failed, staying interpreted: %s',
+                LOG.warning('loading the compiled %s failed, staying interpreted: %s',
                             job.library, exc)
         job.done.set()
 
@@ -192,17 +203,20 @@ def _stop_builds() -> None:
 
 
 def _build(job: Path) -> None:
-    """Do the child's work: the NLP's functions as C, compiled, then moved in atomically."""
+    """Do the child's work: the functions as C, compiled, then moved in atomically."""
     spec = json.loads((job / 'job.json').read_text())
-    function = ca.Function.deserialize((job / 'nlp.casadi').read_text())
-    x, p = ca.SX.sym('x', function.size1_in(0)), ca.SX.sym('p', function.size1_in(1))
-    f, g = function(x, p)
-    solver = ca.nlpsol(spec['name'], spec['backend'], {'x': x, 'p': p, 'f': f, 'g': g},
-                       spec['options'])
-    generator = ca.CodeGenerator('nlp.c')
-    generator.add(solver.oracle())
-    for name in solver.get_function():
-        generator.add(solver.get_function(name))
+    function = ca.Function.deserialize((job / 'function.casadi').read_text())
+    generator = ca.CodeGenerator(f"{spec['kind']}.c")
+    if spec['kind'] == 'nlp':  # the solver's own functions, by the names nlpsol looks up
+        x, p = ca.SX.sym('x', function.size1_in(0)), ca.SX.sym('p', function.size1_in(1))
+        f, g = function(x, p)
+        solver = ca.nlpsol(spec['name'], spec['backend'], {'x': x, 'p': p, 'f': f, 'g': g},
+                           spec['options'])
+        generator.add(solver.oracle())
+        for name in solver.get_function():
+            generator.add(solver.get_function(name))
+    else:
+        generator.add(function)
     source = generator.generate(str(job) + os.sep)
     library = Path(spec['library'])
     partial = library.with_suffix(f'.{os.getpid()}.tmp')

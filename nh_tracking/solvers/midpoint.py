@@ -32,7 +32,7 @@ from nh_tracking.numeric import NumericFunction
 from nh_tracking.problem import tracking_lagrangian, tracking_residual, TrackingProblem
 from nh_tracking.solvers.cache import PerSystemCache
 from nh_tracking.solvers.inequalities import ConstraintStack, Rows, Shape, soft_bounds, soften
-from nh_tracking.solvers.newton import gauss_newton_step, NewtonStep
+from nh_tracking.solvers.newton import GaussNewtonStep, NewtonStep
 from nh_tracking.solvers.nlp import BoundedNlp
 from nh_tracking.system import NonholonomicSystem
 
@@ -64,7 +64,7 @@ class Transcription:
     rows: int  # of the hard NLP's g
     unknowns: int  # of the hard NLP's x
     soft_index: np.ndarray | None  # softened: the inequality rows given slacks
-    newton: NumericFunction | None  # real-time iterations without limits: (w, p) -> (w, lam_g)
+    newton: GaussNewtonStep | None  # real-time iterations without limits
 
     def parameters(self, problem: TrackingProblem) -> np.ndarray:
         q_knots, v_knots, q_mid, v_mid = problem.reference_samples
@@ -214,8 +214,8 @@ def _build(system: NonholonomicSystem, steps: int, terminal: str, solver: str,
     # a real-time iteration without limits is one Gauss-Newton step in one call: no NLP solver
     newton, bounded_nlp = None, None
     if iterations and not limits.kinds:
-        newton = gauss_newton_step(form.unknowns, form.p, form.cost_residuals, constraints,
-                                   form.readout)
+        newton = GaussNewtonStep(form.unknowns, form.p, form.cost_residuals, constraints,
+                                 form.readout, compiled)
     else:
         bounded_nlp = BoundedNlp(f'variational_{system.name}_{steps}', solver, nlp, options,
                                  bounded, compiled, bool(limits.kinds), iterations)

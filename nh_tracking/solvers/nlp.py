@@ -156,7 +156,7 @@ class BoundedNlp:
         self._chunked = bounded and backend == 'fatrop' and not iterations
         self._chunk_size = FATROP_CHUNK_INTERIOR if inequalities else FATROP_CHUNK
         self._warm = backend == 'fatrop' and inequalities
-        self.build = LibraryBuild(name, backend, nlp, options) if compiled else None
+        self.build = LibraryBuild.of_nlp(name, backend, nlp, options) if compiled else None
         library = self.build.library() if self.build is not None else None
         self.compiled = library is not None
         self._solvers = self._load(str(library) if library is not None else nlp)

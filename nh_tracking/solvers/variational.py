@@ -157,7 +157,7 @@ def _solve_with(problem: TrackingProblem, initial_guess: Guess | None, stop: flo
         w_new, lam_g, read, taken = newton_steps(
             tr.newton, w0, p, iterations,  # type: ignore[arg-type]
             lambda read: float(read[3][0]), RTI_RESIDUAL, iterations + RTI_EXTRA_STEPS)
-        finite = bool(np.all(np.isfinite(w_new)))  # (a NaN at the guess spreads through)
+        finite = bool(np.isfinite(w_new).all())  # (a NaN at the guess spreads through)
         outcome, route = Outcome({'x': w_new, 'lam_g': lam_g}, finite, taken, (
             'real-time iteration' if finite else NOT_FINITE)), 'gauss-newton'
     elif not all(np.all(np.isfinite(a)) for a in tr.readout(w0, p)):
@@ -187,8 +187,7 @@ def _solve_with(problem: TrackingProblem, initial_guess: Guess | None, stop: flo
           else -lam_g[tr.dynamics_rows].reshape(problem.steps, sys.k))
     cost = float(running[0]) + terminal_cost(problem, q[-1])
     violation = problem.limits.plan_violation(q, v, u)
-    success = (outcome.success and bool(np.all(np.isfinite(w)))
-               and violation <= VIOLATION_TOL)
+    success = outcome.success and bool(np.isfinite(w).all()) and violation <= VIOLATION_TOL
     message = outcome.message
     if tr.soft_index is not None:
         message = f'{message}; least-violating plan: limits broken by {violation:.3g}'
@@ -200,7 +199,7 @@ def _solve_with(problem: TrackingProblem, initial_guess: Guess | None, stop: flo
         costates=(lam, mu),
         details={'admissibility_residual': max_residual, 'violation': violation,
                  'least_violating': tr.soft_index is not None and outcome.success
-                 and bool(np.all(np.isfinite(w)))},  # the best plan a broken start has
+                 and bool(np.isfinite(w).all())},  # the best plan a broken start has
     )
 
 
