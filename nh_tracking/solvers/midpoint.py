@@ -55,8 +55,8 @@ class Transcription:
     steps: int
     terminal: str
     nlp: BoundedNlp | None  # None: real-time iterations by Gauss-Newton steps (newton)
-    # (w, p) -> q (n, N+1), v (k, N+1), u (r, N), max |Psi_d| (from the knots), running cost:
-    # one buffered call, since separate calls cost more than a warm solve's iteration
+    # (w, p) -> q (n, N+1), v (k, N+1), u (r, N), max |Psi_d| (from the knots), cost, terminal
+    # error: one buffered call, since separate calls cost more than a warm solve's iteration
     readout: NumericFunction
     admissibility_rows: np.ndarray  # indices in g of the constraints z - q - h/2 rho v = 0
     dynamics_rows: np.ndarray  # underactuated: of v_{k+1} - v_k - h (f + B u) = 0
@@ -124,7 +124,8 @@ class _StageForm:
     constraints: ca.SX
     cost_residuals: ca.SX  # the objective is 1/2 |cost_residuals|^2 (Gauss-Newton steps)
     limits: Rows
-    readout: list[ca.SX]  # q (n, N+1), v (k, N+1), u (r, N), max |Psi_d|, running cost
+    # q (n, N+1), v (k, N+1), u (r, N), max |Psi_d|, cost, terminal error |x_N - x_r(T)|
+    readout: list[ca.SX]
     admissibility_rows: list[int]
     dynamics_rows: list[int]
 
@@ -193,7 +194,8 @@ def _stage_form(system: NonholonomicSystem, steps: int, terminal: str,
     else:
         g.add(xs[-1] - ca.vertcat(q_end, v_end))
     readout = [ca.horzcat(*[x[:n] for x in xs]), ca.horzcat(*[x[n:] for x in xs]),
-               ca.horzcat(*controls), ca.mmax(ca.fabs(ca.horzcat(*residuals))), running]
+               ca.horzcat(*controls), ca.mmax(ca.fabs(ca.horzcat(*residuals))), objective,
+               ca.norm_2(xs[-1] - ca.vertcat(q_end, v_end))]
     return _StageForm(ca.vertcat(*w), p, objective, ca.vertcat(*g.blocks),
                       ca.vertcat(*cost_residuals), limits, readout, adm_rows, dyn_rows)
 

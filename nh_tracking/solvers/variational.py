@@ -36,7 +36,7 @@ from typing import ClassVar, Literal
 
 import numpy as np
 
-from nh_tracking.problem import Solution, terminal_cost, terminal_error, TrackingProblem
+from nh_tracking.problem import Solution, TrackingProblem
 from nh_tracking.solvers.base import Guess, Method, Structure
 from nh_tracking.solvers.cache import NotPrepared
 from nh_tracking.solvers.inequalities import Shape, start_violation, VIOLATION_TOL
@@ -175,7 +175,7 @@ def _solve_with(problem: TrackingProblem, initial_guess: Guess | None, stop: flo
                                    **bounds)
     elapsed = time.perf_counter() - start
     w = np.array(outcome.result['x']).ravel()[:tr.unknowns]
-    q, v, u, residual, running = read or tr.readout(w, p)
+    q, v, u, residual, cost, end_error = read or tr.readout(w, p)
     q, v, u, max_residual = q.T.copy(), v.T.copy(), u.T.copy(), float(residual[0])
     lam_g = np.array(outcome.result['lam_g']).ravel()
     # The paper's multipliers are lambda^k = (h/2) c_k (c_k: multiplier of the stage form of
@@ -185,16 +185,15 @@ def _solve_with(problem: TrackingProblem, initial_guess: Guess | None, stop: flo
     lam = -0.5 * lam_g[tr.admissibility_rows].reshape(problem.steps, sys.n)
     mu = (-problem.epsilon * u if sys.fully_actuated
           else -lam_g[tr.dynamics_rows].reshape(problem.steps, sys.k))
-    cost = float(running[0]) + terminal_cost(problem, q[-1])
     violation = problem.limits.plan_violation(q, v, u)
     success = outcome.success and bool(np.isfinite(w).all()) and violation <= VIOLATION_TOL
     message = outcome.message
     if tr.soft_index is not None:
         message = f'{message}; least-violating plan: limits broken by {violation:.3g}'
     return Solution(
-        t=problem.grid, q=q, v=v, u=u, cost=cost, success=success,
+        t=problem.grid, q=q, v=v, u=u, cost=float(cost[0]), success=success,
         iterations=outcome.iterations, solve_time=elapsed,
-        terminal_error=terminal_error(problem, q[-1], v[-1]), method='variational',
+        terminal_error=float(end_error[0]), method='variational',
         message=message, route=route,
         costates=(lam, mu),
         details={'admissibility_residual': max_residual, 'violation': violation,
