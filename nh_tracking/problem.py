@@ -22,6 +22,7 @@ from __future__ import annotations
 from collections.abc import Callable
 from dataclasses import dataclass, field
 import functools
+import math
 from typing import Literal
 
 import casadi as ca
@@ -89,7 +90,7 @@ class TrackingProblem:
             raise ValueError('initial state (q0, v0) must be finite')
         for name in ('horizon', 'epsilon', 'omega'):
             value = _number(name, getattr(self, name))
-            if not (np.isfinite(value) and value > 0):
+            if not (math.isfinite(value) and value > 0):
                 raise ValueError(f'{name} must be a finite number > 0, got {value}')
             set_(name, value)
         steps = _number('steps', self.steps)
@@ -102,7 +103,7 @@ class TrackingProblem:
             set_('t0', float(self.reference.t[0]) if isinstance(self.reference, Trajectory)
                  else 0.0)
         t0 = _number('t0', self.t0)
-        if not np.isfinite(t0):
+        if not math.isfinite(t0):
             raise ValueError(f't0 must be finite, got {t0}')
         set_('t0', t0)
         if isinstance(self.reference, Trajectory):
@@ -146,9 +147,8 @@ class TrackingProblem:
 
         Every solver and every read-out needs them, and replanning builds a problem per cycle.
         """
-        n = self.steps + 1
-        q, v = self.reference_at(np.concatenate([self.grid, self.grid[:-1] + 0.5 * self.h]))
-        return q[:n], v[:n], q[n:], v[n:]
+        q, v = self.reference_at(self.start + 0.5 * self.h * np.arange(2 * self.steps + 1))
+        return q[::2], v[::2], q[1::2], v[1::2]  # knots and midpoints alternate
 
     def reference_point(self, time: float) -> tuple[np.ndarray, np.ndarray]:
         """(q_r, v_r) at one time, as 1-D arrays (fast path for ODE right-hand sides)."""
@@ -168,8 +168,9 @@ class TrackingProblem:
         n, k = self.system.n, self.system.k
         if isinstance(self.reference, Trajectory):  # finite, as every Trajectory is
             q, v = self.reference.sample(times)
-            outside = (times < self.reference.t[0]) | (times > self.reference.t[-1])
-            v[outside] = 0.0  # held at rest outside the reference's span
+            start, end = self.reference.t[0], self.reference.t[-1]
+            if times.min() < start or times.max() > end:
+                v[(times < start) | (times > end)] = 0.0  # at rest outside the reference's span
             return q, v
         try:
             q, v = self.reference(times)
