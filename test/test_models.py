@@ -185,3 +185,55 @@ def test_rho_at_many_configurations_is_rho_at_each(name):
         rows = system.rho(q)[posemap.pose_rows]
         rates = w[[POSE_AXES.index(a) for a in POSE_AXES if a in posemap.rows]]
         assert np.allclose(v, np.linalg.lstsq(rows, rates, rcond=None)[0], atol=1e-12)
+
+
+@pytest.mark.parametrize('name', [*sorted(nht.models.MODELS), 'car_like'])
+def test_odometry_velocities_in_one_call_are_the_least_squares_ones(name):
+    """Each odometry message's v is the least-squares one, however it is computed.
+
+    The normal equations written out where the pose rows of rho keep full rank (every model but
+    the snakeboard and a car's steering, which move no pose axis), lstsq's minimum norm elsewhere.
+    """
+    from user_robots import car_like
+
+    system = car_like() if name == 'car_like' else nht.models.create(name)
+    posemap = PoseMap(system)
+    assert (posemap._projection is None) == (name in ('snakeboard', 'car_like'))  # steering
+    rng = np.random.default_rng(11)
+    axes = [POSE_AXES.index(a) for a in POSE_AXES if a in posemap.rows]
+    checked = 0
+    for q, body in zip(rng.uniform(-1.0, 1.0, (200, system.n)), rng.normal(size=(200, 4))):
+        if not (system.domain.lower < q).all() or not (q < system.domain.upper).all():
+            continue
+        yaw = q[posemap.rows['yaw']] if posemap.has_yaw else 0.0
+        c, s = np.cos(yaw), np.sin(yaw)
+        world = np.array([c * body[0] - s * body[1], s * body[0] + c * body[1], *body[2:]])
+        expected = np.linalg.lstsq(system.rho(q)[posemap.pose_rows], world[axes], rcond=None)[0]
+        assert np.allclose(posemap.velocity(q, body), expected, atol=1e-12, rtol=1e-10)
+        checked += 1
+    assert checked > 50
+
+
+def test_numeric_functions_are_shared_safely_between_threads():
+    """The odometry, solver and executor threads all call rho: each call gets its own answer."""
+    import threading
+
+    system = nht.models.rolling_disk()
+    configurations = np.random.default_rng(5).uniform(-2.0, 2.0, (4, 300, system.n))
+    wrong = []
+
+    def work(qs):
+        for q in qs:
+            if not np.array_equal(system.rho(q), np.array(system.rho_fn(q))):
+                wrong.append(q)
+
+    threads = [threading.Thread(target=work, args=(qs,)) for qs in configurations]
+    for thread in threads:
+        thread.start()
+    for thread in threads:
+        thread.join()
+    assert not wrong
+    first = system.rho(configurations[0, 0])
+    kept = first.copy()
+    system.rho(configurations[0, 1])
+    assert np.array_equal(first, kept)  # a later call leaves an earlier answer alone

@@ -113,3 +113,33 @@ def test_plans_on_receipt_and_shows_them_at_the_display_rate(graph, model, displ
     latency = float(health['latency_p50_ms'])
     assert 0.0 < latency < 1e3 and float(health['latency_p99_ms']) >= latency
     assert np.isfinite(float(health['solve_time_p50_ms']))
+
+
+@pytest.mark.parametrize('wire_bytes', [True, False], ids=['wire bytes', 'messages'])
+def test_odometry_and_plans_as_wire_bytes_or_as_messages(graph, monkeypatch, wire_bytes):
+    """Odometry and plans go as CDR bytes where the middleware agrees, else as messages.
+
+    Where the middleware reads and writes the bytes :mod:`cdr` does, the planner takes odometry
+    and publishes its control sequence as bytes; subscribers see the same sequences either way.
+    """
+    from nh_tracking.ros import cdr
+
+    if not wire_bytes:
+        monkeypatch.setattr(cdr, 'agrees_with_rmw', lambda: False)
+    else:
+        assert cdr.agrees_with_rmw()  # (rmw_fastrtps_cpp, the wheels' middleware)
+    ns = unique_namespace()
+    planner = graph.add(PlannerNode, namespace=ns, parameter_overrides=parameters(
+        model='unicycle', replan_on_odom=True, replan_period=60.0, iterations=1, steps=12))
+    assert planner._odometry.subscription.raw is wire_bytes
+    replay = Replay(graph, planner, 'odom')
+    assert wait_until(lambda: replay.odom.get_subscription_count() == 1, 10.0)
+    replay.drive(1.0, 30.0)
+    assert wait_until(lambda: len(replay.got['control_sequence']) >= 10, 10.0)
+    last = replay.got['control_sequence'][-1]
+    assert list(last.joint_names) == list(planner.live.system.control_names)
+    assert last.header.frame_id == 'odom' and len(last.points) == 12
+    offsets = [cv.duration_seconds(p.time_from_start) for p in last.points]
+    assert offsets == pytest.approx(np.arange(12) * 3.0 / 12, abs=1e-9)
+    assert all(len(p.effort) == 2 and all(map(math.isfinite, p.effort)) for p in last.points)
+    assert planner.rejected_inputs == 0 and planner.errors == 0

@@ -206,6 +206,45 @@ def test_bad_problems_are_rejected(kwargs, message):
         nht.solve(sleigh_problem(), 'shooting')
 
 
+def test_compiled_real_time_iteration_gives_the_interpreted_step(tmp_path, monkeypatch):
+    """compiled=True with iterations: the Gauss-Newton step with its factorisation written out.
+
+    Built in the background (the first steps interpreted), then swapped in; the same plan as
+    CasADi's sparse LDL gives, from the same warm guess.
+    """
+    import shutil
+
+    from nh_tracking.solvers.compiled import wait_for_builds
+    from nh_tracking.solvers.inequalities import Shape
+    from nh_tracking.solvers.midpoint import transcription
+    from nh_tracking.solvers.variational import solve_variational
+
+    if shutil.which('gcc') is None:
+        pytest.skip('no C compiler: the interpreted step is used instead')
+    monkeypatch.setenv('NH_TRACKING_CACHE', str(tmp_path))
+    problem = particle_problem(1, h=0.25)
+    converged = solve_variational(problem)
+    guess = (converged.q + 0.01, converged.v - 0.02, converged.u)
+    step = transcription(problem.system, problem.steps, problem.terminal, False, 'fatrop',
+                         True, Shape(), 1).newton
+    first = solve_variational(problem, guess, compiled=True, iterations=1)
+    assert first.route == 'gauss-newton' and not step.compiled
+    wait_for_builds()
+    assert step.compiled and len(list(tmp_path.glob('function-*.so'))) == 1
+    compiled = solve_variational(problem, guess, compiled=True, iterations=1)
+    interpreted = solve_variational(problem, guess, iterations=1)
+    assert compiled.route == interpreted.route == 'gauss-newton'
+    assert compiled.iterations == interpreted.iterations
+    # both factorise the quasi-definite KKT matrix without pivoting, in different orders; its
+    # primal block is near singular (regularised by 1e-10), so each step carries ~1e-6 of
+    # rounding (dense LU with pivoting is as far from either): the plans agree to about that
+    for a, b in ((compiled.q, interpreted.q), (compiled.v, interpreted.v),
+                 (compiled.u, interpreted.u)):
+        assert np.allclose(a, b, atol=1e-4, rtol=1e-4)
+    assert compiled.cost == pytest.approx(interpreted.cost, rel=1e-6)
+    assert compiled.cost == pytest.approx(converged.cost, rel=1e-3)  # one step: near optimal
+
+
 def test_compiled_nlp_builds_in_the_background_and_gives_the_same_plan(tmp_path, monkeypatch):
     """compiled=True: the first solve runs interpreted while a child process builds the library.
 

@@ -114,17 +114,23 @@ def control_sequence(frame: str, start_ns: int, offsets: np.ndarray, names: Sequ
     efforts = np.asarray(efforts, dtype=float).reshape(len(offsets), -1)
     head, position = _trajectory_head(frame, tuple(names))
     width = efforts.shape[1]
-    points = np.zeros(len(efforts), dtype=[('counts', '<u4', 4), ('effort', '<f8', width),
-                                           ('sec', '<i4'), ('nanosec', '<u4')])
+    points = np.zeros(len(efforts), dtype=_point_type(width))
     points['counts'][:, 3] = width
     points['effort'] = efforts
-    offsets_ns = np.round(np.asarray(offsets, dtype=float) * 1e9).astype(np.int64)
+    offsets_ns = np.rint(np.asarray(offsets, dtype=float) * 1e9).astype(np.int64)
     points['sec'], points['nanosec'] = np.divmod(offsets_ns, 1_000_000_000)
     block = points.tobytes()
     if width and len(points) and _aligned(position + 4 + 16, 8) != position + 4 + 16:
         block = block[:16] + bytes(4) + block[16:]
     stamp = struct.pack('<iI', *divmod(int(start_ns), 1_000_000_000))
     return ENCAPSULATION + stamp + head + struct.pack('<I', len(points)) + block
+
+
+@functools.lru_cache(maxsize=16)
+def _point_type(width: int) -> np.dtype:
+    """Return a point's record (packed, no padding): made once per width, not per message."""
+    return np.dtype([('counts', '<u4', 4), ('effort', '<f8', width), ('sec', '<i4'),
+                     ('nanosec', '<u4')])
 
 
 @functools.lru_cache(maxsize=16)

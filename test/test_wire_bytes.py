@@ -1,0 +1,97 @@
+# Copyright 2026 nh_tracking maintainers
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+
+"""The CDR bytes read and written by :mod:`nh_tracking.ros.cdr`, against rclpy's serializer.
+
+The independent side is the middleware's own (de)serializer: every written sequence must read
+back through it as the message :func:`conversions.control_sequence_msg` builds, and every
+serialized Odometry must read as its fields — for frame and joint names of every length (the
+alignment of what follows depends on them), any widths and stamps.
+"""
+import re
+
+from hypothesis import given, HealthCheck, settings
+from hypothesis import strategies as st
+from nav_msgs.msg import Odometry
+import numpy as np
+import pytest
+from rclpy.serialization import deserialize_message, serialize_message
+from trajectory_msgs.msg import JointTrajectory
+
+from nh_tracking.ros import cdr, conversions as cv
+
+SETTINGS = settings(max_examples=300, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+names = st.text(st.characters(codec='utf-8', exclude_characters='\x00'), max_size=13)
+numbers = st.floats(-1e6, 1e6, allow_nan=False)
+stamps = st.integers(0, 2**31 * 10**9 - 1)
+
+
+@SETTINGS
+@given(names, stamps, st.lists(names, min_size=1, max_size=4), st.integers(1, 40), st.data())
+def test_a_written_control_sequence_reads_back_through_the_middleware(
+        frame, stamp, joints, points, data):
+    width = len(joints)
+    efforts = np.array(data.draw(st.lists(numbers, min_size=points * width,
+                                          max_size=points * width))).reshape(points, width)
+    steps = data.draw(st.lists(st.floats(1e-3, 10.0), min_size=points, max_size=points))
+    offsets = np.cumsum(steps) - steps[0]
+    written = cdr.control_sequence(frame, stamp, offsets, joints, efforts)
+    assert deserialize_message(written, JointTrajectory) == cv.control_sequence_msg(
+        frame, stamp, offsets, joints, efforts)
+
+
+@SETTINGS
+@given(names, names, stamps, st.lists(numbers, min_size=4, max_size=4),
+       st.lists(numbers, min_size=4, max_size=4))
+def test_serialized_odometry_reads_as_the_message_does(frame, child, stamp, pose, twist):
+    msg = cv.odometry_msg(frame, child, stamp, np.array(pose), np.array(twist))
+    msg.pose.pose.orientation.x = 1e-4  # a general quaternion (within the unit tolerance)
+    msg.twist.twist.angular.y = twist[0]
+    for expected in ('odom', frame):
+        try:
+            from_message = cv.odom_to_arrays(msg, expected)
+        except cv.InputRejected as exc:
+            with pytest.raises(cv.InputRejected, match=re.escape(str(exc))):
+                cv.odom_to_arrays(serialize_message(msg), expected)
+            continue
+        stamp_ns, pose_arr, body = cv.odom_to_arrays(serialize_message(msg), expected)
+        assert stamp_ns == from_message[0] == stamp
+        assert np.array_equal(pose_arr, from_message[1])
+        assert np.array_equal(body, from_message[2])
+
+
+@settings(max_examples=300, deadline=None)
+@given(st.binary(max_size=300), st.integers(0, 720))
+def test_damaged_odometry_bytes_are_rejected_with_a_reason(noise, cut):
+    good = serialize_message(cv.odometry_msg('odom', 'base', 5, np.array([1.0, 2.0, 0.0, 0.5]),
+                                             np.zeros(4)))
+    for data in (good[:cut], cdr.ENCAPSULATION + noise, noise, b'\x00\x00\x00\x00' + good[4:]):
+        if data == good:
+            continue
+        try:
+            _, pose, body = cv.odom_to_arrays(data, 'odom')
+        except cv.InputRejected as exc:
+            assert str(exc)
+            continue
+        assert np.all(np.isfinite(pose)) and np.all(np.isfinite(body))
+
+
+def test_this_middleware_agrees_and_the_nan_in_odometry_is_still_refused():
+    assert cdr.agrees_with_rmw()
+    msg = Odometry()
+    msg.header.frame_id = 'odom'
+    msg.pose.pose.orientation.w = 1.0
+    msg.twist.twist.linear.x = float('nan')
+    with pytest.raises(cv.InputRejected, match='NaN'):
+        cv.odom_to_arrays(serialize_message(msg), 'odom')
