@@ -88,7 +88,7 @@ class PoseMap:
         self.rows = {axis: system.coordinates.index(c) for c, axis in mapping.items()}
         self.hidden = [i for i, c in enumerate(system.coordinates) if c not in mapping]
         self.pose_rows = [self.rows[a] for a in AXES if a in self.rows]
-        self._axes = [AXES.index(a) for a in AXES if a in self.rows]  # theirs in a pose, rate
+        self._axes = [AXES.index(a) for a in AXES if a in self.rows]  # their index in a pose
         self._projection = self._normal_equations()
 
     @property
@@ -160,7 +160,8 @@ class PoseMap:
     def velocity_from_world(self, q: np.ndarray, world: np.ndarray) -> np.ndarray:
         """V from world-frame rates (xdot, ydot, zdot, yaw rate), projected onto D.
 
-        One least-squares solve (every odometry message): a third of a batched pseudo-inverse.
+        One least-squares solve (the tracking law's, and odometry's where the pose rows of rho
+        lose rank): a third of a batched pseudo-inverse.
         """
         rows = self.system.rho(q)[self.pose_rows, :]
         rates = np.asarray(world, dtype=float)[self._axes]

@@ -88,9 +88,9 @@ class GaussNewtonStep:
         matrix, vector, _, _ = _kkt(w, residual, g, ca.DM.ones(rows), ca.DM.zeros(rows), 0)
         symbols, dw, multipliers, _ = _solve(w, p, [], matrix, vector, [])
         read = ca.Function('readout', [w, p], readout)
+        stepped = symbols[0] + dw
         self._call = NumericFunction(ca.Function(
-            'gauss_newton_step', symbols,
-            [symbols[0] + dw, multipliers, *read(symbols[0] + dw, symbols[1])]))
+            'gauss_newton_step', symbols, [stepped, multipliers, *read(stepped, symbols[1])]))
         self.compiled = False
         if compiled:
             d, lt, order = ca.ldl(matrix, True)
