@@ -73,6 +73,11 @@ def obstacle_discs(value: ArrayLike, name: str = 'obstacles') -> np.ndarray:
     return discs
 
 
+def in_the_plane(system: NonholonomicSystem) -> bool:
+    """Whether ``system`` declares a pose x and y: obstacles can be avoided only then."""
+    return {'x', 'y'} <= set((system.pose or {}).values())
+
+
 def plane(system: NonholonomicSystem) -> tuple[int, int]:
     """Return the indices in q of the pose's x and y: where obstacles are."""
     axes = {axis: system.coordinates.index(c) for c, axis in (system.pose or {}).items()}

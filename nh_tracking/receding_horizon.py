@@ -34,7 +34,7 @@ import numpy as np
 
 from nh_tracking.avoidance import Avoidance, MAX_OBSTACLES
 from nh_tracking.fallback import fallback
-from nh_tracking.limits import bounds_from_lists, Limits
+from nh_tracking.limits import bounds_from_lists, in_the_plane, Limits
 from nh_tracking.problem import Solution, Terminal, terminal_error, TrackingProblem
 from nh_tracking.settings import check_fields, setting
 from nh_tracking.solvers import make_method, Method, METHODS, sample_plan, Structure
@@ -157,14 +157,15 @@ class RecedingHorizonPlanner:
         """Build the solver for the current settings now, so the first plan is not late.
 
         Every shape of its limits it meets in replanning: without obstacles and with each
-        number of obstacle slots. The soft forms, for a start that breaks a limit (a robot
-        pushed into an obstacle), are built when first needed: rare, and building every form
-        up front would hold the interpreter for seconds after each parameter change.
+        number of obstacle slots (if its model has a pose in the plane, where obstacles are).
+        The soft forms, for a start that breaks a limit (a robot pushed into an obstacle), are
+        built when first needed: rare, and building every form up front would hold the
+        interpreter for seconds after each parameter change.
         """
         s = self.settings
         bounds = Limits.of(self.system, self.limits['control_bounds'],
                            self.limits['velocity_bounds'], (), 0.0)
-        slots = {0} if self.method.name == 'pmp' else {
+        slots = {0} if self.method.name == 'pmp' or not in_the_plane(self.system) else {
             obstacle_slots(count) for count in range(MAX_OBSTACLES + 1)}
         for count in sorted(slots):
             shape = dataclasses.replace(Shape.of(bounds), slots=count)

@@ -22,6 +22,8 @@ import pytest
 
 import nh_tracking as nht
 from nh_tracking.examples.experiments import sleigh_problem
+from nh_tracking.solvers import Variational
+from nh_tracking.solvers.search import random_guess
 
 L = 0.5  # the snakeboard's half wheelbase
 
@@ -154,6 +156,23 @@ def test_a_saddle_is_reported_and_left(sideways, method):
     assert sol.success and sol.cost < 0.5 * first.cost
     assert sol.details['saddle_cost'] == pytest.approx(first.cost, rel=1e-6)
     assert 'not a minimum' in sol.message and np.abs(sol.q[:, 2]).max() > 0.1
+
+
+def test_the_second_look_is_not_drawn_back_to_the_saddle(sideways):
+    """Newton steps (a warm variational solve) go back to a saddle; the search's method leaves.
+
+    They converge to the nearest stationary point: from a slightly perturbed saddle, back to
+    it. The second look and multi-start run the globalised method instead.
+    """
+    problem = sideways('cost')
+    first = nht.solve(problem, second_look=False)
+    perturbed = random_guess(problem, np.random.default_rng(0), (first.q, first.v, first.u),
+                             0.01)
+    newton = Variational().solve(problem, perturbed)
+    assert newton.route == 'newton (working set)'
+    assert newton.cost == pytest.approx(first.cost, rel=1e-6)  # the saddle again
+    globalised = Variational().globalised().solve(problem, perturbed)
+    assert globalised.route == 'fatrop' and globalised.cost < 0.5 * first.cost
 
 
 def test_a_reachable_target_from_a_symmetric_start_is_reached(sideways):

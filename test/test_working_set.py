@@ -12,10 +12,11 @@
 # See the License for the specific language governing permissions and
 # limitations under the License.
 
-"""Warm replanning with limits by Newton steps on a working set, against the interior point.
+"""Warm replanning by Newton steps on a working set of the limit rows, against the interior point.
 
 The working set is checked against fatrop solving the same problem from the same guess (the
-independent solver), on models and limits no issue names, and its saddle test on a problem
+independent solver), on models and limits no issue names — and without limits, where the set
+is empty and the steps are Newton's on the KKT conditions — and its saddle test on a problem
 whose two KKT points are known by hand.
 """
 import casadi as ca
@@ -29,7 +30,7 @@ from nh_tracking.solvers.inequalities import Shape
 from nh_tracking.solvers.midpoint import working_set_step
 from nh_tracking.solvers.newton import NewtonStep
 from nh_tracking.solvers.working_set import working_set_solve
-from systems import inclined_knife_edge
+from systems import coupled_system, inclined_knife_edge
 
 
 def test_the_working_set_tells_the_minimum_beside_an_obstacle_from_the_saddle():
@@ -116,3 +117,49 @@ def test_warm_replans_with_limits_take_the_working_set_and_match_the_interior_po
     assert active >= 5  # the limits mattered
     assert worst_cost <= 1e-6 and worst_q <= 1e-4, (worst_cost, worst_q)
     assert planner.stats.optimal == planner.stats.plans
+
+
+FREE_CASES = {  # model, the reference's start (q, v), the robot's offset from it
+    'sleigh': (nht.models.chaplygin_sleigh, ([0.0, 0.0, 0.0], [0.6, 0.25]), [0.1, -0.1, 0.2]),
+    'rolling disk': (nht.models.rolling_disk, ([0.0, 0.0, 0.0, 0.0], [0.8, 0.3]),
+                     [0.05, 0.1, -0.1, 0.3]),
+    'snakeboard (underactuated)': (nht.models.snakeboard, ([0.0] * 5, [0.5, 0.0, 0.0]),
+                                   [0.0, 0.1, 0.1, 0.0, 0.0]),
+    'coupled (no pose, a potential)': (coupled_system, ([0.1, 0.2, 0.0, 0.3], [0.4, -0.2]),
+                                       [0.05, -0.05, 0.05, 0.0]),
+}
+
+
+@pytest.mark.parametrize('case', FREE_CASES)
+def test_warm_replans_without_limits_take_newton_steps_and_match_the_interior_point(case):
+    """No limits: the set is empty, and a converged replan is Newton steps on the KKT system.
+
+    The interior point only where they do not settle; the same plan as fatrop's from the same
+    guess (newton=False).
+    """
+    build, (q_r, v_r), offset = FREE_CASES[case]
+    model = build()
+    reference = nht.simulate(model, q_r, v_r, np.linspace(0.0, 10.0, 101))
+    planner = rh.RecedingHorizonPlanner(model, rh.PlannerSettings(horizon=2.0, steps=20))
+    planner.prepare()
+    planner.set_reference(reference)
+    q, v = np.array(q_r) + offset, np.array(v_r, dtype=float)
+    t, compared, worst_cost, worst_q = 0.0, 0, 0.0, 0.0
+    for _ in range(30):
+        previous = planner.previous
+        plan = planner.plan(t, q, v).plan
+        assert plan.success
+        if plan.route == 'newton (working set)':
+            problem = planner.problem(t, q, v)
+            fatrop = variational.solve_variational(problem, sample_plan(problem, previous),
+                                                   newton=False)
+            assert fatrop.success and fatrop.route == 'fatrop'
+            compared += 1
+            worst_cost = max(worst_cost, abs(plan.cost - fatrop.cost) / fatrop.cost)
+            worst_q = max(worst_q, float(np.abs(plan.q - fatrop.q).max()))
+        step = nht.simulate(model, q, v, plan.t[:2], plan.u[:1])
+        q, v, t = step.q[-1], step.v[-1], t + 0.1
+    print(f'\n{case}: {compared} of 30 replans by Newton steps; cost within {worst_cost:.1e}, '
+          f'plan within {worst_q:.1e} of fatrop')
+    assert compared >= 25, f'only {compared} of 30 replans took Newton steps'
+    assert worst_cost <= 1e-8 and worst_q <= 1e-7, (worst_cost, worst_q)

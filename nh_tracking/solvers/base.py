@@ -72,6 +72,14 @@ class Method(ABC):
         """
         return self.solve_until(problem, guess, deadline_after(deadline))
 
+    def globalised(self) -> Method:
+        """Return this method without local shortcuts, for guesses that are not near a minimum.
+
+        A search (perturbed or random starts) looks for a lower minimum than the one it has; a
+        shortcut that converges to the nearest stationary point (Newton steps) would defeat it.
+        """
+        return self
+
     @abstractmethod
     def solve_until(self, problem: TrackingProblem, guess: Guess | None,
                     stop: float | None) -> Solution:

@@ -70,7 +70,7 @@ def second_look(problem: TrackingProblem, method: Method, first: Solution,
     base: Guess | None = (first.q, first.v, first.u) if first.success else None
     size = 1.0 + np.abs(problem.reference_samples[0]).max()
     guess = random_guess(problem, rng, base, LOOK_SCALE * size)
-    second = method.solve(problem, guess, max_time)
+    second = method.globalised().solve(problem, guess, max_time)
     total = first.solve_time + second.solve_time
     better = second.success and (not first.success or second.cost < first.cost - LOWER_RTOL * (
         1.0 + abs(first.cost)))
@@ -115,6 +115,7 @@ def multi_start(problem: TrackingProblem, method: Method, guess: Guess | None, s
                 seed: int, processes: int | None, max_time: float | None) -> Solution:
     """Solve from ``guess`` and ``starts`` - 1 random excursions around it, in processes."""
     global _POOL_PROBLEM
+    method = method.globalised()
     rng = np.random.default_rng(seed)
     guesses = [guess] + [random_guess(problem, rng, guess) for _ in range(starts - 1)]
     method.prepare(problem.system, Structure(problem.steps, problem.terminal, max_time))

@@ -65,7 +65,8 @@ def default_guess(problem: TrackingProblem) -> tuple[np.ndarray, np.ndarray]:
 
 def solve_variational(problem: TrackingProblem, initial_guess: Guess | None = None,
                       max_time: float | None = None, solver: str = 'fatrop',
-                      compiled: bool = False, iterations: int = 0) -> Solution:
+                      compiled: bool = False, iterations: int = 0, newton: bool = True
+                      ) -> Solution:
     """Solve the discrete variational NLP from (q (N+1, n), v (N+1, k)[, u (N, r)]) as guess.
 
     ``max_time`` [s] bounds the wall time of the whole solve, every route included. A fatrop
@@ -73,15 +74,20 @@ def solve_variational(problem: TrackingProblem, initial_guess: Guess | None = No
     fine grid starts from the plan of a coarse grid, interpolated (grid continuation): from the
     reference alone, fine grids spend most iterations backtracking. ``iterations`` > 0 with a
     guess: a real-time iteration — that many Newton steps on the guess (a warm-started previous
-    plan), converged or not; without a guess the solve converges.
+    plan), converged or not; without a guess the solve converges. ``newton``: a guess within
+    the limits (a previous plan) is solved by Newton steps on a working set of the limit rows
+    (none without limits), the interior point only if they do not settle; False: always the
+    interior point (a search from perturbed guesses, where Newton's method would converge to
+    the saddle it is looking past).
     """
     return solve_variational_until(problem, initial_guess, deadline_after(max_time), solver,
-                                   compiled, iterations)
+                                   compiled, iterations, newton)
 
 
 def solve_variational_until(problem: TrackingProblem, initial_guess: Guess | None,
                             stop: float | None, solver: str = 'fatrop',
-                            compiled: bool = False, iterations: int = 0) -> Solution:
+                            compiled: bool = False, iterations: int = 0,
+                            newton: bool = True) -> Solution:
     """:func:`solve_variational` with an absolute stop time (perf_counter clock) or None.
 
     A real-time iteration counts only if its plan is a trajectory of the model (admissibility
@@ -103,7 +109,7 @@ def solve_variational_until(problem: TrackingProblem, initial_guess: Guess | Non
         if coarse_plan.success:
             q, v = coarse_plan.trajectory().sample(problem.grid)
             initial_guess = (q, v, None)
-    result = _solve_with(problem, initial_guess, stop, solver, compiled, soft)
+    result = _solve_with(problem, initial_guess, stop, solver, compiled, soft, newton=newton)
     result.solve_time += coarse_time
 
     def time_left(previous: Solution) -> bool:
@@ -134,7 +140,7 @@ def _next_route(failed: Solution, route: str, solve: Callable[[], Solution]) -> 
 
 def _solve_with(problem: TrackingProblem, initial_guess: Guess | None, stop: float | None,
                 solver: str, compiled: bool = False, soft: bool = False,
-                iterations: int = 0) -> Solution:
+                iterations: int = 0, newton: bool = False) -> Solution:
     sys = problem.system
     tr = transcription(sys, problem.steps, problem.terminal, stop is not None, solver,
                        compiled, Shape.of(problem.limits, soft), iterations)
@@ -148,7 +154,7 @@ def _solve_with(problem: TrackingProblem, initial_guess: Guess | None, stop: flo
     # a guess within the limits (a previous plan) is warm: near the optimum and its active set
     warm = initial_guess is not None and problem.limits.plan_violation(
         q_g, v_g, u_g) <= VIOLATION_TOL
-    held_step = _held_step(problem, tr) if warm else None  # built (once) outside the timing
+    held_step = _held_step(problem, tr) if warm and newton else None  # built outside the timing
     start = time.perf_counter()
     w0 = tr.pack(q_g, v_g, u_g)
     read: list[np.ndarray] = []  # the plan read from the unknowns (a Newton step gives it)
@@ -203,8 +209,8 @@ def _solve_with(problem: TrackingProblem, initial_guess: Guess | None, stop: flo
 
 
 def _held_step(problem: TrackingProblem, tr: Transcription) -> WorkingSetStep | None:
-    """Return the working set's step of a warm solve with hard limits (None: none yet)."""
-    if tr.soft_index is not None or not problem.limits.active:
+    """Return the working set's step of a warm solve (hard limits or none; None: none yet)."""
+    if tr.soft_index is not None:
         return None
     try:
         return working_set_step(problem.system, problem.steps, problem.terminal,
@@ -215,7 +221,7 @@ def _held_step(problem: TrackingProblem, tr: Transcription) -> WorkingSetStep | 
 
 def _working_set(step: WorkingSetStep, w0: np.ndarray, p: np.ndarray,
                  bounds: dict[str, np.ndarray], stop: float | None) -> Outcome | None:
-    """Replan with hard limits by Newton steps on a working set (None: it did not settle).
+    """Replan by Newton steps on a working set of the limit rows (None: it did not settle).
 
     Where it keeps failing (a degenerate set: a robot turning on the spot at a disc's edge),
     it is tried only every PAUSE-th solve: each failure costs up to 24 factorisations.
@@ -229,7 +235,8 @@ def _working_set(step: WorkingSetStep, w0: np.ndarray, p: np.ndarray,
     if held is None:
         return None
     return Outcome({'x': held.w, 'lam_g': held.multipliers}, True, held.factorisations,
-                   f'converged ({held.active} limit rows active)')
+                   f'converged ({held.active} limit rows active)'
+                   if np.any(bounds['lbg'] < bounds['ubg']) else 'converged')
 
 
 def _failed(problem: TrackingProblem, q: np.ndarray, v: np.ndarray, elapsed: float,
@@ -247,20 +254,24 @@ class Variational(Method):
     Solved by ``backend`` (fatrop exploits the stage structure; IPOPT is the general fallback).
     ``compiled`` runs the NLP's derivatives as C, compiled once per structure and machine
     (:mod:`.compiled`). ``iterations`` > 0: real-time iterations — each warm-started solve
-    takes that many Newton steps and stops, converged or not (0: to convergence).
+    takes that many Newton steps and stops, converged or not (0: to convergence). ``newton``:
+    converged warm solves by Newton steps on a working set (see :func:`solve_variational`).
     """
 
     backend: Literal['fatrop', 'ipopt'] = 'fatrop'
     compiled: bool = False
     iterations: int = 0
+    newton: bool = True
     name: ClassVar[str] = 'variational'
 
     def __post_init__(self) -> None:
         if self.backend not in BACKENDS:
             raise ValueError(f'variational backend must be one of {BACKENDS}, '
                              f'got {self.backend!r}')
-        if not isinstance(self.compiled, bool):
-            raise TypeError(f'variational option compiled must be a bool, got {self.compiled!r}')
+        for option in ('compiled', 'newton'):
+            if not isinstance(getattr(self, option), bool):
+                raise TypeError(f'variational option {option} must be a bool, got '
+                                f'{getattr(self, option)!r}')
         if isinstance(self.iterations, bool) or not isinstance(self.iterations, int) or \
                 self.iterations < 0:
             raise ValueError(f'variational option iterations must be an integer >= 0, got '
@@ -274,10 +285,13 @@ class Variational(Method):
                           structure.deadline is not None, self.backend, self.compiled,
                           structure.limits, iterations)
         limits = structure.limits
-        if limits != Shape() and not limits.slots and not limits.soft:  # the bounds it has
+        if self.newton and not limits.slots and not limits.soft:  # the bounds it has
             working_set_step(system, structure.steps, structure.terminal, limits)
+
+    def globalised(self) -> Variational:
+        return dataclasses.replace(self, newton=False)
 
     def solve_until(self, problem: TrackingProblem, guess: Guess | None,
                     stop: float | None) -> Solution:
         return solve_variational_until(problem, guess, stop, self.backend, self.compiled,
-                                       self.iterations)
+                                       self.iterations, self.newton)
