@@ -166,16 +166,16 @@ def _solve_with(problem: TrackingProblem, initial_guess: Guess | None, stop: flo
         finite = bool(np.isfinite(w_new).all())  # (a NaN at the guess spreads through)
         outcome, route = Outcome({'x': w_new, 'lam_g': lam_g}, finite, taken, (
             'real-time iteration' if finite else NOT_FINITE)), 'gauss-newton'
-    elif not all(np.all(np.isfinite(a)) for a in tr.readout(w0, p)):
-        # fatrop never returns from a non-finite starting point (its line search cannot
-        # recover): refuse to start, and say why
-        return _failed(problem, q_g, v_g, time.perf_counter() - start, solver, NOT_FINITE)
     else:
         bounds = tr.bounds(problem)
         slacks = 0 if tr.soft_index is None else len(tr.soft_index)
         held = _working_set(held_step, w0, p, bounds, stop) if held_step else None
         if held is not None:
             outcome, route = held, 'newton (working set)'
+        elif not all(np.all(np.isfinite(a)) for a in tr.readout(w0, p)):
+            # fatrop never returns from a non-finite starting point (its line search cannot
+            # recover): refuse to start, and say why (Newton steps from it give up at once)
+            return _failed(problem, q_g, v_g, time.perf_counter() - start, solver, NOT_FINITE)
         else:  # cold, or the working set did not settle: interior point
             outcome = tr.nlp.solve(stop, warm, x0=np.concatenate([w0, np.zeros(slacks)]), p=p,
                                    **bounds)

@@ -124,23 +124,26 @@ def working_set_solve(step: NewtonStep, constraints: NumericFunction, w: np.ndar
     ``constraints``: (w, p) -> g. Rows with lower == upper are equalities, held throughout.
     A plan converged with a row of ``nonconvex`` held (clearance: the way round an obstacle,
     where saddles are generic) is checked to be a minimum, not a saddle (a factorisation more,
-    through a slow path: 0.5 ms); other plans are not checked.
+    through a slow path: 0.5 ms); other plans are not checked. Without inequality rows the
+    set never changes: the steps are Newton's on the KKT system, and g is not looked at.
     """
     rows = _WorkingSet(lower, upper)
+    limited = bool(np.any(rows.held != 2))
     factorisations = 0
     multipliers, moved = np.zeros(len(lower)), np.inf
     for _ in range(MAX_STEPS):
         curvature = multipliers
-        values = constraints(w, p)[0]
-        rows.hold_reached(values)  # a limit reached, or broken by the last step's curvature
-        changed, offset, now = False, np.zeros_like(w), values
+        now = constraints(w, p)[0] if limited else lower
+        if limited:  # a limit reached, or broken by the last step's curvature
+            rows.hold_reached(now)
+        changed, offset = False, np.zeros_like(w)
         while True:
             if factorisations >= MAX_FACTORISATIONS or (
                     stop is not None and time.perf_counter() > stop):
                 return None
             w_full, multipliers, full, stationarity = step(w, p, *rows.arguments(), curvature)
             factorisations += 1
-            fraction, stopping = rows.blocking(now, full)
+            fraction, stopping = rows.blocking(now, full) if limited else (1.0, ())
             target = w_full - w
             if len(stopping):  # stop at the first free rows the step would break; hold them
                 offset += fraction * (target - offset)
@@ -149,7 +152,7 @@ def working_set_solve(step: NewtonStep, constraints: NumericFunction, w: np.ndar
                 changed = True
                 continue
             offset, now = target, full
-            if not rows.let_go(multipliers):
+            if not limited or not rows.let_go(multipliers):
                 break
             changed = True
         if not np.all(np.isfinite(offset)):
