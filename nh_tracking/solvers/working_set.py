@@ -49,6 +49,7 @@ NEAR_BOUND = 1e-6  # a row this close to a bound (or beyond) at a step's start i
 ACTIVE_TOL = 1e-9  # a free row a step takes further beyond its bound than this stops it
 TOGETHER = 1e-9  # rows reached within this fraction of a step of the first are held with it
 DUAL_TOL = 1e-10  # a held row whose multiplier has the wrong sign by more is let go
+NO_ROWS = np.zeros(0, dtype=int)
 
 
 @dataclass
@@ -97,7 +98,7 @@ class _WorkingSet:
         fraction[up] = (self.upper[up] - now[up]) / (full[up] - now[up])
         first = float(np.min(fraction, initial=np.inf))
         if not np.isfinite(first):
-            return 1.0, np.zeros(0, dtype=int)
+            return 1.0, NO_ROWS
         first = float(np.clip(first, 0.0, 1.0))
         return first, np.flatnonzero(fraction <= first + TOGETHER)
 
@@ -143,7 +144,7 @@ def working_set_solve(step: NewtonStep, constraints: NumericFunction, w: np.ndar
                 return None
             w_full, multipliers, full, stationarity = step(w, p, *rows.arguments(), curvature)
             factorisations += 1
-            fraction, stopping = rows.blocking(now, full) if limited else (1.0, ())
+            fraction, stopping = rows.blocking(now, full) if limited else (1.0, NO_ROWS)
             target = w_full - w
             if len(stopping):  # stop at the first free rows the step would break; hold them
                 offset += fraction * (target - offset)
