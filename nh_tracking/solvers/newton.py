@@ -33,6 +33,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from pathlib import Path
+import threading
 
 import casadi as ca
 import numpy as np
@@ -140,6 +141,7 @@ class NewtonStep:
             'newton_step', symbols,
             [symbols[0] + dw, multipliers, values + ca.mtimes(jacobian, dw), stationarity]))
         self._inertia: ca.Linsol | None = None
+        self._inertia_lock = threading.Lock()  # steps are shared by the planners of a process
 
     def __call__(self, *args: np.ndarray) -> list[np.ndarray]:
         return self._step(*args)
@@ -153,11 +155,12 @@ class NewtonStep:
         to a minimum (going round an obstacle is not convex).
         """
         matrix = self._kkt(*args)
-        if self._inertia is None:
-            self._inertia = ca.Linsol('newton_inertia', 'ldl', self._sparsity)
-            self._inertia.sfact(matrix)
-        self._inertia.nfact(matrix)
-        return int(self._inertia.neig(matrix)) == self.rows
+        with self._inertia_lock:
+            if self._inertia is None:
+                self._inertia = ca.Linsol('newton_inertia', 'ldl', self._sparsity)
+                self._inertia.sfact(matrix)
+            self._inertia.nfact(matrix)
+            return int(self._inertia.neig(matrix)) == self.rows
 
 
 def newton_steps(step: Callable[[np.ndarray, np.ndarray], list[np.ndarray]], w: np.ndarray,

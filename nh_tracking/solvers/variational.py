@@ -169,7 +169,9 @@ def _solve_with(problem: TrackingProblem, initial_guess: Guess | None, stop: flo
     else:
         bounds = tr.bounds(problem)
         slacks = 0 if tr.soft_index is None else len(tr.soft_index)
-        held = _working_set(held_step, w0, p, bounds, stop) if held_step else None
+        # (a guess with NaN gets no Newton steps: they would count as the structure failing)
+        held = (_working_set(held_step, w0, p, bounds, stop)
+                if held_step and np.isfinite(w0).all() else None)
         if held is not None:
             outcome, route = held, 'newton (working set)'
         elif not all(np.all(np.isfinite(a)) for a in tr.readout(w0, p)):

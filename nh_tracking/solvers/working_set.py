@@ -42,6 +42,10 @@ from nh_tracking.solvers.newton import NewtonStep
 MAX_STEPS = 12  # Newton steps (a warm plan needs 2-5)
 MAX_FACTORISATIONS = 24  # in all: a set that needs more is not near the previous plan's
 DIVERGING = 2.0  # a step this many times longer than the last: diverging, given up
+SLOW = 0.3  # two steps in a row longer than this fraction of the one before, the set unchanged:
+# converging linearly (an inexact factorisation), slower than the interior point
+WANDERED = 0.05  # a first step longer than this (relative to the largest unknown): the guess
+# was not near a stationary point, and the one the steps reach is checked to be a minimum
 STEP_TOL = 1e-7  # converged once a step moves no unknown by more (relative to the largest;
 # the convergence is superlinear: the plan is then within about 1e-9 of the solution)
 STATIONARITY_TOL = 1e-6  # |Jᵀr + Gᵀλ| at the last linearisation, with the step's multipliers
@@ -124,13 +128,15 @@ def working_set_solve(step: NewtonStep, constraints: NumericFunction, w: np.ndar
 
     ``constraints``: (w, p) -> g. Rows with lower == upper are equalities, held throughout.
     A plan converged with a row of ``nonconvex`` held (clearance: the way round an obstacle,
-    where saddles are generic) is checked to be a minimum, not a saddle (a factorisation more,
-    through a slow path: 0.5 ms); other plans are not checked. Without inequality rows the
+    where saddles are generic), or reached from a guess far from it (a first step longer than
+    :data:`WANDERED`: a push, a jump of the reference), is checked to be a minimum, not a saddle
+    (a factorisation more, through a slow path: 0.2-0.5 ms); plans continued from a nearby
+    guess (the previous plan, shifted) are not. Without inequality rows the
     set never changes: the steps are Newton's on the KKT system, and g is not looked at.
     """
     rows = _WorkingSet(lower, upper)
     limited = bool(np.any(rows.held != 2))
-    factorisations = 0
+    factorisations, wandered, settled, slow = 0, False, False, 0  # settled: the last set too
     multipliers, moved = np.zeros(len(lower)), np.inf
     for _ in range(MAX_STEPS):
         curvature = multipliers
@@ -159,12 +165,18 @@ def working_set_solve(step: NewtonStep, constraints: NumericFunction, w: np.ndar
         if not np.all(np.isfinite(offset)):
             return None
         w = w + offset
-        tolerance = STEP_TOL * max(1.0, float(np.max(np.abs(w))))
+        scale = max(1.0, float(np.max(np.abs(w))))
+        tolerance = STEP_TOL * scale
         moved, last = float(np.max(np.abs(offset))), moved
+        wandered = wandered or (last == np.inf and moved > WANDERED * scale)
         if moved > DIVERGING * max(last, 100 * tolerance):
             return None  # far from the previous plan's optimum: Newton without a line search
+        slow = slow + 1 if settled and not changed and moved > max(SLOW * last, tolerance) else 0
+        if slow >= 2:
+            return None
+        settled = not changed
         if not changed and stationarity[0] <= STATIONARITY_TOL and moved <= tolerance:
-            if np.any(nonconvex & (rows.held != 0)) and not step.minimum(
+            if (wandered or np.any(nonconvex & (rows.held != 0))) and not step.minimum(
                     w, p, *rows.arguments(), multipliers):
                 return None  # a saddle: the interior point finds the minimum beside it
             return WorkingSetSolution(w, multipliers, factorisations,
