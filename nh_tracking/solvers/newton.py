@@ -43,24 +43,31 @@ from nh_tracking.solvers.compiled import LibraryBuild
 
 REGULARISATION = 1e-10  # of JᵀJ: the step only, no bias at the solution
 DUAL_REGULARISATION = 1e-13  # of the (2, 2) block: the solution moves by about this times λ
+# ... of the working set's Newton step, which takes the last multipliers: a proximal term,
+# -δ(λ - λ_last), so the solution does not move, and a δ large enough for the unpivoted LDLᵀ to
+# stay accurate on an indefinite Hessian (at 1e-13 the snakeboard's steps shrank by only 0.45)
+PROXIMAL_REGULARISATION = 1e-10
 
 
 def _kkt(w: ca.SX, residual: ca.SX, g: ca.SX, active: ca.SX | ca.DM, target: ca.SX | ca.DM,
-         curvature: ca.SX | int) -> tuple[ca.SX, ca.SX, ca.SX, ca.SX]:
+         curvature: ca.SX | int, dual_regularisation: float = DUAL_REGULARISATION,
+         last: ca.SX | int = 0) -> tuple[ca.SX, ca.SX, ca.SX, ca.SX]:
     """Return the KKT matrix and right-hand side of a step, G and Jᵀr.
 
     Rows of g with ``active`` 1 are held at ``target`` (linearised: g_i + G_i Δw = target_i),
     the others are free (their λ_i = 0: the row reads -λ_i = 0 in the same matrix, so one
     sparsity and one factorisation pattern serve every working set). The Hessian is JᵀJ plus
-    ``curvature`` (0 for Gauss-Newton).
+    ``curvature`` (0 for Gauss-Newton). Held rows read G_i Δw - δ(λ_i - last_i) = target_i -
+    g_i: at a fixed point with λ = ``last`` they hold exactly.
     """
     jac_r, jac_g = ca.jacobian(residual, w), ca.jacobian(g, w)
     held = ca.times(ca.repmat(active, 1, w.shape[0]), jac_g)  # the sparsity of G, rows off
     hessian = ca.mtimes(jac_r.T, jac_r) + REGULARISATION * ca.SX.eye(w.shape[0]) + curvature
-    dual = ca.diag(1 - active + DUAL_REGULARISATION * active)
+    dual = ca.diag(1 - active + dual_regularisation * active)
     gradient = ca.mtimes(jac_r.T, residual)
     return (ca.blockcat([[hessian, held.T], [held, -dual]]),
-            ca.vertcat(-gradient, active * (target - g)), jac_g, gradient)
+            ca.vertcat(-gradient, active * (target - g - dual_regularisation * last)), jac_g,
+            gradient)
 
 
 def _solve(w: ca.SX, p: ca.SX, inputs: list[ca.SX], matrix: ca.SX, vector: ca.SX,
@@ -128,7 +135,8 @@ class NewtonStep:
         weights = ca.SX.sym('weights', residual.shape[0])  # the residuals' own curvature
         second = (ca.substitute(ca.hessian(ca.dot(weights, residual), w)[0], weights, residual)
                   + ca.hessian(ca.dot(curvature, g), w)[0])
-        matrix, vector, jac_g, gradient = _kkt(w, residual, g, active, target, second)
+        matrix, vector, jac_g, gradient = _kkt(w, residual, g, active, target, second,
+                                               PROXIMAL_REGULARISATION, curvature)
         inputs = [active, target, curvature]
         self._sparsity = matrix.sparsity()
         # a plain call: it returns the DM the factorisation takes (numpy to DM costs ~50 ns an

@@ -175,7 +175,9 @@ def working_set_solve(step: NewtonStep, constraints: NumericFunction, w: np.ndar
         if slow >= 2:
             return None
         settled = not changed
-        if not changed and stationarity[0] <= STATIONARITY_TOL and moved <= tolerance:
+        # (never on the first step: its multipliers and curvature start from zero)
+        if not changed and stationarity[0] <= STATIONARITY_TOL and moved <= tolerance and \
+                last < np.inf:
             if (wandered or np.any(nonconvex & (rows.held != 0))) and not step.minimum(
                     w, p, *rows.arguments(), multipliers):
                 return None  # a saddle: the interior point finds the minimum beside it
