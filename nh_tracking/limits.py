@@ -80,10 +80,10 @@ def in_the_plane(system: NonholonomicSystem) -> bool:
 
 def plane(system: NonholonomicSystem) -> tuple[int, int]:
     """Return the indices in q of the pose's x and y: where obstacles are."""
-    axes = {axis: system.coordinates.index(c) for c, axis in (system.pose or {}).items()}
-    if 'x' not in axes or 'y' not in axes:
+    if not in_the_plane(system):
         raise ValueError(f'{system.name} declares no pose x and y (pose=...): obstacles '
                          'need to know where the robot is in the plane')
+    axes = {axis: system.coordinates.index(c) for c, axis in (system.pose or {}).items()}
     return axes['x'], axes['y']
 
 

@@ -237,8 +237,8 @@ def _working_set(step: WorkingSetStep, w0: np.ndarray, p: np.ndarray,
     if held is None:
         return None
     return Outcome({'x': held.w, 'lam_g': held.multipliers}, True, held.factorisations,
-                   f'converged ({held.active} limit rows active)'
-                   if np.any(bounds['lbg'] < bounds['ubg']) else 'converged')
+                   f'converged ({held.active} limit rows active)' if held.limited
+                   else 'converged')
 
 
 def _failed(problem: TrackingProblem, q: np.ndarray, v: np.ndarray, elapsed: float,

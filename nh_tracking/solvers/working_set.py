@@ -64,14 +64,20 @@ class WorkingSetSolution:
     multipliers: np.ndarray
     factorisations: int
     active: int  # inequality rows held at a bound
+    limited: bool  # whether g has inequality rows at all
 
 
 class _WorkingSet:
-    """Which rows of g are held, and at which bound: 2 equality, -1 lower, 1 upper, 0 free."""
+    """Which rows of g are held, and at which bound: 2 equality, -1 lower, 1 upper, 0 free.
+
+    Without inequality rows (``limited`` False) the set never changes: its methods return at
+    once.
+    """
 
     def __init__(self, lower: np.ndarray, upper: np.ndarray) -> None:
         self.lower, self.upper = lower, upper
         self.held = np.where(lower == upper, 2, 0).astype(np.int8)
+        self.limited = bool(np.any(self.held != 2))
 
     def hold_reached(self, values: np.ndarray) -> None:
         """Hold the free rows at (or beyond) a bound at ``values``, or nearly at it.
@@ -79,6 +85,8 @@ class _WorkingSet:
         Nearly: an interior-point plan keeps its active rows about 1e-8 inside their bounds,
         and each one found later by a blocked step costs a factorisation.
         """
+        if not self.limited:
+            return
         free = self.held == 0
         self.held[free & (values <= self.lower + NEAR_BOUND)] = -1
         self.held[free & (values >= self.upper - NEAR_BOUND)] = 1
@@ -94,6 +102,8 @@ class _WorkingSet:
         And the free rows that stop it there (empty: none), the first that would leave their
         bounds — all of them, as rows reached together are held together.
         """
+        if not self.limited:
+            return 1.0, NO_ROWS
         free = self.held == 0
         fraction = np.full(len(now), np.inf)
         down = free & (full < self.lower - ACTIVE_TOL) & (full < now)
@@ -115,6 +125,8 @@ class _WorkingSet:
         All at once: a degenerate start (a robot turning on the spot at a disc's edge holds
         150 rows at the bound) would otherwise spend a factorisation on each.
         """
+        if not self.limited:
+            return False
         wrong = (((self.held == -1) & (multipliers > DUAL_TOL))
                  | ((self.held == 1) & (multipliers < -DUAL_TOL)))
         self.held[wrong] = 0
@@ -135,14 +147,12 @@ def working_set_solve(step: NewtonStep, constraints: NumericFunction, w: np.ndar
     set never changes: the steps are Newton's on the KKT system, and g is not looked at.
     """
     rows = _WorkingSet(lower, upper)
-    limited = bool(np.any(rows.held != 2))
     factorisations, wandered, settled, slow = 0, False, False, 0  # settled: the last set too
     multipliers, moved = np.zeros(len(lower)), np.inf
     for _ in range(MAX_STEPS):
         curvature = multipliers
-        now = constraints(w, p)[0] if limited else lower
-        if limited:  # a limit reached, or broken by the last step's curvature
-            rows.hold_reached(now)
+        now = constraints(w, p)[0] if rows.limited else lower  # (g unused without limits)
+        rows.hold_reached(now)  # a limit reached, or broken by the last step's curvature
         changed, offset = False, np.zeros_like(w)
         while True:
             if factorisations >= MAX_FACTORISATIONS or (
@@ -150,7 +160,7 @@ def working_set_solve(step: NewtonStep, constraints: NumericFunction, w: np.ndar
                 return None
             w_full, multipliers, full, stationarity = step(w, p, *rows.arguments(), curvature)
             factorisations += 1
-            fraction, stopping = rows.blocking(now, full) if limited else (1.0, NO_ROWS)
+            fraction, stopping = rows.blocking(now, full)
             target = w_full - w
             if len(stopping):  # stop at the first free rows the step would break; hold them
                 offset += fraction * (target - offset)
@@ -159,7 +169,7 @@ def working_set_solve(step: NewtonStep, constraints: NumericFunction, w: np.ndar
                 changed = True
                 continue
             offset, now = target, full
-            if not limited or not rows.let_go(multipliers):
+            if not rows.let_go(multipliers):
                 break
             changed = True
         if not np.all(np.isfinite(offset)):
@@ -182,5 +192,6 @@ def working_set_solve(step: NewtonStep, constraints: NumericFunction, w: np.ndar
                     w, p, *rows.arguments(), multipliers):
                 return None  # a saddle: the interior point finds the minimum beside it
             return WorkingSetSolution(w, multipliers, factorisations,
-                                      int(np.count_nonzero(np.abs(rows.held) == 1)))
+                                      int(np.count_nonzero(np.abs(rows.held) == 1)),
+                                      rows.limited)
     return None
