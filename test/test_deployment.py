@@ -20,6 +20,7 @@ start-up parameters from the command line and the installed parameter file.
 """
 import math
 from pathlib import Path
+import signal
 import threading
 import time
 
@@ -197,6 +198,48 @@ def test_start_up_parameters_run_or_exit_2_with_one_line(tmp_path):
         done = run(exe, ['--help'], domain_env())
         assert done.returncode == 0 and done.stdout.startswith(f'usage: {exe}')
         assert node in done.stdout and '--params-file' in done.stdout
+
+
+STOPS = (('planner', 'configuring:', 0.0, 'SIGINT'),  # while it builds its solver
+         ('planner', 'planning for', 0.0, 'SIGINT'),  # as it says it is ready
+         ('planner', 'planning for', 0.05, 'SIGINT'),  # while it starts its executor
+         ('planner', 'configuring:', 0.0, 'SIGTERM'),  # a process manager's stop
+         ('sim', 'simulating', 0.0, 'SIGINT'))
+
+
+def test_a_stop_at_any_moment_of_start_up_exits_0_without_a_traceback():
+    """Ctrl-C or SIGTERM while a process is still starting ends it cleanly (exit code 0).
+
+    All started together, as five processes on two cores are in the start-up test: a Ctrl-C
+    raised as KeyboardInterrupt at whatever line the main thread was on had aborted a starting
+    planner ('terminate called'), raised from rclpy's try_shutdown, printed a traceback from
+    an interrupted rclpy Task, or left it running.
+    """
+    running = [(Process(exe, ['--ros-args', '-p', 'steps:=60'] if exe == 'planner' else [],
+                        domain_env()), line, delay, signal_name)
+               for exe, line, delay, signal_name in STOPS]
+    try:
+        due: dict[int, float] = {}  # each stopped when its own moment comes, not in turn
+        sent: set[int] = set()
+        give_up = time.monotonic() + 60.0
+        while len(sent) < len(running) and time.monotonic() < give_up:
+            for i, (process, line, delay, signal_name) in enumerate(running):
+                if i not in due and line in process.output:
+                    due[i] = time.monotonic() + delay
+                if i not in sent and due.get(i, math.inf) <= time.monotonic():
+                    process.proc.send_signal(getattr(signal, signal_name))
+                    sent.add(i)
+            time.sleep(0.002)
+        assert len(sent) == len(running), [p.output for p, *_ in running]
+        for process, line, delay, signal_name in running:
+            case = f'{signal_name} {delay} s after {line!r}'
+            assert process.finish(30.0) == 0, (case, process.output)
+            assert 'Traceback' not in process.output, (case, process.output)
+            assert 'terminate called' not in process.output, (case, process.output)
+    finally:
+        for process, *_ in running:
+            if process.proc.poll() is None:
+                process.kill()
 
 
 CHANGES = ({'compiled': True}, {'iterations': 1}, {'steps': 40}, {'u_max': [5.0]},

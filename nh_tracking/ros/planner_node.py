@@ -48,6 +48,7 @@ from nh_tracking.ros.parameters import declare_all, declare_model
 from nh_tracking.ros.planner_interface import LATCHED, PARAMETERS, REFERENCE_QOS
 from nh_tracking.ros.planner_parameters import RuntimeParameters
 from nh_tracking.ros.planner_services import PlannerServices
+from nh_tracking.ros.runner import autostart
 from nh_tracking.ros.safety import guarded
 from nh_tracking.session import PlanResult, TrackingSession
 
@@ -75,9 +76,7 @@ class PlannerNode(RuntimeParameters, ObstacleListener, LifecycleNode):
         self.add_on_set_parameters_callback(self._validate_parameters)
         self.add_post_set_parameters_callback(self._apply_parameters)
         if self.params['autostart']:
-            if self.trigger_configure() != TransitionCallbackReturn.SUCCESS:
-                raise ValueError(f'configuring failed: {self._configure_error}')
-            self.trigger_activate()
+            autostart(self, lambda: self._configure_error)
 
     @property
     def live(self) -> TrackingSession:
@@ -108,6 +107,7 @@ class PlannerNode(RuntimeParameters, ObstacleListener, LifecycleNode):
 
     # lifecycle --------------------------------------------------------------------------------
     def on_configure(self, state: LifecycleState) -> TransitionCallbackReturn:
+        self.get_logger().info(f'configuring: building the solver for {self.model}')
         try:
             session = TrackingSession(self.model, self.physical,
                                       PlannerSettings(**self._settings_values()), self._now_ns,

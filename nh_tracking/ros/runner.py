@@ -14,7 +14,8 @@
 
 """``main()`` plumbing shared by the executables: ``--help``.
 
-Start-up errors as one line and exit code 2, spin, and a clean exit (code 0) on Ctrl-C or SIGTERM.
+Start-up errors as one line and exit code 2, spin, and a clean exit (code 0) on Ctrl-C or SIGTERM
+at any moment, start-up included.
 """
 from __future__ import annotations
 
@@ -25,12 +26,15 @@ import sys
 import rclpy
 from rclpy.exceptions import ParameterException
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+from rclpy.lifecycle import LifecycleNode, TransitionCallbackReturn
 from rclpy.node import Node
+from rclpy.signals import uninstall_signal_handlers
 
 from nh_tracking.session import settle_heap
 
 HELP = ('-h', '--help')
 SWITCH_INTERVAL = 5e-4  # s
+STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
 
 
 def responsive_threads() -> None:
@@ -48,6 +52,59 @@ def _wants_help(args: Sequence[str]) -> bool:
     return any(a in HELP for a in ours)
 
 
+def autostart(node: LifecycleNode, why_not: Callable[[], str]) -> None:
+    """Configure and activate ``node``; ValueError saying why configuring failed.
+
+    A stop during start-up shuts the context down under the transitions. What they built
+    (companion nodes' and solver threads) must not outlive the interpreter: a thread left in an
+    rclpy wait aborts the process at exit. So a failure destroys the node before it goes on.
+    """
+    try:
+        if node.trigger_configure() != TransitionCallbackReturn.SUCCESS:
+            raise ValueError(f'configuring failed: {why_not()}')
+        node.trigger_activate()
+    except BaseException:
+        node.destroy_node()
+        raise
+
+
+class StopRequest:
+    """Ctrl-C and SIGTERM recorded as a request, never raised as an exception.
+
+    Python's own SIGINT handler raises KeyboardInterrupt at whatever line the main thread is on:
+    inside a ``with lock`` before its ``try`` (the lock stays held and every thread that needs it
+    hangs), inside rclpy's ``Task.__init__`` (a traceback from its ``__del__``), or during
+    start-up, where it aborted the process (``terminate called``) or left it running. Installed
+    before ``rclpy.init``, these handlers are the ones rclpy's own chain to: rclpy shuts the
+    contexts down (which wakes every executor) and this records why. A second request is the
+    user insisting: it raises KeyboardInterrupt, as a plain Python program would.
+    """
+
+    def __init__(self) -> None:
+        self.requested = False
+        for number in STOP_SIGNALS:
+            signal.signal(number, self._record)
+
+    def _record(self, number: int, frame: object) -> None:
+        if self.requested:
+            raise KeyboardInterrupt
+        self.requested = True
+
+
+def _shut_down() -> None:
+    """Shut the default context down if still up, and join rclpy's signal-handling thread.
+
+    The signal handler may shut the context down between ``try_shutdown``'s check and its call
+    (an RCLError); left installed, rclpy's handler thread outlives the interpreter.
+    """
+    try:
+        rclpy.try_shutdown()
+    except RuntimeError:
+        if rclpy.ok():
+            raise
+    uninstall_signal_handlers()
+
+
 def run(make_node: Callable[[], Node], usage: Callable[[], str],
         args: Sequence[str] | None = None) -> int:
     """Create the node and spin it until Ctrl-C, SIGTERM or an external shutdown; exit code 0.
@@ -58,44 +115,45 @@ def run(make_node: Callable[[], Node], usage: Callable[[], str],
     if _wants_help(argv[1:]):
         print(usage())
         return 0
+    stop = StopRequest()
     try:
         rclpy.init(args=argv)
     except Exception as exc:  # noqa: BLE001 - malformed --ros-args: say so, in one line
         print(f'cannot start: bad command line: {str(exc).splitlines()[0]}', file=sys.stderr)
         return 2
-    # SIGTERM (what process managers and `kill` send) ends as cleanly as Ctrl-C, also while
-    # the node is still starting (building, maybe compiling, its solver)
-    signal.signal(signal.SIGTERM, lambda *_: rclpy.try_shutdown())
+    node = executor = None
     try:
-        node = make_node()
-    except KeyboardInterrupt:
-        rclpy.try_shutdown()
-        return 0
-    except Exception as exc:  # noqa: BLE001 - start-up problems are one line, not a traceback
-        if not rclpy.ok():  # stopped while starting
+        if stop.requested:  # before rclpy's handlers were there to shut the context down
             return 0
-        rclpy.try_shutdown()
-        if not isinstance(exc, (ValueError, TypeError, ParameterException)):
-            raise
-        print(f'cannot start: {str(exc).splitlines()[0]}', file=sys.stderr)
-        return 2
-    responsive_threads()
-    # Single-threaded on purpose: the solver runs in the planner's own worker thread, and
-    # rclpy's MultiThreadedExecutor (7.1, Jazzy) starves timers when another node subscribes
-    # to what they publish (ros2/rclpy#1223, #1452).
-    executor = SingleThreadedExecutor()
-    executor.add_node(node)
-    try:
-        settle_heap(2)  # the node as built lives as long as the process (inside the try: a
-        # Ctrl-C during the collection ends cleanly too)
+        # Single-threaded on purpose: the solver runs in the planner's own worker thread, and
+        # rclpy's MultiThreadedExecutor (7.1, Jazzy) starves timers when another node
+        # subscribes to what they publish (ros2/rclpy#1223, #1452). Made before the node:
+        # one made on a context a stop has shut down is left half-built (a traceback from
+        # its __del__).
+        executor = SingleThreadedExecutor()
+        try:
+            node = make_node()  # a stop while it builds (maybe compiles) its solver shuts
+            # the context down: creating the next entity fails, or spin returns at once
+        except Exception as exc:  # noqa: BLE001 - start-up problems are one line
+            if stop.requested or not rclpy.ok():  # stopped while starting
+                return 0
+            if not isinstance(exc, (ValueError, TypeError, ParameterException)):
+                raise
+            print(f'cannot start: {str(exc).splitlines()[0]}', file=sys.stderr)
+            return 2
+        responsive_threads()
+        executor.add_node(node)
+        settle_heap(2)  # the node as built lives as long as the process
         executor.spin()
-    except (KeyboardInterrupt, ExternalShutdownException):
+    except ExternalShutdownException:
         pass
-    except RuntimeError:  # (RCLError) SIGTERM shut down while the executor made its wait set
+    except RuntimeError:  # (RCLError) the context shut down while a wait set was made
         if rclpy.ok():
             raise
     finally:
-        executor.shutdown(timeout_sec=5.0)
-        node.destroy_node()
-        rclpy.try_shutdown()
+        if executor is not None:
+            executor.shutdown(timeout_sec=5.0)
+        if node is not None:
+            node.destroy_node()
+        _shut_down()
     return 0
