@@ -27,6 +27,9 @@ same function), never handed this package's derived expressions:
 """
 from __future__ import annotations
 
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
+from dataclasses import dataclass
 import math
 import time
 from typing import Any
@@ -59,39 +62,44 @@ def _numbers(problem: TrackingProblem) -> tuple[dict[str, float], np.ndarray, np
     return problem.system.parameters, np.hstack([q_knots, v_knots]), x0
 
 
-def timed(run, repeats: int) -> tuple[float, float]:
-    """Time ``run()``: the median wall time and its last result."""
-    times, result = [], 0.0
-    for _ in range(repeats):
-        start = time.perf_counter()
-        result = run()
-        times.append(time.perf_counter() - start)
-    return float(np.median(times)), result
+@dataclass(frozen=True)
+class Contender:
+    """One tool's cold solve, set up: ``solve()`` runs it once and returns its objective."""
+
+    solve: Callable[[], float]
+    build_s: float  # set-up [s]: model, solver, and for Opti its first solve
 
 
-def dompc(problem: TrackingProblem, repeats: int) -> dict[str, float]:
-    """Cold solves of the sleigh in do-mpc: median seconds, objective, set-up seconds."""
+def dompc(problem: TrackingProblem) -> Contender:
+    """Set the sleigh up in do-mpc for cold solves."""
     with warnings.catch_warnings():  # do-mpc warns about its optional features on import
         warnings.simplefilter('ignore')
         import do_mpc
-    mode = ca.GlobalOptions.getNumpyMode()
-    ca.GlobalOptions.setNumpyMode(-1)  # do-mpc relies on casadi's legacy numpy behaviour
-    try:
+    with _legacy_numpy():
         start = time.perf_counter()
         mpc, x0 = _dompc_controller(do_mpc, problem)
         build = time.perf_counter() - start
 
-        def step() -> float:
+    def solve() -> float:
+        with _legacy_numpy():
             mpc.reset_history()
             mpc.x0 = x0
             mpc.set_initial_guess()
             mpc.make_step(x0)
-            return float(mpc.solver_stats['iterations']['obj'][-1])
+        return float(mpc.solver_stats['iterations']['obj'][-1])
 
-        median, cost = timed(step, repeats)
+    return Contender(solve, build)
+
+
+@contextmanager
+def _legacy_numpy() -> Iterator[None]:
+    """do-mpc relies on CasADi's legacy numpy behaviour; the rest of the process keeps its own."""
+    mode = ca.GlobalOptions.getNumpyMode()
+    ca.GlobalOptions.setNumpyMode(-1)
+    try:
+        yield
     finally:
-        ca.GlobalOptions.setNumpyMode(mode)  # the rest of the process keeps its own
-    return {'median_s': median, 'cost': cost, 'build_s': build}
+        ca.GlobalOptions.setNumpyMode(mode)
 
 
 def _dompc_controller(do_mpc, problem: TrackingProblem):
@@ -120,8 +128,8 @@ def _dompc_controller(do_mpc, problem: TrackingProblem):
     return mpc, x0
 
 
-def opti_multiple_shooting(problem: TrackingProblem, repeats: int) -> dict[str, float]:
-    """Cold solves of the sleigh with Opti + IPOPT (multiple shooting, RK4)."""
+def opti_multiple_shooting(problem: TrackingProblem) -> Contender:
+    """Set the sleigh up with Opti + IPOPT (multiple shooting, RK4) for cold solves."""
     parameters, reference, x0 = _numbers(problem)
     start = time.perf_counter()
     x, u = ca.SX.sym('x', 5), ca.SX.sym('u', 2)
@@ -146,5 +154,4 @@ def opti_multiple_shooting(problem: TrackingProblem, repeats: int) -> dict[str, 
     opti.set_initial(xs, np.tile(x0[:, None], (1, big_n + 1)))
     opti.solve()  # the first solve builds IPOPT's functions: counted as set-up
     build = time.perf_counter() - start
-    median, objective = timed(lambda: float(opti.solve().value(cost)), repeats)
-    return {'median_s': median, 'cost': objective, 'build_s': build}
+    return Contender(lambda: float(opti.solve().value(cost)), build)
