@@ -20,7 +20,7 @@ one (do-mpc for the cold solve, IPOPT for the structure-exploiting fatrop), and 
 """
 from __future__ import annotations
 
-from collections.abc import Callable, Mapping
+from collections.abc import Callable
 from functools import partial
 import json
 from pathlib import Path
@@ -30,11 +30,11 @@ from typing import Any, TypeVar
 import numpy as np
 
 from nh_tracking import models
-from nh_tracking.examples import peers
+from nh_tracking.examples.cold import cold_solve, interleaved
 from nh_tracking.examples.experiments import (particle_problem, sleigh_problem,
                                               SLEIGH_REFERENCE_START, SLEIGH_START)
 from nh_tracking.metrics import cross_track_error, percentiles_ms
-from nh_tracking.problem import Solution, TrackingProblem
+from nh_tracking.problem import TrackingProblem
 from nh_tracking.receding_horizon import PlannerSettings, RecedingHorizonPlanner
 from nh_tracking.simulate import simulate
 from nh_tracking.solvers.compiled import wait_for_builds
@@ -43,7 +43,6 @@ from nh_tracking.solvers.pmp import solve_pmp
 from nh_tracking.solvers.variational import solve_variational
 
 REPEATS = 9
-COLD_ROUNDS = 21  # each round times every tool once (interleaved)
 T = TypeVar('T')
 
 
@@ -54,79 +53,6 @@ def _median_time(run: Callable[[], T], repeats: int = REPEATS) -> tuple[float, T
         results.append(run())
         times.append(time.perf_counter() - start)
     return float(np.median(times)), results[-1]
-
-
-def interleaved(solves: Mapping[str, Callable[[], T]], rounds: int
-                ) -> tuple[dict[str, list[float]], dict[str, T]]:
-    """Time every solve once per round, in an order that rotates from round to round.
-
-    This machine's speed drifts by +-30 % within a minute: timed one tool after the other, a
-    ratio of two medians moved between 8.6x and 15.4x from run to run with neither tool changed.
-    Within a round the tools share the machine's state, so the round's ratio is the fair one.
-    Returns each one's times [s] and its last result.
-    """
-    names = list(solves)
-    times: dict[str, list[float]] = {name: [] for name in names}
-    results: dict[str, T] = {}
-    for r in range(rounds):
-        for name in names[r % len(names):] + names[:r % len(names)]:
-            start = time.perf_counter()
-            results[name] = solves[name]()
-            times[name].append(time.perf_counter() - start)
-    return times, results
-
-
-def _cost_and_iterations(solve: Callable[[], Solution | float]) -> tuple[float, int | None]:
-    """Run a cold solve: its cost, and its iterations where the tool says (ours)."""
-    result = solve()
-    return (result, None) if isinstance(result, float) else (result.cost, result.iterations)
-
-
-def cold_solve(log: Callable[[str], None]) -> dict:
-    """Time the paper's sleigh (literal angles, N = 50) from each tool's default guess.
-
-    Ours with default settings (interpreted), compiled, and on IPOPT; the peers as their users
-    write them (:mod:`.peers`). Solvers are built once beforehand (set-up reported apart); then
-    all of them are timed in the same rounds (:func:`interleaved`) and a peer's speed-up is the
-    median of its per-round ratios to ours, with their spread.
-    """
-    problem = sleigh_problem(wrap_angles=False)
-    solves: dict[str, Callable[[], tuple[float, int | None]]] = {}  # -> cost, iterations
-    built: dict[str, float] = {}
-    for solver, compiled in (('fatrop', False), ('fatrop', True), ('ipopt', False)):
-        name = f'variational_{solver}' + ('_compiled' if compiled else '')
-        start = time.perf_counter()
-        transcription(problem.system, problem.steps, problem.terminal, False, solver, compiled)
-        wait_for_builds()
-        built[name] = time.perf_counter() - start
-        solves[name] = partial(_cost_and_iterations, partial(
-            solve_variational, problem, solver=solver, compiled=compiled))
-    peer_names = []
-    for name, peer in (('do_mpc', peers.dompc), ('opti_ipopt_ms', peers.opti_multiple_shooting)):
-        try:
-            contender = peer(problem)
-        except ImportError:
-            log(f"  {name} not installed (pip install '.[bench]'): comparison skipped")
-            continue
-        solves[name], built[name] = partial(_cost_and_iterations, contender.solve), \
-            contender.build_s
-        peer_names.append(name)
-    times, results = interleaved(solves, COLD_ROUNDS)
-    out: dict[str, Any] = {'rounds': COLD_ROUNDS, 'do_mpc': None, 'opti_ipopt_ms': None}
-    for name, (cost, iterations) in results.items():
-        out[name] = {'median_s': float(np.median(times[name])), 'cost': cost,
-                     'iterations': iterations, 'build_s': built[name]}
-        log(f"  {name}: {out[name]['median_s'] * 1e3:.2f} ms, cost {cost:.4f} "
-            f'(set up in {built[name]:.1f} s)')
-    ours = np.array(times['variational_fatrop'])
-    for name in peer_names:
-        ratios = np.array(times[name]) / ours
-        out[name].update(speedup=float(np.median(ratios)),
-                         speedup_quartiles=np.percentile(ratios, [25, 75]).tolist())
-        log(f"  {name}: ours (default settings) is {out[name]['speedup']:.1f}x faster "
-            f"(median of {COLD_ROUNDS} rounds' ratios; quartiles "
-            f"{out[name]['speedup_quartiles'][0]:.1f}-{out[name]['speedup_quartiles'][1]:.1f}x)")
-    return out
 
 
 # the planner's settings for each mode of the warm replanning row

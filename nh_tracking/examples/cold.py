@@ -1,0 +1,106 @@
+# Copyright 2026 nh_tracking maintainers
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+
+"""Cold solves side by side: ours and the peers, timed in the same interleaved rounds."""
+from __future__ import annotations
+
+from collections.abc import Callable, Mapping
+from functools import partial
+import time
+from typing import Any, TypeVar
+
+import numpy as np
+
+from nh_tracking.examples import peers
+from nh_tracking.examples.experiments import sleigh_problem
+from nh_tracking.problem import Solution
+from nh_tracking.solvers.compiled import wait_for_builds
+from nh_tracking.solvers.midpoint import transcription
+from nh_tracking.solvers.variational import solve_variational
+
+COLD_ROUNDS = 21  # each round times every tool once
+T = TypeVar('T')
+
+
+def interleaved(solves: Mapping[str, Callable[[], T]], rounds: int
+                ) -> tuple[dict[str, list[float]], dict[str, T]]:
+    """Time every solve once per round, in an order that rotates from round to round.
+
+    This machine's speed drifts by +-30 % within a minute: timed one tool after the other, a
+    ratio of two medians moved between 8.6x and 15.4x from run to run with neither tool changed.
+    Within a round the tools share the machine's state, so the round's ratio is the fair one.
+    Returns each one's times [s] and its last result.
+    """
+    names = list(solves)
+    times: dict[str, list[float]] = {name: [] for name in names}
+    results: dict[str, T] = {}
+    for r in range(rounds):
+        for name in names[r % len(names):] + names[:r % len(names)]:
+            start = time.perf_counter()
+            results[name] = solves[name]()
+            times[name].append(time.perf_counter() - start)
+    return times, results
+
+
+def _cost_and_iterations(solve: Callable[[], Solution | float]) -> tuple[float, int | None]:
+    """Run a cold solve: its cost, and its iterations where the tool says (ours)."""
+    result = solve()
+    return (result, None) if isinstance(result, float) else (result.cost, result.iterations)
+
+
+def cold_solve(log: Callable[[str], None]) -> dict:
+    """Time the paper's sleigh (literal angles, N = 50) from each tool's default guess.
+
+    Ours with default settings (interpreted), compiled, and on IPOPT; the peers as their users
+    write them (:mod:`.peers`). Solvers are built once beforehand (set-up reported apart); then
+    all of them are timed in the same rounds (:func:`interleaved`) and a peer's speed-up is the
+    median of its per-round ratios to ours, with their spread.
+    """
+    problem = sleigh_problem(wrap_angles=False)
+    solves: dict[str, Callable[[], tuple[float, int | None]]] = {}  # -> cost, iterations
+    built: dict[str, float] = {}
+    for solver, compiled in (('fatrop', False), ('fatrop', True), ('ipopt', False)):
+        name = f'variational_{solver}' + ('_compiled' if compiled else '')
+        start = time.perf_counter()
+        transcription(problem.system, problem.steps, problem.terminal, False, solver, compiled)
+        wait_for_builds()
+        built[name] = time.perf_counter() - start
+        solves[name] = partial(_cost_and_iterations, partial(
+            solve_variational, problem, solver=solver, compiled=compiled))
+    peer_names = []
+    for name, peer in (('do_mpc', peers.dompc), ('opti_ipopt_ms', peers.opti_multiple_shooting)):
+        try:
+            contender = peer(problem)
+        except ImportError:
+            log(f"  {name} not installed (pip install '.[bench]'): comparison skipped")
+            continue
+        solves[name], built[name] = partial(_cost_and_iterations, contender.solve), \
+            contender.build_s
+        peer_names.append(name)
+    times, results = interleaved(solves, COLD_ROUNDS)
+    out: dict[str, Any] = {'rounds': COLD_ROUNDS, 'do_mpc': None, 'opti_ipopt_ms': None}
+    for name, (cost, iterations) in results.items():
+        out[name] = {'median_s': float(np.median(times[name])), 'cost': cost,
+                     'iterations': iterations, 'build_s': built[name]}
+        log(f"  {name}: {out[name]['median_s'] * 1e3:.2f} ms, cost {cost:.4f} "
+            f'(set up in {built[name]:.1f} s)')
+    ours = np.array(times['variational_fatrop'])
+    for name in peer_names:
+        ratios = np.array(times[name]) / ours
+        out[name].update(speedup=float(np.median(ratios)),
+                         speedup_quartiles=np.percentile(ratios, [25, 75]).tolist())
+        log(f"  {name}: ours (default settings) is {out[name]['speedup']:.1f}x faster "
+            f"(median of {COLD_ROUNDS} rounds' ratios; quartiles "
+            f"{out[name]['speedup_quartiles'][0]:.1f}-{out[name]['speedup_quartiles'][1]:.1f}x)")
+    return out
