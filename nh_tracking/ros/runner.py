@@ -77,7 +77,8 @@ class StopRequest:
     start-up, where it aborted the process (``terminate called``) or left it running. Installed
     before ``rclpy.init``, these handlers are the ones rclpy's own chain to: rclpy shuts the
     contexts down (which wakes every executor) and this records why. A second request is the
-    user insisting: it raises KeyboardInterrupt, as a plain Python program would.
+    user insisting and is not absorbed: it raises KeyboardInterrupt or, once the interpreter is
+    exiting (it restores the default handlers), ends the process by the signal itself.
     """
 
     def __init__(self) -> None:

@@ -193,13 +193,19 @@ def wait_for_builds(timeout: float = 600.0) -> None:
 
 @atexit.register
 def _stop_builds() -> None:
-    """Stop an unfinished build (and its compiler) when the process that wanted it ends."""
+    """Stop an unfinished build (and its compiler) when the process that wanted it ends.
+
+    Its working directory goes too: the compiler's thread, which would remove it, is a daemon
+    that never gets there (a stopped planner had left one directory per queued build).
+    """
     for job in _BUILDS.values():
         if job.child is not None and job.child.poll() is None:
             try:
                 os.killpg(job.child.pid, signal.SIGTERM)
             except ProcessLookupError:
                 pass
+        if not job.finished:
+            shutil.rmtree(job.directory, ignore_errors=True)
 
 
 def _build(job: Path) -> None:
