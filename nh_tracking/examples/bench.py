@@ -47,12 +47,9 @@ T = TypeVar('T')
 
 
 def _median_time(run: Callable[[], T], repeats: int = REPEATS) -> tuple[float, T]:
-    times, results = [], []
-    for _ in range(repeats):
-        start = time.perf_counter()
-        results.append(run())
-        times.append(time.perf_counter() - start)
-    return float(np.median(times)), results[-1]
+    """Time ``run`` alone: the median wall time [s] and its last result."""
+    times, last = interleaved({'run': run}, repeats)
+    return float(np.median(times['run'])), last['run']
 
 
 # the planner's settings for each mode of the warm replanning row

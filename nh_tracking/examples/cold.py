@@ -24,7 +24,7 @@ import numpy as np
 
 from nh_tracking.examples import peers
 from nh_tracking.examples.experiments import sleigh_problem
-from nh_tracking.problem import Solution
+from nh_tracking.problem import TrackingProblem
 from nh_tracking.solvers.compiled import wait_for_builds
 from nh_tracking.solvers.midpoint import transcription
 from nh_tracking.solvers.variational import solve_variational
@@ -53,10 +53,15 @@ def interleaved(solves: Mapping[str, Callable[[], T]], rounds: int
     return times, results
 
 
-def _cost_and_iterations(solve: Callable[[], Solution | float]) -> tuple[float, int | None]:
-    """Run a cold solve: its cost, and its iterations where the tool says (ours)."""
-    result = solve()
-    return (result, None) if isinstance(result, float) else (result.cost, result.iterations)
+def _ours(problem: TrackingProblem, solver: str, compiled: bool) -> tuple[float, int | None]:
+    """Run our cold solve: its cost and iterations (a peer says only its objective)."""
+    solution = solve_variational(problem, solver=solver, compiled=compiled)
+    return solution.cost, solution.iterations
+
+
+def _theirs(solve: Callable[[], float]) -> tuple[float, int | None]:
+    """Run a peer's cold solve: its objective (it does not say its iterations)."""
+    return solve(), None
 
 
 def cold_solve(log: Callable[[str], None]) -> dict:
@@ -76,8 +81,7 @@ def cold_solve(log: Callable[[str], None]) -> dict:
         transcription(problem.system, problem.steps, problem.terminal, False, solver, compiled)
         wait_for_builds()
         built[name] = time.perf_counter() - start
-        solves[name] = partial(_cost_and_iterations, partial(
-            solve_variational, problem, solver=solver, compiled=compiled))
+        solves[name] = partial(_ours, problem, solver, compiled)
     peer_names = []
     for name, peer in (('do_mpc', peers.dompc), ('opti_ipopt_ms', peers.opti_multiple_shooting)):
         try:
@@ -85,8 +89,8 @@ def cold_solve(log: Callable[[str], None]) -> dict:
         except ImportError:
             log(f"  {name} not installed (pip install '.[bench]'): comparison skipped")
             continue
-        solves[name], built[name] = partial(_cost_and_iterations, contender.solve), \
-            contender.build_s
+        solves[name] = partial(_theirs, contender.solve)
+        built[name] = contender.build_s
         peer_names.append(name)
     times, results = interleaved(solves, COLD_ROUNDS)
     out: dict[str, Any] = {'rounds': COLD_ROUNDS, 'do_mpc': None, 'opti_ipopt_ms': None}
