@@ -262,8 +262,13 @@ def test_a_plan_that_does_not_replay_is_no_minimum():
 def test_solver_messages_are_words():
     from nh_tracking.solvers.nlp import words
 
-    sol = nht.solve(sleigh_problem(wrap_angles=True), second_look=False)
+    from nh_tracking.solvers import Variational
+
+    problem = sleigh_problem(wrap_angles=True)
+    sol = nht.solve(problem, Variational(newton=False), second_look=False)
     assert sol.route == 'fatrop' and sol.message == 'converged'
+    sol = nht.solve(problem, second_look=False)
+    assert sol.route == 'newton (line search)' and sol.message == 'converged'
     assert words(1) == 'maximum iterations reached' and words('4') == 'locally infeasible'
     assert words('Maximum_Iterations_Exceeded') == 'maximum iterations exceeded'
 

@@ -53,9 +53,10 @@ def interleaved(solves: Mapping[str, Callable[[], T]], rounds: int
     return times, results
 
 
-def _ours(problem: TrackingProblem, solver: str, compiled: bool) -> tuple[float, int | None]:
+def _ours(problem: TrackingProblem, solver: str, compiled: bool, newton: bool
+          ) -> tuple[float, int | None]:
     """Run our cold solve: its cost and iterations (a peer says only its objective)."""
-    solution = solve_variational(problem, solver=solver, compiled=compiled)
+    solution = solve_variational(problem, solver=solver, compiled=compiled, newton=newton)
     return solution.cost, solution.iterations
 
 
@@ -67,21 +68,25 @@ def _theirs(solve: Callable[[], float]) -> tuple[float, int | None]:
 def cold_solve(log: Callable[[str], None]) -> dict:
     """Time the paper's sleigh (literal angles, N = 50) from each tool's default guess.
 
-    Ours with default settings (interpreted), compiled, and on IPOPT; the peers as their users
-    write them (:mod:`.peers`). Solvers are built once beforehand (set-up reported apart); then
+    Ours with default settings (Newton steps with a line search), and the NLP solvers alone:
+    fatrop interpreted and compiled, IPOPT; the peers as their users write them
+    (:mod:`.peers`). Solvers are built once beforehand (set-up reported apart); then
     all of them are timed in the same rounds (:func:`interleaved`) and a peer's speed-up is the
     median of its per-round ratios to ours, with their spread.
     """
     problem = sleigh_problem(wrap_angles=False)
     solves: dict[str, Callable[[], tuple[float, int | None]]] = {}  # -> cost, iterations
     built: dict[str, float] = {}
-    for solver, compiled in (('fatrop', False), ('fatrop', True), ('ipopt', False)):
-        name = f'variational_{solver}' + ('_compiled' if compiled else '')
+    for name, solver, compiled, newton in (
+            ('variational', 'fatrop', False, True), ('variational_fatrop', 'fatrop', False, False),
+            ('variational_fatrop_compiled', 'fatrop', True, False),
+            ('variational_ipopt', 'ipopt', False, False)):
         start = time.perf_counter()
         transcription(problem.system, problem.steps, problem.terminal, False, solver, compiled)
         wait_for_builds()
+        solves[name] = partial(_ours, problem, solver, compiled, newton)
+        solves[name]()  # (builds what the first solve builds: the Newton step)
         built[name] = time.perf_counter() - start
-        solves[name] = partial(_ours, problem, solver, compiled)
     peer_names = []
     for name, peer in (('do_mpc', peers.dompc), ('opti_ipopt_ms', peers.opti_multiple_shooting)):
         try:
@@ -99,7 +104,7 @@ def cold_solve(log: Callable[[str], None]) -> dict:
                      'iterations': iterations, 'build_s': built[name]}
         log(f"  {name}: {out[name]['median_s'] * 1e3:.2f} ms, cost {cost:.4f} "
             f'(set up in {built[name]:.1f} s)')
-    ours = np.array(times['variational_fatrop'])
+    ours = np.array(times['variational'])
     for name in peer_names:
         ratios = np.array(times[name]) / ours
         out[name].update(speedup=float(np.median(ratios)),

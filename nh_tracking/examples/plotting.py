@@ -148,11 +148,12 @@ def plot_bench(results: dict, path: Path) -> Path:
     """Cold solve vs do-mpc, warm replanning solve times, scaling in N, ROS latency split."""
     fig, axes = _subplots(1, 5, figsize=(24, 4.5))
     cold = results.get('cold_solve', {})
-    names = [k for k in ('variational_fatrop', 'variational_fatrop_compiled',
+    names = [k for k in ('variational', 'variational_fatrop', 'variational_fatrop_compiled',
                          'variational_ipopt', 'do_mpc', 'opti_ipopt_ms') if cold.get(k)]
-    axes[0].bar([k.replace('variational_', '').replace('_', '\n') for k in names],
+    axes[0].bar([k.replace('variational_', '').replace('variational', 'ours\n(default)')
+                 .replace('_', '\n') for k in names],
                 [cold[k]['median_s'] * 1e3 for k in names],
-                color=['C1', 'C2', 'C0', 'C3', 'C4'][:len(names)])
+                color=['C5', 'C1', 'C2', 'C0', 'C3', 'C4'][:len(names)])
     axes[0].set(ylabel='median solve [ms]', title="cold solve, paper's sleigh (N = 50)")
     axes[0].tick_params(axis='x', labelrotation=15)
     warm = results.get('warm_replanning', {})

@@ -50,19 +50,21 @@ PROXIMAL_REGULARISATION = 1e-10
 
 
 def _kkt(w: ca.SX, residual: ca.SX, g: ca.SX, active: ca.SX | ca.DM, target: ca.SX | ca.DM,
-         curvature: ca.SX | int, dual_regularisation: float = DUAL_REGULARISATION,
+         hessian: ca.SX | None, dual_regularisation: float = DUAL_REGULARISATION,
          last: ca.SX | int = 0) -> tuple[ca.SX, ca.SX, ca.SX, ca.SX]:
     """Return the KKT matrix and right-hand side of a step, G and Jᵀr.
 
     Rows of g with ``active`` 1 are held at ``target`` (linearised: g_i + G_i Δw = target_i),
     the others are free (their λ_i = 0: the row reads -λ_i = 0 in the same matrix, so one
-    sparsity and one factorisation pattern serve every working set). The Hessian is JᵀJ plus
-    ``curvature`` (0 for Gauss-Newton). Held rows read G_i Δw - δ(λ_i - last_i) = target_i -
-    g_i: at a fixed point with λ = ``last`` they hold exactly.
+    sparsity and one factorisation pattern serve every working set). The Hessian is
+    ``hessian``, or JᵀJ if None (Gauss-Newton). Held rows read G_i Δw - δ(λ_i - last_i) =
+    target_i - g_i: at a fixed point with λ = ``last`` they hold exactly.
     """
     jac_r, jac_g = ca.jacobian(residual, w), ca.jacobian(g, w)
     held = ca.times(ca.repmat(active, 1, w.shape[0]), jac_g)  # the sparsity of G, rows off
-    hessian = ca.mtimes(jac_r.T, jac_r) + REGULARISATION * ca.SX.eye(w.shape[0]) + curvature
+    if hessian is None:
+        hessian = ca.mtimes(jac_r.T, jac_r)
+    hessian = hessian + REGULARISATION * ca.SX.eye(w.shape[0])
     dual = ca.diag(1 - active + dual_regularisation * active)
     gradient = ca.mtimes(jac_r.T, residual)
     return (ca.blockcat([[hessian, held.T], [held, -dual]]),
@@ -80,6 +82,30 @@ def _solve(w: ca.SX, p: ca.SX, inputs: list[ca.SX], matrix: ca.SX, vector: ca.SX
     return symbols, step[:w.shape[0]], step[w.shape[0]:], extra_mx
 
 
+def _merit(residual: ca.SX, g: ca.SX) -> list[ca.SX]:
+    """Return f = 1/2 |r|^2 and |g|₁, the infeasibility of an NLP with equality rows only."""
+    return [0.5 * ca.sumsqr(residual), ca.sum1(ca.fabs(g))]
+
+
+def _direction(w: ca.SX, p: ca.SX, inputs: list[ca.SX], matrix: ca.SX, vector: ca.SX,
+               extra: list[ca.SX], merit: ca.Function) -> ca.Function:
+    """Return the step of ``matrix`` with a shift on its Hessian block, and its merits.
+
+    dwᵀ(H + shift I)dw comes from the KKT rows themselves, -∇fᵀdw - λᵀG dw: no product
+    with the Hessian is formed.
+    """
+    shift = ca.SX.sym('shift')
+    n, rows = w.shape[0], matrix.shape[0] - w.shape[0]
+    shifted = matrix + ca.diagcat(shift * ca.SX.eye(n), ca.SX(rows, rows))
+    symbols, dw, multipliers, (g, jac_g, gradient) = _solve(w, p, [*inputs, shift], shifted,
+                                                            vector, extra)
+    slope = ca.dot(gradient, dw)
+    curvature = -slope - ca.dot(multipliers, ca.mtimes(jac_g, dw))
+    full = merit(symbols[0] + dw, symbols[1])
+    return ca.Function('newton_direction', symbols,
+                       [dw, multipliers, slope, curvature, ca.mmax(ca.fabs(g)), *full])
+
+
 class GaussNewtonStep:
     """(w, p) -> (w + dw, λ, *readout at w + dw) for min 1/2 |residual|^2 subject to g = 0.
 
@@ -93,7 +119,7 @@ class GaussNewtonStep:
     def __init__(self, w: ca.SX, p: ca.SX, residual: ca.SX, g: ca.SX, readout: list[ca.SX],
                  compiled: bool = False) -> None:
         rows = g.shape[0]
-        matrix, vector, _, _ = _kkt(w, residual, g, ca.DM.ones(rows), ca.DM.zeros(rows), 0)
+        matrix, vector, _, _ = _kkt(w, residual, g, ca.DM.ones(rows), ca.DM.zeros(rows), None)
         symbols, dw, multipliers, _ = _solve(w, p, [], matrix, vector, [])
         read = ca.Function('readout', [w, p], readout)
         stepped = symbols[0] + dw
@@ -132,10 +158,9 @@ class NewtonStep:
         self.rows = g.shape[0]
         active, target, curvature = (ca.SX.sym(name, self.rows)
                                      for name in ('active', 'target', 'curvature'))
-        weights = ca.SX.sym('weights', residual.shape[0])  # the residuals' own curvature
-        second = (ca.substitute(ca.hessian(ca.dot(weights, residual), w)[0], weights, residual)
-                  + ca.hessian(ca.dot(curvature, g), w)[0])
-        matrix, vector, jac_g, gradient = _kkt(w, residual, g, active, target, second,
+        # JᵀJ + Σ r_i ∇²r_i + Σ λ_i ∇²g_i in one differentiation: 10 % fewer instructions
+        lagrangian = ca.hessian(0.5 * ca.sumsqr(residual) + ca.dot(curvature, g), w)[0]
+        matrix, vector, jac_g, gradient = _kkt(w, residual, g, active, target, lagrangian,
                                                PROXIMAL_REGULARISATION, curvature)
         inputs = [active, target, curvature]
         self._sparsity = matrix.sparsity()
@@ -148,11 +173,25 @@ class NewtonStep:
         self._step = NumericFunction(ca.Function(
             'newton_step', symbols,
             [symbols[0] + dw, multipliers, values + ca.mtimes(jacobian, dw), stationarity]))
+        merit = ca.Function('merit', [w, p], _merit(residual, g))
+        self.merit = NumericFunction(merit)  # (w, p) -> f, |g|₁: a line search's trial points
+        self._direction = NumericFunction(_direction(w, p, inputs, matrix, vector,
+                                                     [g, jac_g, gradient], merit))
         self._inertia: ca.Linsol | None = None
         self._inertia_lock = threading.Lock()  # steps are shared by the planners of a process
 
     def __call__(self, *args: np.ndarray) -> list[np.ndarray]:
         return self._step(*args)
+
+    def direction(self, *args: np.ndarray | float) -> list[np.ndarray]:
+        """(w, p, active, target, curvature, shift) -> a line search's view of the step.
+
+        The step of the KKT system with ``shift`` added to the Hessian's diagonal, and
+        (dw, λ, ∇fᵀdw, dwᵀ(H + shift I)dw, |g(w)|∞, f and |g|₁ at w + dw): what
+        :func:`.line_search.line_search_solve` decides on, in one call. |g|₁ is the
+        infeasibility of an NLP whose rows are all equalities (the only one it solves).
+        """
+        return self._direction(*args)
 
     def minimum(self, *args: np.ndarray) -> bool:
         """Whether the model at (w, p, active, target, curvature) curves up on the held rows.

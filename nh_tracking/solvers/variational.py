@@ -40,6 +40,7 @@ from nh_tracking.problem import Solution, TrackingProblem
 from nh_tracking.solvers.base import Guess, Method, Structure
 from nh_tracking.solvers.cache import NotPrepared
 from nh_tracking.solvers.inequalities import Shape, start_violation, VIOLATION_TOL
+from nh_tracking.solvers.line_search import line_search_solve
 from nh_tracking.solvers.midpoint import (BACKENDS, Transcription, transcription,
                                           working_set_step, WorkingSetStep)
 from nh_tracking.solvers.newton import newton_steps
@@ -154,7 +155,10 @@ def _solve_with(problem: TrackingProblem, initial_guess: Guess | None, stop: flo
     # a guess within the limits (a previous plan) is warm: near the optimum and its active set
     warm = initial_guess is not None and problem.limits.plan_violation(
         q_g, v_g, u_g) <= VIOLATION_TOL
-    held_step = _held_step(problem, tr) if warm and newton else None  # built outside the timing
+    # Newton steps first: on a working set from a warm guess; without limits, a line search
+    # from a cold one (built outside the timing)
+    searched = newton and not warm and not problem.limits.active and tr.soft_index is None
+    held_step = _held_step(problem, tr) if newton and (warm or searched) else None
     start = time.perf_counter()
     w0 = tr.pack(q_g, v_g, u_g)
     read: list[np.ndarray] = []  # the plan read from the unknowns (a Newton step gives it)
@@ -170,10 +174,15 @@ def _solve_with(problem: TrackingProblem, initial_guess: Guess | None, stop: flo
         bounds = tr.bounds(problem)
         slacks = 0 if tr.soft_index is None else len(tr.soft_index)
         # (a guess with NaN gets no Newton steps: they would count as the structure failing)
-        held = (_working_set(held_step, w0, p, bounds, stop)
-                if held_step and np.isfinite(w0).all() else None)
+        held = None
+        if held_step is not None and np.isfinite(w0).all():
+            if searched:  # not converged: the interior point from the guess (but past the
+                held = line_search_solve(held_step.step, w0, p, stop)  # deadline: no time)
+                held = held if held.success or held.message == DEADLINE else None
+            else:
+                held = _working_set(held_step, w0, p, bounds, stop)
         if held is not None:
-            outcome, route = held, 'newton (working set)'
+            outcome, route = held, f"newton ({'line search' if searched else 'working set'})"
         elif not all(np.all(np.isfinite(a)) for a in tr.readout(w0, p)):
             # fatrop never returns from a non-finite starting point (its line search cannot
             # recover): refuse to start, and say why (Newton steps from it give up at once)

@@ -1,0 +1,120 @@
+# Copyright 2026 nh_tracking maintainers
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+
+"""Cold solves by Newton steps with a filter line search, checked against the interior point.
+
+The interior point (fatrop, ``Variational(newton=False)``) is the independent solver: from the
+same guess both must reach the same plan, multipliers included, and where the line search
+gives up the solve must be the interior point's own.
+"""
+import numpy as np
+import pytest
+
+import nh_tracking as nht
+from nh_tracking.examples.experiments import particle_problem, sleigh_problem
+from nh_tracking.solvers import line_search, Variational
+from nh_tracking.solvers.inequalities import Shape
+from nh_tracking.solvers.midpoint import transcription, working_set_step
+from nh_tracking.solvers.variational import default_guess
+from systems import coupled_system, inclined_knife_edge
+
+LINE_SEARCH = 'newton (line search)'
+
+
+def _problem(system, q_ref0, v_ref0, q0, v0, horizon, steps, eps, terminal='cost'):
+    reference = nht.simulate(system, q_ref0, v_ref0, np.linspace(0, 5, 101))
+    return nht.TrackingProblem(system, reference, q0=q0, v0=v0, horizon=horizon, steps=steps,
+                               epsilon=eps, terminal=terminal, omega=2.0)
+
+
+CASES = {
+    'sleigh_literal': lambda: sleigh_problem(wrap_angles=False),
+    'sleigh_wrapped_cost': lambda: sleigh_problem(wrap_angles=True, terminal='cost'),
+    'particle_2': lambda: particle_problem(2),
+    'knife_edge': lambda: _problem(inclined_knife_edge(), [0, 0, 0], [0.5, 0.3],
+                                   [0.3, 0.2, 0.5], [0.2, 0.0], 3.0, 40, 2.0, 'equality'),
+    'rolling_disk': lambda: _problem(nht.models.rolling_disk(), [0, 0, 0, 0], [0.5, 2.0],
+                                     [0.399, -0.3339, -0.2747, -0.266], [-0.1747, 1.7042],
+                                     4.089, 54, 2.155),
+    'snakeboard_underactuated': lambda: _problem(
+        nht.models.snakeboard(), [0, 0, 0, 0, 0], [0.3, 0.1, 0.2],
+        [0.1008, -0.192, 0.1766, -0.7809, 0.331], [-0.1497, 0.9612, 0.0558], 2.26, 37, 0.306),
+    'coupled': lambda: _problem(coupled_system(), [0.1, 0.2, 0.0, 0.1], [0.3, 0.2],
+                                [0.7619, 0.3501, -0.8634, -0.8869], [0.142, 0.8471], 1.928, 16,
+                                2.683),
+}
+
+
+@pytest.mark.parametrize('make', CASES.values(), ids=CASES.keys())
+def test_a_cold_solve_by_line_search_is_the_interior_points_plan(make):
+    """Same cost, plan and costates as fatrop from the reference, on seven systems.
+
+    Among them an underactuated one (controls as unknowns) and a made-up coupled one.
+    """
+    problem = make()
+    ours = nht.solve(problem, Variational(), second_look=False)
+    interior = nht.solve(problem, Variational(newton=False), second_look=False)
+    assert ours.route == LINE_SEARCH and ours.success and interior.route == 'fatrop'
+    assert ours.cost == pytest.approx(interior.cost, rel=1e-9)
+    assert np.abs(ours.q - interior.q).max() < 1e-7
+    assert np.abs(ours.v - interior.v).max() < 1e-7
+    assert np.abs(ours.u - interior.u).max() < 1e-6
+    for mine, theirs in zip(ours.costates, interior.costates):
+        assert np.abs(mine - theirs).max() < 1e-6 * max(1.0, np.abs(theirs).max())
+    assert ours.details['admissibility_residual'] < 1e-9
+
+
+def _line_search_alone(problem):
+    tr = transcription(problem.system, problem.steps, problem.terminal)
+    step = working_set_step(problem.system, problem.steps, problem.terminal, Shape()).step
+    q, v = default_guess(problem)
+    if problem.terminal == 'equality':
+        q[-1], v[-1] = problem.reference_samples[0][-1], problem.reference_samples[1][-1]
+    return line_search.line_search_solve(step, tr.pack(q, v, None), tr.parameters(problem),
+                                         None)
+
+
+def test_a_saddle_is_not_taken_and_the_interior_point_solves_instead():
+    """A rolling disk whose line search converges to a saddle: refused, fatrop's plan given.
+
+    The inertia of the KKT matrix at the point it reached has one negative eigenvalue too many.
+    """
+    problem = _problem(nht.models.rolling_disk(), [0, 0, 0, 0], [0.5, 2.0],
+                       [-0.4042, 0.2755, -0.2222, 1.0376], [0.4756, 2.2511], 3.348, 49, 0.655,
+                       'equality')
+    alone = _line_search_alone(problem)
+    assert not alone.success and alone.message == 'a saddle'
+    ours = nht.solve(problem, Variational(), second_look=False)
+    interior = nht.solve(problem, Variational(newton=False), second_look=False)
+    assert ours.route == 'fatrop' and ours.success
+    assert ours.cost == interior.cost and np.array_equal(ours.q, interior.q)
+
+
+def test_a_line_search_out_of_iterations_hands_over_to_the_interior_point(monkeypatch):
+    problem = sleigh_problem(wrap_angles=False)
+    monkeypatch.setattr(line_search, 'MAX_ITERATIONS', 3)
+    alone = _line_search_alone(problem)
+    assert not alone.success and alone.message == 'iteration budget spent'
+    ours = nht.solve(problem, Variational(), second_look=False)
+    interior = nht.solve(problem, Variational(newton=False), second_look=False)
+    assert ours.route == 'fatrop' and ours.success and ours.cost == interior.cost
+
+
+def test_a_deadline_inside_the_line_search_is_reported_not_overrun():
+    """Past its deadline the solve says so; it does not start the interior point."""
+    problem = sleigh_problem(wrap_angles=False)
+    nht.solve(problem, Variational(), second_look=False)  # built outside the deadline
+    late = nht.solve(problem, Variational(), max_time=1e-5, second_look=False)
+    assert not late.success and late.message == 'deadline reached'
+    assert late.route == LINE_SEARCH and late.iterations == 0
