@@ -77,9 +77,10 @@ def solve_variational(problem: TrackingProblem, initial_guess: Guess | None = No
     guess: a real-time iteration — that many Newton steps on the guess (a warm-started previous
     plan), converged or not; without a guess the solve converges. ``newton``: a guess within
     the limits (a previous plan) is solved by Newton steps on a working set of the limit rows
-    (none without limits), the interior point only if they do not settle; False: always the
-    interior point (a search from perturbed guesses, where Newton's method would converge to
-    the saddle it is looking past).
+    (none without limits), and a solve without a guess or limits by the same steps with a
+    filter line search (:mod:`.line_search`); the interior point from the same guess if they do
+    not settle. False: always the interior point (a search from perturbed guesses, where
+    Newton's method would converge to the saddle it is looking past).
     """
     return solve_variational_until(problem, initial_guess, deadline_after(max_time), solver,
                                    compiled, iterations, newton)
@@ -266,7 +267,8 @@ class Variational(Method):
     ``compiled`` runs the NLP's derivatives as C, compiled once per structure and machine
     (:mod:`.compiled`). ``iterations`` > 0: real-time iterations — each warm-started solve
     takes that many Newton steps and stops, converged or not (0: to convergence). ``newton``:
-    converged warm solves by Newton steps on a working set (see :func:`solve_variational`).
+    converged warm solves by Newton steps on a working set, cold ones without limits by Newton
+    steps with a line search (see :func:`solve_variational`).
     """
 
     backend: Literal['fatrop', 'ipopt'] = 'fatrop'
