@@ -23,7 +23,7 @@ import pytest
 
 import nh_tracking as nht
 from nh_tracking.examples.experiments import particle_problem, sleigh_problem
-from nh_tracking.solvers import line_search, Variational
+from nh_tracking.solvers import line_search, Variational, variational
 from nh_tracking.solvers.inequalities import Shape
 from nh_tracking.solvers.midpoint import transcription, working_set_step
 from nh_tracking.solvers.variational import default_guess
@@ -118,3 +118,36 @@ def test_a_deadline_inside_the_line_search_is_reported_not_overrun():
     late = nht.solve(problem, Variational(), max_time=1e-5, second_look=False)
     assert not late.success and late.message == 'deadline reached'
     assert late.route == LINE_SEARCH and late.iterations == 0
+
+
+def test_steps_stalled_short_of_admissible_are_not_taken_for_converged():
+    """A particle on a 0.2 s horizon at eps = 100: the KKT matrix's condition is ~1e13.
+
+    Its LDLᵀ left the Newton steps stalled 2e-5 from the solution with g at 1e-4 (a review);
+    such a plan is not converged, and fatrop's (admissible to 1e-13) is given instead.
+    """
+    particle = nht.models.nonholonomic_particle()
+    reference = nht.simulate(particle, np.zeros(3), np.array([0.5, 0.4]), np.linspace(0, 5, 101))
+    problem = nht.TrackingProblem(particle, reference, q0=np.array([-0.09, -0.53, 1.67]),
+                                  v0=np.array([0.85, -1.74]), horizon=0.2, steps=40,
+                                  epsilon=100.0, terminal='equality')
+    alone = _line_search_alone(problem)
+    assert not alone.success and alone.message == 'stalled short of admissible'
+    ours = nht.solve(problem, Variational(), second_look=False)
+    interior = nht.solve(problem, Variational(newton=False), second_look=False)
+    assert ours.route == 'fatrop' and ours.cost == interior.cost
+    assert ours.details['admissibility_residual'] < 1e-9
+
+
+def test_the_line_search_runs_only_where_the_interpreted_fatrop_would(monkeypatch):
+    """``newton=False`` (its coarse grid too) and IPOPT never take it (nor does compiled)."""
+    def refuse(*args):
+        raise AssertionError('line search called')
+
+    monkeypatch.setattr(variational, 'line_search_solve', refuse)
+    fine = sleigh_problem(wrap_angles=True, steps=100)  # starts from a coarse grid's plan
+    assert nht.solve(fine, Variational(newton=False), second_look=False).success
+    problem = sleigh_problem(wrap_angles=True)
+    assert nht.solve(problem, Variational(backend='ipopt'), second_look=False).route == 'ipopt'
+    with pytest.raises(AssertionError, match='line search called'):
+        nht.solve(problem, Variational(), second_look=False)

@@ -326,9 +326,9 @@ def test_methods_are_objects_with_their_own_options(sleigh_literal):
 
     problem, reference = sleigh_literal
     assert set(METHODS) == {'variational', 'pmp', 'multiple_shooting'}
-    # by default a cold solve is Newton's (line search); the backend alone without it
+    # by default a cold solve is Newton's (line search); a backend asked for by name solves it
     assert reference.route == 'newton (line search)'
-    by_object = nht.solve(problem, Variational(backend='ipopt', newton=False))
+    by_object = nht.solve(problem, Variational(backend='ipopt'))
     assert by_object.route == 'ipopt' and by_object.success
     assert by_object.cost == pytest.approx(reference.cost, rel=1e-6)
     with pytest.raises(ValueError, match="takes no option compiled.*taken by \\['variational'"):

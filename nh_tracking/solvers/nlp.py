@@ -67,6 +67,16 @@ def deadline_after(max_time: float | None) -> float | None:
     return time.perf_counter() + float(max_time)
 
 
+def before(stop: float | None) -> bool:
+    """Whether an absolute stop time (or None: none) is still ahead."""
+    return stop is None or time.perf_counter() < stop
+
+
+def halfway(stop: float | None) -> float | None:
+    """Return the stop time of a first try that leaves the next at least half the time left."""
+    return None if stop is None else 0.5 * (time.perf_counter() + stop)
+
+
 def words(status: object) -> str:
     """Put a solver's status in words: fatrop says 0, 1, ..., IPOPT 'Solve_Succeeded'."""
     text = str(status)

@@ -44,7 +44,7 @@ from nh_tracking.solvers.line_search import line_search_solve
 from nh_tracking.solvers.midpoint import (BACKENDS, Transcription, transcription,
                                           working_set_step, WorkingSetStep)
 from nh_tracking.solvers.newton import newton_steps
-from nh_tracking.solvers.nlp import DEADLINE, deadline_after, Outcome
+from nh_tracking.solvers.nlp import before, DEADLINE, deadline_after, halfway, Outcome
 from nh_tracking.solvers.working_set import working_set_solve
 from nh_tracking.system import NonholonomicSystem
 
@@ -106,7 +106,8 @@ def solve_variational_until(problem: TrackingProblem, initial_guess: Guess | Non
         coarse_time = quick.solve_time
     if initial_guess is None and problem.steps >= CONTINUATION_MIN_STEPS:
         coarse = dataclasses.replace(problem, steps=COARSE_STEPS)
-        coarse_plan = solve_variational_until(coarse, None, stop, solver, compiled)
+        coarse_plan = solve_variational_until(coarse, None, stop, solver, compiled,
+                                              newton=newton)
         coarse_time += coarse_plan.solve_time
         if coarse_plan.success:
             q, v = coarse_plan.trajectory().sample(problem.grid)
@@ -115,7 +116,7 @@ def solve_variational_until(problem: TrackingProblem, initial_guess: Guess | Non
     result.solve_time += coarse_time
 
     def time_left(previous: Solution) -> bool:
-        return previous.message != DEADLINE and (stop is None or time.perf_counter() < stop)
+        return previous.message != DEADLINE and before(stop)
 
     if not result.success and solver == 'fatrop' and not soft and time_left(result):
         result = _next_route(result, f'fatrop failed ({result.message}) -> ipopt',
@@ -158,7 +159,9 @@ def _solve_with(problem: TrackingProblem, initial_guess: Guess | None, stop: flo
         q_g, v_g, u_g) <= VIOLATION_TOL
     # Newton steps first: on a working set from a warm guess; without limits, a line search
     # from a cold one (built outside the timing)
-    searched = newton and not warm and not problem.limits.active and tr.soft_index is None
+    # (the interpreted fatrop only: a compiled NLP or IPOPT was asked for by name)
+    searched = (newton and not warm and not problem.limits.active and tr.soft_index is None
+                and solver == 'fatrop' and not compiled)
     held_step = _held_step(problem, tr) if newton and (warm or searched) else None
     start = time.perf_counter()
     w0 = tr.pack(q_g, v_g, u_g)
@@ -177,9 +180,9 @@ def _solve_with(problem: TrackingProblem, initial_guess: Guess | None, stop: flo
         # (a guess with NaN gets no Newton steps: they would count as the structure failing)
         held = None
         if held_step is not None and np.isfinite(w0).all():
-            if searched:  # not converged: the interior point from the guess (but past the
-                held = line_search_solve(held_step.step, w0, p, stop)  # deadline: no time)
-                held = held if held.success or held.message == DEADLINE else None
+            if searched:  # not converged: the interior point from the guess, with at least
+                held = line_search_solve(held_step.step, w0, p, halfway(stop))  # half the
+                held = None if not held.success and before(stop) else held  # time left
             else:
                 held = _working_set(held_step, w0, p, bounds, stop)
         if held is not None:
