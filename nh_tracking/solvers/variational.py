@@ -77,10 +77,10 @@ def solve_variational(problem: TrackingProblem, initial_guess: Guess | None = No
     guess: a real-time iteration — that many Newton steps on the guess (a warm-started previous
     plan), converged or not; without a guess the solve converges. ``newton``: a guess within
     the limits (a previous plan) is solved by Newton steps on a working set of the limit rows
-    (none without limits), and a solve without a guess or limits by the same steps with a
-    filter line search (:mod:`.line_search`); the interior point from the same guess if they do
-    not settle. False: always the interior point (a search from perturbed guesses, where
-    Newton's method would converge to the saddle it is looking past).
+    (none without limits), and one with neither a guess nor limits (interpreted fatrop)
+    by the same steps with a line search (:mod:`.line_search`); the interior point from the
+    same guess if they do not settle. False: always the interior point (a search from
+    perturbed guesses, where Newton's method would converge to the saddle it looks past).
     """
     return solve_variational_until(problem, initial_guess, deadline_after(max_time), solver,
                                    compiled, iterations, newton)
@@ -157,9 +157,8 @@ def _solve_with(problem: TrackingProblem, initial_guess: Guess | None, stop: flo
     # a guess within the limits (a previous plan) is warm: near the optimum and its active set
     warm = initial_guess is not None and problem.limits.plan_violation(
         q_g, v_g, u_g) <= VIOLATION_TOL
-    # Newton steps first: on a working set from a warm guess; without limits, a line search
-    # from a cold one (built outside the timing)
-    # (the interpreted fatrop only: a compiled NLP or IPOPT was asked for by name)
+    # Newton steps first (built outside the timing): a working set from a warm guess, a line
+    # search from a cold one without limits (on the interpreted fatrop: not compiled, not IPOPT)
     searched = (newton and not warm and not problem.limits.active and tr.soft_index is None
                 and solver == 'fatrop' and not compiled)
     held_step = _held_step(problem, tr) if newton and (warm or searched) else None
