@@ -33,15 +33,14 @@ the reference and headings turns away, 4 lower, 1 higher by 9.5 %).
 from __future__ import annotations
 
 from dataclasses import dataclass
-import time
 
 import numpy as np
 
 from nh_tracking.solvers.newton import NewtonStep
-from nh_tracking.solvers.nlp import DEADLINE, Outcome
+from nh_tracking.solvers.nlp import before, DEADLINE, Outcome
 
 MAX_ITERATIONS = 20  # fatrop takes 10 on the paper's sleigh from the reference, 11 with a terminal
-# cost (these steps: 10 and 16)
+# cost (these steps: 11 and 17, the last one counted)
 ALPHA_MIN = 1e-6  # the shortest step tried before giving up to the interior point
 GAMMA_THETA = GAMMA_F = 1e-5  # a trial must improve infeasibility or cost by this margin
 ARMIJO = 1e-4  # sufficient decrease of f, once nearly feasible and the step descends
@@ -99,7 +98,7 @@ def line_search_solve(step: NewtonStep, w: np.ndarray, p: np.ndarray,
     scale = max(1.0, float(theta))
     search = _Filter(THETA_MAX * scale, THETA_MIN * scale, [])
     for iteration in range(MAX_ITERATIONS):
-        if stop is not None and time.perf_counter() > stop:
+        if not before(stop):
             return _unsettled(w, multipliers, iteration, DEADLINE)
         shift = 0.0
         while True:

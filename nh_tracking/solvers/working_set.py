@@ -32,12 +32,12 @@ saddle returns None, and the caller solves by interior point, as before.
 from __future__ import annotations
 
 from dataclasses import dataclass
-import time
 
 import numpy as np
 
 from nh_tracking.numeric import NumericFunction
 from nh_tracking.solvers.newton import NewtonStep
+from nh_tracking.solvers.nlp import before
 
 MAX_STEPS = 12  # Newton steps (a warm plan needs 2-5)
 MAX_FACTORISATIONS = 24  # in all: a set that needs more is not near the previous plan's
@@ -155,8 +155,7 @@ def working_set_solve(step: NewtonStep, constraints: NumericFunction, w: np.ndar
         rows.hold_reached(now)  # a limit reached, or broken by the last step's curvature
         changed, offset = False, np.zeros_like(w)
         while True:
-            if factorisations >= MAX_FACTORISATIONS or (
-                    stop is not None and time.perf_counter() > stop):
+            if factorisations >= MAX_FACTORISATIONS or not before(stop):
                 return None
             w_full, multipliers, full, stationarity = step(w, p, *rows.arguments(), curvature)
             factorisations += 1
