@@ -81,8 +81,9 @@ def _line_search_alone(problem):
     q, v = default_guess(problem)
     if problem.terminal == 'equality':
         q[-1], v[-1] = problem.reference_samples[0][-1], problem.reference_samples[1][-1]
+    bounds = tr.bounds(problem)
     return line_search.line_search_solve(step, tr.pack(q, v, None), tr.parameters(problem),
-                                         None)
+                                         bounds['lbg'], bounds['ubg'], None)
 
 
 def test_a_saddle_is_not_taken_and_the_interior_point_solves_instead():

@@ -82,9 +82,13 @@ def _solve(w: ca.SX, p: ca.SX, inputs: list[ca.SX], matrix: ca.SX, vector: ca.SX
     return symbols, step[:w.shape[0]], step[w.shape[0]:], extra_mx
 
 
-def _merit(residual: ca.SX, g: ca.SX) -> list[ca.SX]:
-    """Return f = 1/2 |r|^2 and |g|₁, the infeasibility of an NLP with equality rows only."""
-    return [0.5 * ca.sumsqr(residual), ca.sum1(ca.fabs(g))]
+def _merit(residual: ca.SX, g: ca.SX, lower: ca.SX, upper: ca.SX) -> list[ca.SX]:
+    """Return f = 1/2 |r|^2 and the infeasibility Σ max(lower - g, g - upper, 0).
+
+    (|g|₁ where every row is an equality, lower = upper = 0.)
+    """
+    return [0.5 * ca.sumsqr(residual),
+            ca.sum1(ca.fmax(ca.fmax(lower - g, g - upper), 0))]
 
 
 def _direction(w: ca.SX, p: ca.SX, inputs: list[ca.SX], matrix: ca.SX, vector: ca.SX,
@@ -94,16 +98,19 @@ def _direction(w: ca.SX, p: ca.SX, inputs: list[ca.SX], matrix: ca.SX, vector: c
     dwᵀ(H + shift I)dw comes from the KKT rows themselves, -∇fᵀdw - λᵀG dw: no product
     with the Hessian is formed.
     """
-    shift = ca.SX.sym('shift')
     n, rows = w.shape[0], matrix.shape[0] - w.shape[0]
+    shift, lower, upper = ca.SX.sym('shift'), ca.SX.sym('lower', rows), ca.SX.sym('upper', rows)
     shifted = matrix + ca.diagcat(shift * ca.SX.eye(n), ca.SX(rows, rows))
-    symbols, dw, multipliers, (g, jac_g, gradient) = _solve(w, p, [*inputs, shift], shifted,
-                                                            vector, extra)
+    symbols, dw, multipliers, (g, jac_g, gradient) = _solve(
+        w, p, [*inputs, shift, lower, upper], shifted, vector, extra)
     slope = ca.dot(gradient, dw)
-    curvature = -slope - ca.dot(multipliers, ca.mtimes(jac_g, dw))
-    full = merit(symbols[0] + dw, symbols[1])
+    linearised = ca.mtimes(jac_g, dw)
+    curvature = -slope - ca.dot(multipliers, linearised)
+    lower_mx, upper_mx = symbols[-2:]
+    worst = ca.mmax(ca.fmax(ca.fmax(lower_mx - g, g - upper_mx), 0))
+    full = merit(symbols[0] + dw, symbols[1], lower_mx, upper_mx)
     return ca.Function('newton_direction', symbols,
-                       [dw, multipliers, slope, curvature, ca.mmax(ca.fabs(g)), *full])
+                       [dw, multipliers, slope, curvature, worst, *full, g + linearised])
 
 
 class GaussNewtonStep:
@@ -173,8 +180,10 @@ class NewtonStep:
         self._step = NumericFunction(ca.Function(
             'newton_step', symbols,
             [symbols[0] + dw, multipliers, values + ca.mtimes(jacobian, dw), stationarity]))
-        merit = ca.Function('merit', [w, p], _merit(residual, g))
-        self.merit = NumericFunction(merit)  # (w, p) -> f, |g|₁: a line search's trial points
+        lower, upper = ca.SX.sym('lower', self.rows), ca.SX.sym('upper', self.rows)
+        merit = ca.Function('merit', [w, p, lower, upper], _merit(residual, g, lower, upper))
+        # (w, p, lower, upper) -> f, infeasibility: a line search's trial points
+        self.merit = NumericFunction(merit)
         self._direction = NumericFunction(_direction(w, p, inputs, matrix, vector,
                                                      [g, jac_g, gradient], merit))
         self._inertia: ca.Linsol | None = None
@@ -184,12 +193,12 @@ class NewtonStep:
         return self._step(*args)
 
     def direction(self, *args: np.ndarray | float) -> list[np.ndarray]:
-        """(w, p, active, target, curvature, shift) -> a line search's view of the step.
+        """(w, p, active, target, curvature, shift, lower, upper) -> a line search's view.
 
         The step of the KKT system with ``shift`` added to the Hessian's diagonal, and
-        (dw, λ, ∇fᵀdw, dwᵀ(H + shift I)dw, |g(w)|∞, f and |g|₁ at w + dw): what
-        :func:`.line_search.line_search_solve` decides on, in one call. |g|₁ is the
-        infeasibility of an NLP whose rows are all equalities (the only one it solves).
+        (dw, λ, ∇fᵀdw, dwᵀ(H + shift I)dw, the largest violation of lower <= g <= upper at w,
+        f and the infeasibility at w + dw, g + G dw): what
+        :func:`.line_search.line_search_solve` decides on, in one call.
         """
         return self._direction(*args)
 

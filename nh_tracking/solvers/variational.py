@@ -158,9 +158,9 @@ def _solve_with(problem: TrackingProblem, initial_guess: Guess | None, stop: flo
     warm = initial_guess is not None and problem.limits.plan_violation(
         q_g, v_g, u_g) <= VIOLATION_TOL
     # Newton steps first (built outside the timing): a working set from a warm guess, a line
-    # search from a cold one without limits (on the interpreted fatrop: not compiled, not IPOPT)
-    searched = (newton and not warm and not problem.limits.active and tr.soft_index is None
-                and solver == 'fatrop' and not compiled)
+    # search from a cold one without obstacles (only the interpreted fatrop's: :mod:`.line_search`)
+    searched = (newton and not warm and not len(problem.limits.obstacles)
+                and tr.soft_index is None and solver == 'fatrop' and not compiled)
     held_step = _held_step(problem, tr) if newton and (warm or searched) else None
     start = time.perf_counter()
     w0 = tr.pack(q_g, v_g, u_g)
@@ -180,8 +180,9 @@ def _solve_with(problem: TrackingProblem, initial_guess: Guess | None, stop: flo
         held = None
         if held_step is not None and np.isfinite(w0).all():
             if searched:  # not converged: the interior point from the guess, with at least
-                held = line_search_solve(held_step.step, w0, p, halfway(stop))  # half the
-                held = None if not held.success and before(stop) else held  # time left
+                held = line_search_solve(held_step.step, w0, p, bounds['lbg'], bounds['ubg'],
+                                         halfway(stop))  # half the time left
+                held = None if not held.success and before(stop) else held
             else:
                 held = _working_set(held_step, w0, p, bounds, stop)
         if held is not None:

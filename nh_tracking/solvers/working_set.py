@@ -46,9 +46,10 @@ SLOW = 0.3  # two steps in a row longer than this fraction of the one before, th
 # converging linearly (an inexact factorisation), slower than the interior point
 WANDERED = 0.05  # a first step longer than this (relative to the largest unknown): the guess
 # was not near a stationary point, and the one the steps reach is checked to be a minimum
-STEP_TOL = 1e-7  # converged once a step moves no unknown by more (relative to the largest;
-# the convergence is superlinear: the plan is then within about 1e-9 of the solution)
-STATIONARITY_TOL = 1e-6  # |Jᵀr + Gᵀλ| at the last linearisation, with the step's multipliers
+STEP_TOL = 1e-5  # converged once a step moves no unknown by more (relative to the largest);
+# it is taken, and as the convergence is quadratic there (a step of 3e-7 is followed by one of
+# 2e-12) the plan is then within about 1e-9 of the solution (1e-7 cost a confirming step more)
+STATIONARITY_TOL = 1e-4  # |Jᵀr + Gᵀλ|∞ at the step's start with its multipliers: about |H dw|
 NEAR_BOUND = 1e-6  # a row this close to a bound (or beyond) at a step's start is held there
 ACTIVE_TOL = 1e-9  # a free row a step takes further beyond its bound than this stops it
 TOGETHER = 1e-9  # rows reached within this fraction of a step of the first are held with it
@@ -67,7 +68,7 @@ class WorkingSetSolution:
     limited: bool  # whether g has inequality rows at all
 
 
-class _WorkingSet:
+class WorkingSet:
     """Which rows of g are held, and at which bound: 2 equality, -1 lower, 1 upper, 0 free.
 
     Without inequality rows (``limited`` False) the set never changes: its methods return at
@@ -116,6 +117,16 @@ class _WorkingSet:
         first = float(np.clip(first, 0.0, 1.0))
         return first, np.flatnonzero(fraction <= first + TOGETHER)
 
+    def hold_broken(self, full: np.ndarray) -> bool:
+        """Hold every free row a step takes beyond a bound (``full``: its linearised rows)."""
+        if not self.limited:
+            return False
+        free = self.held == 0
+        low = free & (full < self.lower - ACTIVE_TOL)
+        high = free & (full > self.upper + ACTIVE_TOL)
+        self.held[low], self.held[high] = -1, 1
+        return bool(low.any() or high.any())
+
     def hold(self, rows: np.ndarray, full: np.ndarray) -> None:
         self.held[rows] = np.where(full[rows] < self.lower[rows], -1, 1)
 
@@ -146,13 +157,15 @@ def working_set_solve(step: NewtonStep, constraints: NumericFunction, w: np.ndar
     guess (the previous plan, shifted) are not. Without inequality rows the
     set never changes: the steps are Newton's on the KKT system, and g is not looked at.
     """
-    rows = _WorkingSet(lower, upper)
+    rows = WorkingSet(lower, upper)
     factorisations, wandered, settled, slow = 0, False, False, 0  # settled: the last set too
     multipliers, moved = np.zeros(len(lower)), np.inf
+    guessed: np.ndarray | None = None
     for _ in range(MAX_STEPS):
         curvature = multipliers
         now = constraints(w, p)[0] if rows.limited else lower  # (g unused without limits)
         rows.hold_reached(now)  # a limit reached, or broken by the last step's curvature
+        guessed = rows.held.copy() if guessed is None else guessed  # the guess's contacts
         changed, offset = False, np.zeros_like(w)
         while True:
             if factorisations >= MAX_FACTORISATIONS or not before(stop):
@@ -178,7 +191,7 @@ def working_set_solve(step: NewtonStep, constraints: NumericFunction, w: np.ndar
         tolerance = STEP_TOL * scale
         moved, last = float(np.max(np.abs(offset))), moved
         wandered = wandered or (last == np.inf and moved > WANDERED * scale)
-        if moved > DIVERGING * max(last, 100 * tolerance):
+        if moved > DIVERGING * max(last, tolerance):
             return None  # far from the previous plan's optimum: Newton without a line search
         slow = slow + 1 if settled and not changed and moved > max(SLOW * last, tolerance) else 0
         if slow >= 2:
@@ -187,8 +200,8 @@ def working_set_solve(step: NewtonStep, constraints: NumericFunction, w: np.ndar
         # (never on the first step: its multipliers and curvature start from zero)
         if not changed and stationarity[0] <= STATIONARITY_TOL and moved <= tolerance and \
                 last < np.inf:
-            if (wandered or np.any(nonconvex & (rows.held != 0))) and not step.minimum(
-                    w, p, *rows.arguments(), multipliers):
+            if (wandered or np.any(nonconvex & (rows.held != 0) & (guessed == 0))) and \
+                    not step.minimum(w, p, *rows.arguments(), multipliers):
                 return None  # a saddle: the interior point finds the minimum beside it
             return WorkingSetSolution(w, multipliers, factorisations,
                                       int(np.count_nonzero(np.abs(rows.held) == 1)),
