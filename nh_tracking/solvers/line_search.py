@@ -117,7 +117,7 @@ def line_search_solve(step: NewtonStep, w: np.ndarray, p: np.ndarray, lower: np.
             return _unsettled(w, multipliers, factorisations, DEADLINE)
         shift = 0.0
         while True:
-            qp = _qp_step(step, rows, w, p, multipliers, shift)
+            qp = _qp_step(step, rows, (lower, upper), w, p, multipliers, shift)
             factorisations += qp.factorisations
             if not (np.isfinite(qp.curvature) and np.isfinite(qp.dw).all()):
                 return _unsettled(w, multipliers, factorisations, 'a step not finite')
@@ -175,8 +175,8 @@ class _Direction:
     settled: bool  # the working set: its multipliers right, no free row broken
 
 
-def _qp_step(step: NewtonStep, rows: WorkingSet, w: np.ndarray, p: np.ndarray,
-             curvature: np.ndarray, shift: float) -> _Direction:
+def _qp_step(step: NewtonStep, rows: WorkingSet, bounds: tuple[np.ndarray, np.ndarray],
+             w: np.ndarray, p: np.ndarray, curvature: np.ndarray, shift: float) -> _Direction:
     """Return the step's direction with the limits linearised: its QP, by a primal-dual set.
 
     Each try holds every free row the last one took beyond a bound and lets go of every held
@@ -190,8 +190,7 @@ def _qp_step(step: NewtonStep, rows: WorkingSet, w: np.ndarray, p: np.ndarray,
     while True:
         tries += 1
         dw, multipliers, (slope,), (bent,), (infeasible,), (f_full,), (theta_full,), \
-            full = step.direction(w, p, *rows.arguments(), curvature, shift, rows.lower,
-                                  rows.upper)
+            full = step.direction(w, p, *rows.arguments(), curvature, shift, *bounds)
         changed = rows.hold_broken(full) | rows.let_go(multipliers)
         if not changed or tries == MAX_QP_FACTORISATIONS:
             return _Direction(dw, multipliers, float(slope), float(bent), float(infeasible),

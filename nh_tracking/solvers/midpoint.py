@@ -249,8 +249,9 @@ def working_set_step(system: NonholonomicSystem, steps: int, terminal: str,
                      shape: Shape) -> WorkingSetStep:
     """Return the step for warm replans with hard limits of this shape, built on first use.
 
-    Inside a replanning loop it is built in the background (NotPrepared until then); it costs
-    a fifth of the NLP's own build, so a planner prepares it only for the limits it starts with.
+    A planner prepares it with each NLP (every number of obstacle slots: its first replans
+    near an obstacle are then Newton steps, not interior points); a shape met later inside a
+    replanning loop is built in the background (NotPrepared until then).
     """
     return _STEPS.get(system, (steps, terminal, shape),
                       lambda: _working_set_step(system, steps, terminal, shape))

@@ -69,16 +69,28 @@ class WorkingSetSolution:
 
 
 class WorkingSet:
-    """Which rows of g are held, and at which bound: 2 equality, -1 lower, 1 upper, 0 free.
+    """Which inequality rows of g are held, and at which bound: -1 lower, 1 upper, 0 free.
 
+    Kept for the inequality rows alone (equalities are always held), and the step's
+    arguments rebuilt only when the set changes: a replan asks for them at every
+    factorisation, and a large g made these few array operations a third of its time.
     Without inequality rows (``limited`` False) the set never changes: its methods return at
     once.
     """
 
     def __init__(self, lower: np.ndarray, upper: np.ndarray) -> None:
-        self.lower, self.upper = lower, upper
-        self.held = np.where(lower == upper, 2, 0).astype(np.int8)
-        self.limited = bool(np.any(self.held != 2))
+        self.rows = np.flatnonzero(lower != upper)
+        self.limited = bool(len(self.rows))
+        self.lower, self.upper = lower[self.rows], upper[self.rows]
+        self.state = np.zeros(len(self.rows), dtype=np.int8)
+        self._active = (lower == upper).astype(float)
+        self._target = np.where(lower == upper, lower, 0.0)
+
+    def held(self) -> np.ndarray:
+        """Which rows of g are held at a bound (equalities not counted)."""
+        held = np.zeros(len(self._active), dtype=bool)
+        held[self.rows] = self.state != 0
+        return held
 
     def hold_reached(self, values: np.ndarray) -> None:
         """Hold the free rows at (or beyond) a bound at ``values``, or nearly at it.
@@ -86,49 +98,49 @@ class WorkingSet:
         Nearly: an interior-point plan keeps its active rows about 1e-8 inside their bounds,
         and each one found later by a blocked step costs a factorisation.
         """
-        if not self.limited:
-            return
-        free = self.held == 0
-        self.held[free & (values <= self.lower + NEAR_BOUND)] = -1
-        self.held[free & (values >= self.upper - NEAR_BOUND)] = 1
+        if self.limited:
+            value = values[self.rows]
+            self._hold(value <= self.lower + NEAR_BOUND, value >= self.upper - NEAR_BOUND)
 
     def arguments(self) -> tuple[np.ndarray, np.ndarray]:
         """(active, target) of the KKT step: held rows at their bound, free rows switched off."""
-        target = np.where(self.held == 1, self.upper, np.where(self.held != 0, self.lower, 0.0))
-        return (self.held != 0).astype(float), target
+        return self._active, self._target
 
     def blocking(self, now: np.ndarray, full: np.ndarray) -> tuple[float, np.ndarray]:
         """Return how far (0-1) from ``now`` to ``full`` (linearised rows) a step can go.
 
-        And the free rows that stop it there (empty: none), the first that would leave their
-        bounds — all of them, as rows reached together are held together.
+        And the free rows that stop it there (empty: none; positions among the inequality
+        rows), the first that would leave their bounds — all of them, as rows reached together
+        are held together.
         """
         if not self.limited:
             return 1.0, NO_ROWS
-        free = self.held == 0
-        fraction = np.full(len(now), np.inf)
+        now, full = now[self.rows], full[self.rows]
+        free = self.state == 0
         down = free & (full < self.lower - ACTIVE_TOL) & (full < now)
         up = free & (full > self.upper + ACTIVE_TOL) & (full > now)
+        if not (down.any() or up.any()):
+            return 1.0, NO_ROWS
+        fraction = np.full(len(now), np.inf)
         fraction[down] = (self.lower[down] - now[down]) / (full[down] - now[down])
         fraction[up] = (self.upper[up] - now[up]) / (full[up] - now[up])
-        first = float(np.min(fraction, initial=np.inf))
-        if not np.isfinite(first):
-            return 1.0, NO_ROWS
-        first = float(np.clip(first, 0.0, 1.0))
+        first = float(np.clip(np.min(fraction), 0.0, 1.0))
         return first, np.flatnonzero(fraction <= first + TOGETHER)
+
+    def hold(self, positions: np.ndarray, full: np.ndarray) -> None:
+        """Hold the rows at ``positions`` (from :meth:`blocking`) at the bound ``full`` passes."""
+        below = np.zeros(len(self.rows), dtype=bool)
+        below[positions] = full[self.rows[positions]] < self.lower[positions]
+        above = np.zeros(len(self.rows), dtype=bool)
+        above[positions] = ~below[positions]
+        self._hold(below, above)
 
     def hold_broken(self, full: np.ndarray) -> bool:
         """Hold every free row a step takes beyond a bound (``full``: its linearised rows)."""
         if not self.limited:
             return False
-        free = self.held == 0
-        low = free & (full < self.lower - ACTIVE_TOL)
-        high = free & (full > self.upper + ACTIVE_TOL)
-        self.held[low], self.held[high] = -1, 1
-        return bool(low.any() or high.any())
-
-    def hold(self, rows: np.ndarray, full: np.ndarray) -> None:
-        self.held[rows] = np.where(full[rows] < self.lower[rows], -1, 1)
+        value = full[self.rows]
+        return self._hold(value < self.lower - ACTIVE_TOL, value > self.upper + ACTIVE_TOL)
 
     def let_go(self, multipliers: np.ndarray) -> bool:
         """Free the held inequality rows whose multipliers have the wrong sign (True if any).
@@ -138,10 +150,29 @@ class WorkingSet:
         """
         if not self.limited:
             return False
-        wrong = (((self.held == -1) & (multipliers > DUAL_TOL))
-                 | ((self.held == 1) & (multipliers < -DUAL_TOL)))
-        self.held[wrong] = 0
-        return bool(wrong.any())
+        multiplier = multipliers[self.rows]
+        wrong = (((self.state == -1) & (multiplier > DUAL_TOL))
+                 | ((self.state == 1) & (multiplier < -DUAL_TOL)))
+        if not wrong.any():
+            return False
+        self.state[wrong] = 0
+        self._changed()
+        return True
+
+    def _hold(self, low: np.ndarray, high: np.ndarray) -> bool:
+        """Hold the free rows of ``low`` at their lower bound, of ``high`` at their upper."""
+        free = self.state == 0
+        low, high = free & low, free & high
+        if not (low.any() or high.any()):
+            return False
+        self.state[low], self.state[high] = -1, 1
+        self._changed()
+        return True
+
+    def _changed(self) -> None:
+        self._active[self.rows] = self.state != 0
+        self._target[self.rows] = np.where(self.state == 1, self.upper,
+                                           np.where(self.state == -1, self.lower, 0.0))
 
 
 def working_set_solve(step: NewtonStep, constraints: NumericFunction, w: np.ndarray,
@@ -165,7 +196,7 @@ def working_set_solve(step: NewtonStep, constraints: NumericFunction, w: np.ndar
         curvature = multipliers
         now = constraints(w, p)[0] if rows.limited else lower  # (g unused without limits)
         rows.hold_reached(now)  # a limit reached, or broken by the last step's curvature
-        guessed = rows.held.copy() if guessed is None else guessed  # the guess's contacts
+        guessed = rows.held() if guessed is None else guessed  # the guess's contacts
         changed, offset = False, np.zeros_like(w)
         while True:
             if factorisations >= MAX_FACTORISATIONS or not before(stop):
@@ -200,10 +231,10 @@ def working_set_solve(step: NewtonStep, constraints: NumericFunction, w: np.ndar
         # (never on the first step: its multipliers and curvature start from zero)
         if not changed and stationarity[0] <= STATIONARITY_TOL and moved <= tolerance and \
                 last < np.inf:
-            if (wandered or np.any(nonconvex & (rows.held != 0) & (guessed == 0))) and \
+            if (wandered or np.any(nonconvex & rows.held() & ~guessed)) and \
                     not step.minimum(w, p, *rows.arguments(), multipliers):
                 return None  # a saddle: the interior point finds the minimum beside it
             return WorkingSetSolution(w, multipliers, factorisations,
-                                      int(np.count_nonzero(np.abs(rows.held) == 1)),
+                                      int(np.count_nonzero(rows.state)),
                                       rows.limited)
     return None
