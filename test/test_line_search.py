@@ -18,6 +18,8 @@ The interior point (fatrop, ``Variational(newton=False)``) is the independent so
 same guess both must reach the same plan, multipliers included, and where the line search
 gives up the solve must be the interior point's own.
 """
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -152,3 +154,57 @@ def test_the_line_search_runs_only_where_the_interpreted_fatrop_would(monkeypatc
     assert nht.solve(problem, Variational(backend='ipopt'), second_look=False).route == 'ipopt'
     with pytest.raises(AssertionError, match='line search called'):
         nht.solve(problem, Variational(), second_look=False)
+
+
+def _bounded(name, kind, fraction):
+    """Return a case of CASES, its controls (or velocities) bounded by a fraction of its peak.
+
+    Velocity bounds stay outside the start's own velocity (a start that breaks a limit is
+    the soft NLP's, not this one's).
+    """
+    free = CASES[name]()
+    plan = nht.solve(free, second_look=False)
+    if kind == 'controls':
+        peak = fraction * np.abs(plan.u).max(axis=0)
+        return dataclasses.replace(free, control_bounds=(-peak, peak))
+    peak = np.maximum(fraction * np.abs(plan.v).max(axis=0), np.abs(free.v0) + 1e-3)
+    return dataclasses.replace(free, velocity_bounds=(-peak, peak))
+
+
+BOUNDED = [('sleigh_wrapped_cost', 'controls', 0.5), ('sleigh_wrapped_cost', 'velocities', 0.8),
+           ('particle_2', 'velocities', 0.8), ('rolling_disk', 'controls', 0.5),
+           ('snakeboard_underactuated', 'velocities', 0.8), ('coupled', 'controls', 0.6)]
+
+
+@pytest.mark.parametrize('name, kind, fraction', BOUNDED,
+                         ids=[f'{n}-{k}' for n, k, _ in BOUNDED])
+def test_a_cold_solve_with_bounds_by_line_search_is_ipopts_plan(name, kind, fraction):
+    """Control or velocity bounds: a sequential QP on a working set, against IPOPT alone.
+
+    IPOPT (not fatrop) is the reference: fatrop's interior point ends its active rows about
+    2e-8 beyond their bounds, which makes its cost lower by about that times the multipliers.
+    Here the bounds hold exactly and are active.
+    """
+    problem = _bounded(name, kind, fraction)
+    ours = nht.solve(problem, Variational(), second_look=False)
+    ipopt = nht.solve(problem, Variational(backend='ipopt', newton=False), second_look=False)
+    assert ours.route == LINE_SEARCH and ours.success and ipopt.success
+    assert ours.cost == pytest.approx(ipopt.cost, rel=1e-8)
+    assert np.abs(ours.u - ipopt.u).max() < 1e-5 * max(1.0, np.abs(ipopt.u).max())
+    assert np.abs(ours.q - ipopt.q).max() < 1e-6
+    assert ours.details['violation'] <= 1e-12
+    lo, hi = (problem.limits.controls if kind == 'controls' else problem.limits.velocities)
+    values = ours.u if kind == 'controls' else ours.v[1:]
+    assert np.min(np.minimum(values - lo, hi - values)) < 1e-9  # a bound is active
+    assert ours.details['admissibility_residual'] < 1e-9
+
+
+def test_a_cold_solve_with_an_obstacle_is_the_interior_points():
+    """From the reference through an obstacle the line search is not tried (see the module)."""
+    free = CASES['sleigh_wrapped_cost']()
+    problem = dataclasses.replace(free, obstacles=[(1.2, -0.45, 0.2)], robot_radius=0.05)
+    assert problem.limits.plan_violation(*(getattr(nht.solve(free, second_look=False), a)
+                                           for a in 'qvu')) > 0.1  # on the free plan's way
+    ours = nht.solve(problem, Variational(), second_look=False)
+    interior = nht.solve(problem, Variational(newton=False), second_look=False)
+    assert ours.route == 'fatrop' and ours.success and ours.cost == interior.cost
