@@ -39,6 +39,7 @@ class NumericFunction:
         dense = ca.Function(fn.name() + '_dense', inputs, outputs)
         self._buffer, self._trigger = dense.buffer()
         self._args = [np.zeros(dense.nnz_in(i)) for i in range(dense.n_in())]
+        self._empty = [not len(a) for a in self._args]  # (skipped: no copy, no ravel)
         self._res = [np.zeros(dense.nnz_out(i)) for i in range(dense.n_out())]
         self._shapes = [dense.size_out(i) for i in range(dense.n_out())]
         self._lock = threading.Lock()
@@ -49,8 +50,9 @@ class NumericFunction:
 
     def __call__(self, *args: np.ndarray | float) -> list[np.ndarray]:
         with self._lock:
-            for buf, value in zip(self._args, args):
-                buf[:] = np.ravel(value)
+            for buf, value, empty in zip(self._args, args, self._empty):
+                if not empty:
+                    buf[:] = np.ravel(value)
             self._trigger()
             return [r.copy().reshape(shape, order='F') if shape[1] > 1 else r.copy()
                     for r, shape in zip(self._res, self._shapes)]

@@ -106,10 +106,10 @@ def line_search_solve(step: NewtonStep, w: np.ndarray, p: np.ndarray, lower: np.
     changed); its multipliers have CasADi's sign, as an NLP solver's. Not converged, it says
     why, with the last iterate (the plan, if the deadline is reached).
     """
-    rows = WorkingSet(lower, upper)
+    rows = WorkingSet(lower, upper, step.inequality)
     multipliers = np.zeros(len(lower))
     shift_last, shifted, short, factorisations = 0.0, 0, False, 0  # short: a small step left g
-    (f,), (theta,) = step.merit(w, p, lower, upper)  # above
+    (f,), (theta,) = step.merit(w, p, rows.lower, rows.upper)  # above
     scale = max(1.0, float(theta))
     search = _Filter(THETA_MAX * scale, THETA_MIN * scale, [])
     for iteration in range(MAX_ITERATIONS):
@@ -117,11 +117,13 @@ def line_search_solve(step: NewtonStep, w: np.ndarray, p: np.ndarray, lower: np.
             return _unsettled(w, multipliers, factorisations, DEADLINE)
         shift = 0.0
         while True:
-            qp = _qp_step(step, rows, (lower, upper), w, p, multipliers, shift)
-            factorisations += qp.factorisations
-            if not (np.isfinite(qp.curvature) and np.isfinite(qp.dw).all()):
+            direction, tries, settled = _qp_step(step, rows, w, p, multipliers, shift)
+            dw, new_multipliers, (slope,), (curvature,), (infeasible,), (f_full,), \
+                (theta_full,), _ = direction
+            factorisations += tries
+            if not (np.isfinite(curvature) and np.isfinite(dw).all()):
                 return _unsettled(w, multipliers, factorisations, 'a step not finite')
-            if qp.curvature >= CURVATURE * float(qp.dw @ qp.dw):
+            if curvature >= CURVATURE * float(dw @ dw):
                 break
             if shift == 0.0:
                 shift = max(SHIFT_FIRST, SHIFT_DECAY * shift_last)
@@ -130,71 +132,58 @@ def line_search_solve(step: NewtonStep, w: np.ndarray, p: np.ndarray, lower: np.
             shifted += 1
             if shifted > MAX_SHIFTED:
                 return _unsettled(w, multipliers, factorisations, 'nonconvex')
-        shift_last, dw = shift, qp.dw
-        small = shift == 0.0 and qp.settled and qp.infeasible <= FEASIBILITY_TOL and \
+        shift_last = shift
+        small = shift == 0.0 and settled and infeasible <= FEASIBILITY_TOL and \
             np.max(np.abs(dw)) <= STEP_TOL * max(1.0, float(np.max(np.abs(w))))
-        if small and qp.theta_full <= FINAL_INFEASIBILITY:
+        if small and theta_full <= FINAL_INFEASIBILITY:
             w = w + dw
-            if not step.minimum(w, p, *rows.arguments(), qp.multipliers):
-                return _unsettled(w, qp.multipliers, factorisations, 'a saddle')
-            return Outcome({'x': w, 'lam_g': qp.multipliers}, True, factorisations,
+            if not step.minimum(w, p, *rows.arguments(), new_multipliers):
+                return _unsettled(w, new_multipliers, factorisations, 'a saddle')
+            return Outcome({'x': w, 'lam_g': new_multipliers}, True, factorisations,
                            'converged')
         if small and short:  # a second small step that leaves g above: the steps stall
             return _unsettled(w, multipliers, factorisations, 'stalled short of admissible')
         short = small
-        alpha, trial = 1.0, (float(qp.theta_full), float(qp.f_full))
+        alpha, trial = 1.0, (float(theta_full), float(f_full))
         while True:
-            taken, by_cost = search.accepts(theta, f, trial, alpha, qp.slope)
+            taken, by_cost = search.accepts(theta, f, trial, alpha, slope)
             if taken:
                 break
             alpha /= 2
             if alpha < ALPHA_MIN:
                 return _unsettled(w, multipliers, factorisations, 'no step accepted')
-            f_trial, theta_trial = step.merit(w + alpha * dw, p, lower, upper)
+            f_trial, theta_trial = step.merit(w + alpha * dw, p, rows.lower, rows.upper)
             trial = (float(theta_trial[0]), float(f_trial[0]))
         if not by_cost:
             search.pairs.append(((1 - GAMMA_THETA) * theta, f - GAMMA_F * theta))
         w = w + alpha * dw
         theta, f = trial
-        multipliers = multipliers + alpha * (qp.multipliers - multipliers)
+        multipliers = multipliers + alpha * (new_multipliers - multipliers)
     return _unsettled(w, multipliers, factorisations, 'iteration budget spent')
 
 
-@dataclass
-class _Direction:
-    """A step's direction from w, on a working set of the limit rows, and its merits."""
-
-    dw: np.ndarray
-    multipliers: np.ndarray
-    slope: float  # ∇fᵀdw
-    curvature: float  # dwᵀ(H + shift I)dw
-    infeasible: float  # the largest violation of a limit or an equality at w
-    f_full: float
-    theta_full: float  # infeasibility at w + dw
-    factorisations: int
-    settled: bool  # the working set: its multipliers right, no free row broken
-
-
-def _qp_step(step: NewtonStep, rows: WorkingSet, bounds: tuple[np.ndarray, np.ndarray],
-             w: np.ndarray, p: np.ndarray, curvature: np.ndarray, shift: float) -> _Direction:
+def _qp_step(step: NewtonStep, rows: WorkingSet, w: np.ndarray, p: np.ndarray,
+             curvature: np.ndarray, shift: float) -> tuple[list[np.ndarray], int, bool]:
     """Return the step's direction with the limits linearised: its QP, by a primal-dual set.
 
     Each try holds every free row the last one took beyond a bound and lets go of every held
     row whose multiplier has the wrong sign, all at once (Hintermüller, Ito & Kunisch 2002): a
     cold start has dozens of rows to take in, which a primal active set takes one per
     factorisation. After :data:`MAX_QP_FACTORISATIONS` tries the direction is the last one's,
-    unsettled: the filter judges it like any other, and it is never the last step. Without
-    inequality rows: one factorisation.
+    unsettled: the filter judges it like any other, and it is never the last step. Returns
+    :meth:`.newton.NewtonStep.direction`'s outputs, the tries and whether the set settled.
+    Without inequality rows: one factorisation.
     """
     tries = 0
     while True:
         tries += 1
-        dw, multipliers, (slope,), (bent,), (infeasible,), (f_full,), (theta_full,), \
-            full = step.direction(w, p, *rows.arguments(), curvature, shift, *bounds)
-        changed = rows.hold_broken(full) | rows.let_go(multipliers)
+        direction = step.direction(w, p, *rows.arguments(), curvature, shift, rows.lower,
+                                   rows.upper)
+        if not rows.limited:
+            return direction, tries, True
+        changed = rows.hold_broken(direction[-1]) | rows.let_go(direction[1])
         if not changed or tries == MAX_QP_FACTORISATIONS:
-            return _Direction(dw, multipliers, float(slope), float(bent), float(infeasible),
-                              float(f_full), float(theta_full), tries, not changed)
+            return direction, tries, not changed
 
 
 def _unsettled(w: np.ndarray, multipliers: np.ndarray, iterations: int, why: str) -> Outcome:

@@ -262,7 +262,8 @@ def _working_set_step(system: NonholonomicSystem, steps: int, terminal: str,
     form = _stage_form(system, steps, terminal, shape)
     rows = form.constraints.shape[0]
     return WorkingSetStep(
-        NewtonStep(form.unknowns, form.p, form.cost_residuals, form.constraints),
+        NewtonStep(form.unknowns, form.p, form.cost_residuals, form.constraints,
+                   np.flatnonzero(form.limits.inequality_mask(rows))),
         NumericFunction(ca.Function('constraints', [form.unknowns, form.p],
                                     [form.constraints])),
         form.limits.inequality_mask(rows, ('clear',)))

@@ -34,12 +34,15 @@ from __future__ import annotations
 from collections.abc import Callable
 from pathlib import Path
 import threading
+from typing import TypeVar
 
 import casadi as ca
 import numpy as np
 
 from nh_tracking.numeric import NumericFunction
 from nh_tracking.solvers.compiled import LibraryBuild
+
+Symbolic = TypeVar('Symbolic', ca.SX, ca.MX)
 
 REGULARISATION = 1e-10  # of JᵀJ: the step only, no bias at the solution
 DUAL_REGULARISATION = 1e-13  # of the (2, 2) block: the solution moves by about this times λ
@@ -82,24 +85,38 @@ def _solve(w: ca.SX, p: ca.SX, inputs: list[ca.SX], matrix: ca.SX, vector: ca.SX
     return symbols, step[:w.shape[0]], step[w.shape[0]:], extra_mx
 
 
-def _merit(residual: ca.SX, g: ca.SX, lower: ca.SX, upper: ca.SX) -> list[ca.SX]:
-    """Return f = 1/2 |r|^2 and the infeasibility Σ max(lower - g, g - upper, 0).
+def _violation(g: Symbolic, inequality: np.ndarray, lower: Symbolic,
+               upper: Symbolic) -> tuple[Symbolic, Symbolic]:
+    """Return how far g breaks its rows: |g| of the equalities, and the inequality rows'.
 
-    (|g|₁ where every row is an equality, lower = upper = 0.)
+    (lower <= g[inequality] <= upper: max(lower - g, g - upper, 0).) Without inequality rows
+    g itself: no indexing, the same expressions as an equality-only NLP's.
     """
-    return [0.5 * ca.sumsqr(residual),
-            ca.sum1(ca.fmax(ca.fmax(lower - g, g - upper), 0))]
+    if not len(inequality):
+        return ca.fabs(g), type(g)(0, 1)
+    equality = np.setdiff1d(np.arange(g.shape[0]), inequality)
+    held = g[inequality.tolist()]
+    return (ca.fabs(g[equality.tolist()]),
+            ca.fmax(ca.fmax(lower - held, held - upper), 0))
+
+
+def _merit(residual: ca.SX, g: ca.SX, inequality: np.ndarray, lower: ca.SX,
+           upper: ca.SX) -> list[ca.SX]:
+    """Return f = 1/2 |r|^2 and the infeasibility: the sum of :func:`_violation`."""
+    equalities, inequalities = _violation(g, inequality, lower, upper)
+    return [0.5 * ca.sumsqr(residual), ca.sum1(equalities) + ca.sum1(inequalities)]
 
 
 def _direction(w: ca.SX, p: ca.SX, inputs: list[ca.SX], matrix: ca.SX, vector: ca.SX,
-               extra: list[ca.SX], merit: ca.Function) -> ca.Function:
+               extra: list[ca.SX], inequality: np.ndarray, merit: ca.Function) -> ca.Function:
     """Return the step of ``matrix`` with a shift on its Hessian block, and its merits.
 
     dwᵀ(H + shift I)dw comes from the KKT rows themselves, -∇fᵀdw - λᵀG dw: no product
     with the Hessian is formed.
     """
     n, rows = w.shape[0], matrix.shape[0] - w.shape[0]
-    shift, lower, upper = ca.SX.sym('shift'), ca.SX.sym('lower', rows), ca.SX.sym('upper', rows)
+    shift = ca.SX.sym('shift')
+    lower, upper = (ca.SX.sym(name, len(inequality)) for name in ('lower', 'upper'))
     shifted = matrix + ca.diagcat(shift * ca.SX.eye(n), ca.SX(rows, rows))
     symbols, dw, multipliers, (g, jac_g, gradient) = _solve(
         w, p, [*inputs, shift, lower, upper], shifted, vector, extra)
@@ -107,10 +124,11 @@ def _direction(w: ca.SX, p: ca.SX, inputs: list[ca.SX], matrix: ca.SX, vector: c
     linearised = ca.mtimes(jac_g, dw)
     curvature = -slope - ca.dot(multipliers, linearised)
     lower_mx, upper_mx = symbols[-2:]
-    worst = ca.mmax(ca.fmax(ca.fmax(lower_mx - g, g - upper_mx), 0))
+    worst = ca.mmax(ca.vertcat(*_violation(g, inequality, lower_mx, upper_mx)))
     full = merit(symbols[0] + dw, symbols[1], lower_mx, upper_mx)
+    reached = (g + linearised)[inequality.tolist()]
     return ca.Function('newton_direction', symbols,
-                       [dw, multipliers, slope, curvature, worst, *full, g + linearised])
+                       [dw, multipliers, slope, curvature, worst, *full, reached])
 
 
 class GaussNewtonStep:
@@ -161,8 +179,12 @@ class NewtonStep:
     multipliers: zero at a KKT point.
     """
 
-    def __init__(self, w: ca.SX, p: ca.SX, residual: ca.SX, g: ca.SX) -> None:
+    def __init__(self, w: ca.SX, p: ca.SX, residual: ca.SX, g: ca.SX,
+                 inequality: np.ndarray | None = None) -> None:
         self.rows = g.shape[0]
+        # the rows of g with bounds: a line search's infeasibility counts them apart
+        self.inequality = np.zeros(0, dtype=int) if inequality is None else np.asarray(
+            inequality, dtype=int)
         active, target, curvature = (ca.SX.sym(name, self.rows)
                                      for name in ('active', 'target', 'curvature'))
         # JᵀJ + Σ r_i ∇²r_i + Σ λ_i ∇²g_i in one differentiation: 10 % fewer instructions
@@ -180,12 +202,14 @@ class NewtonStep:
         self._step = NumericFunction(ca.Function(
             'newton_step', symbols,
             [symbols[0] + dw, multipliers, values + ca.mtimes(jacobian, dw), stationarity]))
-        lower, upper = ca.SX.sym('lower', self.rows), ca.SX.sym('upper', self.rows)
-        merit = ca.Function('merit', [w, p, lower, upper], _merit(residual, g, lower, upper))
+        lower, upper = (ca.SX.sym(name, len(self.inequality)) for name in ('lower', 'upper'))
+        merit = ca.Function('merit', [w, p, lower, upper],
+                            _merit(residual, g, self.inequality, lower, upper))
         # (w, p, lower, upper) -> f, infeasibility: a line search's trial points
         self.merit = NumericFunction(merit)
         self._direction = NumericFunction(_direction(w, p, inputs, matrix, vector,
-                                                     [g, jac_g, gradient], merit))
+                                                     [g, jac_g, gradient], self.inequality,
+                                                     merit))
         self._inertia: ca.Linsol | None = None
         self._inertia_lock = threading.Lock()  # steps are shared by the planners of a process
 
@@ -196,9 +220,10 @@ class NewtonStep:
         """(w, p, active, target, curvature, shift, lower, upper) -> a line search's view.
 
         The step of the KKT system with ``shift`` added to the Hessian's diagonal, and
-        (dw, λ, ∇fᵀdw, dwᵀ(H + shift I)dw, the largest violation of lower <= g <= upper at w,
-        f and the infeasibility at w + dw, g + G dw): what
-        :func:`.line_search.line_search_solve` decides on, in one call.
+        (dw, λ, ∇fᵀdw, dwᵀ(H + shift I)dw, the largest violation at w, f and the
+        infeasibility at w + dw, g + G dw of the inequality rows): what
+        :func:`.line_search.line_search_solve` decides on, in one call. ``lower``, ``upper``:
+        the bounds of the inequality rows (equalities are g = 0).
         """
         return self._direction(*args)
 

@@ -71,6 +71,8 @@ class WorkingSetSolution:
 class WorkingSet:
     """Which inequality rows of g are held, and at which bound: -1 lower, 1 upper, 0 free.
 
+    The inequality rows: ``rows``, or those whose bounds differ.
+
     Kept for the inequality rows alone (equalities are always held), and the step's
     arguments rebuilt only when the set changes: a replan asks for them at every
     factorisation, and a large g made these few array operations a third of its time.
@@ -78,13 +80,15 @@ class WorkingSet:
     once.
     """
 
-    def __init__(self, lower: np.ndarray, upper: np.ndarray) -> None:
-        self.rows = np.flatnonzero(lower != upper)
+    def __init__(self, lower: np.ndarray, upper: np.ndarray,
+                 rows: np.ndarray | None = None) -> None:
+        self.rows = np.flatnonzero(lower != upper) if rows is None else rows
         self.limited = bool(len(self.rows))
         self.lower, self.upper = lower[self.rows], upper[self.rows]
         self.state = np.zeros(len(self.rows), dtype=np.int8)
-        self._active = (lower == upper).astype(float)
-        self._target = np.where(lower == upper, lower, 0.0)
+        self._active = np.ones(len(lower))
+        self._active[self.rows] = 0.0
+        self._target = np.where(self._active == 1, lower, 0.0)
 
     def held(self) -> np.ndarray:
         """Which rows of g are held at a bound (equalities not counted)."""
@@ -135,12 +139,11 @@ class WorkingSet:
         above[positions] = ~below[positions]
         self._hold(below, above)
 
-    def hold_broken(self, full: np.ndarray) -> bool:
-        """Hold every free row a step takes beyond a bound (``full``: its linearised rows)."""
+    def hold_broken(self, reached: np.ndarray) -> bool:
+        """Hold every free row a step takes beyond a bound (``reached``: g + G dw of the rows)."""
         if not self.limited:
             return False
-        value = full[self.rows]
-        return self._hold(value < self.lower - ACTIVE_TOL, value > self.upper + ACTIVE_TOL)
+        return self._hold(reached < self.lower - ACTIVE_TOL, reached > self.upper + ACTIVE_TOL)
 
     def let_go(self, multipliers: np.ndarray) -> bool:
         """Free the held inequality rows whose multipliers have the wrong sign (True if any).
