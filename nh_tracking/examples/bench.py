@@ -182,9 +182,9 @@ def _replanning_with_limits(log: Callable[[str], None]) -> dict:
     for name, (settings, discs) in cases.items():
         planner = RecedingHorizonPlanner(model, PlannerSettings(horizon=5.0, steps=50,
                                                                 **settings))
+        planner.obstacles = np.array(discs).reshape(-1, 3)  # known at the start: prepared for
         planner.prepare()
         planner.set_reference(reference)
-        planner.obstacles = np.array(discs).reshape(-1, 3)
         q, v, t = np.array([0.0, 0.3, 0.0]), np.array([0.5, 0.0]), 0.0
         while t < 16.0:
             plan = planner.plan(t, q, v).plan

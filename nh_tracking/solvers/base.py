@@ -42,12 +42,16 @@ class Structure:
     """The shape of a problem, which is what an NLP is built for: intervals, terminal kind.
 
     The time limit [s] its solves run against (replanning) or None, and the shape of its limits.
+    ``replanned``: warm replans of it are expected from the first plan on (its Newton steps are
+    built too); False for a shape a replanning loop may meet later (more obstacles), whose
+    steps are then built in the background on first need.
     """
 
     steps: int
     terminal: Terminal
     deadline: float | None = None
     limits: Shape = Shape()
+    replanned: bool = True
 
 
 class Method(ABC):

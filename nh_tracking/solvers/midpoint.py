@@ -249,9 +249,9 @@ def working_set_step(system: NonholonomicSystem, steps: int, terminal: str,
                      shape: Shape) -> WorkingSetStep:
     """Return the step for warm replans with hard limits of this shape, built on first use.
 
-    A planner prepares it with each NLP (every number of obstacle slots: its first replans
-    near an obstacle are then Newton steps, not interior points); a shape met later inside a
-    replanning loop is built in the background (NotPrepared until then).
+    A planner prepares it for the limits it has when it starts (its obstacles included); a
+    shape met later inside a replanning loop is built in the background (NotPrepared until
+    then: those replans are interior points).
     """
     return _STEPS.get(system, (steps, terminal, shape),
                       lambda: _working_set_step(system, steps, terminal, shape))

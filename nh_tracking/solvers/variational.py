@@ -301,7 +301,7 @@ class Variational(Method):
                           structure.deadline is not None, self.backend, self.compiled,
                           structure.limits, iterations)
         limits = structure.limits
-        if self.newton and not limits.soft:  # the limits it has
+        if self.newton and structure.replanned and not limits.soft:
             working_set_step(system, structure.steps, structure.terminal, limits)
 
     def globalised(self) -> Variational:
