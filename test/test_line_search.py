@@ -208,3 +208,31 @@ def test_a_cold_solve_with_an_obstacle_is_the_interior_points():
     ours = nht.solve(problem, Variational(), second_look=False)
     interior = nht.solve(problem, Variational(newton=False), second_look=False)
     assert ours.route == 'fatrop' and ours.success and ours.cost == interior.cost
+
+
+def test_bounded_steps_that_crawl_are_given_up_early_for_the_interior_point(monkeypatch):
+    """A review's worst case: the working set never settled and the steps crawled.
+
+    They went on for 40 factorisations (4.2x fatrop's time); now they stop at the second step
+    shorter than CRAWL, and the plan is fatrop's own.
+    """
+    unicycle = nht.models.unicycle()
+    reference = nht.simulate(unicycle, [-0.2301, 0.2065, 0.1792], [-0.7722, -0.6769],
+                             np.linspace(0, 6, 121))
+    problem = nht.TrackingProblem(
+        unicycle, reference, q0=[-0.2337, 0.5336, -0.0589], v0=[-0.9593, -0.4545],
+        horizon=1.1977, steps=10, epsilon=7.934, terminal='equality', omega=2.0,
+        control_bounds=([-np.inf, -5.3456], [np.inf, 6.44]),
+        velocity_bounds=([-1.4073, -1.3478], [1.4073, 1.3478]))
+    outcomes = []
+
+    def recorded(*args):
+        outcomes.append(line_search.line_search_solve(*args))
+        return outcomes[-1]
+
+    monkeypatch.setattr(variational, 'line_search_solve', recorded)
+    ours = nht.solve(problem, Variational(), second_look=False)
+    interior = nht.solve(problem, Variational(newton=False), second_look=False)
+    assert [o.message for o in outcomes] == ['crawling']
+    assert outcomes[0].iterations <= 20  # factorisations
+    assert ours.route == 'fatrop' and ours.success and ours.cost == interior.cost

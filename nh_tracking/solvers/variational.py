@@ -77,9 +77,9 @@ def solve_variational(problem: TrackingProblem, initial_guess: Guess | None = No
     guess: a real-time iteration — that many Newton steps on the guess (a warm-started previous
     plan), converged or not; without a guess the solve converges. ``newton``: a guess within
     the limits (a previous plan) is solved by Newton steps on a working set of the limit rows
-    (none without limits), and one with neither a guess nor limits (interpreted fatrop)
-    by the same steps with a line search (:mod:`.line_search`); the interior point from the
-    same guess if they do not settle. False: always the interior point (a search from
+    (none without limits), and any other without obstacles (interpreted fatrop) by the same
+    steps with a line search (:mod:`.line_search`); the interior point from the same guess if
+    they do not settle. False: always the interior point (a search from
     perturbed guesses, where Newton's method would converge to the saddle it looks past).
     """
     return solve_variational_until(problem, initial_guess, deadline_after(max_time), solver,
@@ -270,7 +270,7 @@ class Variational(Method):
     ``compiled`` runs the NLP's derivatives as C, compiled once per structure and machine
     (:mod:`.compiled`). ``iterations`` > 0: real-time iterations — each warm-started solve
     takes that many Newton steps and stops, converged or not (0: to convergence). ``newton``:
-    converged warm solves by Newton steps on a working set, cold ones without limits by Newton
+    converged warm solves by Newton steps on a working set, cold ones without obstacles by Newton
     steps with a line search (see :func:`solve_variational`).
     """
 
