@@ -29,7 +29,7 @@ how far the limits are broken as well as the equalities. An interior point spend
 iterations on the same problems from the barrier's start (a |u| bound on the paper's sleigh:
 4.9 ms, here 11 factorisations, 2.5 ms); on a review's 34 random bounded problems on six
 systems 22 were solved so (0.3-0.9x fatrop's time), 12 went to fatrop, and all 34 took 0.91x
-fatrop alone's time. Obstacles are left to the interior point: from the
+fatrop's time alone. Obstacles are left to the interior point: from the
 reference, which runs through them, the way round is too nonconvex for these steps (tried: the
 Hessian needed more shifts than allowed in every case).
 
