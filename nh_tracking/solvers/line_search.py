@@ -125,7 +125,7 @@ def line_search_solve(step: NewtonStep, w: np.ndarray, p: np.ndarray, lower: np.
     scale = max(1.0, float(theta))
     search = _Filter(THETA_MAX * scale, THETA_MIN * scale, [])
     unsettled, crawled = 0, 0  # unsettled steps in a row, unsettled steps shorter than CRAWL
-    for iteration in range(MAX_ITERATIONS):
+    for _ in range(MAX_ITERATIONS):
         if not before(stop):
             return _unsettled(w, multipliers, factorisations, DEADLINE)
         shift = 0.0

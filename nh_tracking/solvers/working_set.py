@@ -132,12 +132,10 @@ class WorkingSet:
         return first, np.flatnonzero(fraction <= first + TOGETHER)
 
     def hold(self, positions: np.ndarray, full: np.ndarray) -> None:
-        """Hold the rows at ``positions`` (from :meth:`blocking`) at the bound ``full`` passes."""
-        below = np.zeros(len(self.rows), dtype=bool)
-        below[positions] = full[self.rows[positions]] < self.lower[positions]
-        above = np.zeros(len(self.rows), dtype=bool)
-        above[positions] = ~below[positions]
-        self._hold(below, above)
+        """Hold the free rows at ``positions`` (from :meth:`blocking`) at the bound passed."""
+        below = full[self.rows[positions]] < self.lower[positions]
+        self.state[positions] = np.where(below, -1, 1)
+        self._changed()
 
     def hold_broken(self, reached: np.ndarray) -> bool:
         """Hold every free row a step takes beyond a bound (``reached``: g + G dw of the rows)."""
