@@ -19,7 +19,7 @@ Cost: 1/2 int (|q - q_r|^2 + |v - v_r|^2 + eps |u|^2) dt, plus omega/2 |q(T) - q
 """
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Hashable
 from dataclasses import dataclass, field
 import functools
 import math
@@ -223,6 +223,22 @@ def terminal_cost(problem: TrackingProblem, q_final: np.ndarray) -> float:
     return 0.5 * problem.omega * float(np.sum((q_final - q_ref) ** 2))
 
 
+@dataclass(frozen=True)
+class Multipliers:
+    """The multipliers of an NLP's constraints at a plan, and which NLP's rows they belong to.
+
+    A later solve of the same NLP (``layout`` equal) from this plan, shifted in time, starts
+    its Newton steps' curvature from them, shifted the same: the first step is then Newton's,
+    not Gauss-Newton's (:mod:`nh_tracking.solvers.duals`).
+    """
+
+    values: np.ndarray  # one per row of g, CasADi's sign (∇f + Gᵀλ = 0)
+    t0: float  # the plan's first knot: the time axis the rows are placed on
+    h: float
+    layout: Hashable  # equal layouts: the same rows in the same order
+    obstacles: np.ndarray  # the clearance rows' disc parameters: other discs, other rows
+
+
 @dataclass
 class Solution:
     """A plan: knots t (N+1,), q (N+1, n), v (N+1, k); controls u (N, r) held per interval.
@@ -234,7 +250,7 @@ class Solution:
     got there; ``costates`` holds (lambda (N+1, n), mu (N+1, k)) where the method provides
     them; ``minima`` lists the distinct local minima (cost, times found) of a multi-start
     search; ``details`` holds method-specific figures (e.g. the discrete admissibility
-    residual).
+    residual); ``multipliers`` the NLP's multipliers, for a warm start from this plan.
     """
 
     t: np.ndarray
@@ -253,6 +269,7 @@ class Solution:
     minima: list[tuple[float, int]] = field(default_factory=list)
     details: dict[str, float] = field(default_factory=dict)
     control_law: Callable[[float], np.ndarray] | None = field(default=None, repr=False)
+    multipliers: Multipliers | None = field(default=None, repr=False)
 
     def trajectory(self) -> Trajectory:
         """Return the plan as a Trajectory (e.g. to use as a reference or to plot)."""

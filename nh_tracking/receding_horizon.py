@@ -37,7 +37,7 @@ from nh_tracking.fallback import fallback
 from nh_tracking.limits import bounds_from_lists, in_the_plane, Limits
 from nh_tracking.problem import Solution, Terminal, terminal_error, TrackingProblem
 from nh_tracking.settings import check_fields, setting
-from nh_tracking.solvers import make_method, Method, METHODS, sample_plan, Structure
+from nh_tracking.solvers import Guess, make_method, Method, METHODS, sample_plan, Structure
 from nh_tracking.solvers.cache import builds_deferred
 from nh_tracking.solvers.inequalities import (obstacle_slots, Shape, start_violation,
                                               VIOLATION_TOL)
@@ -234,7 +234,8 @@ class RecedingHorizonPlanner:
                                         else sample_plan(problem, guess), s.max_solve_time)
                 if sol.success and avoidance.hits_one_left_out(problem, sol, discs):
                     nearest = dataclasses.replace(problem, obstacles=avoidance.nearest(q, discs))
-                    again = self.method.solve(nearest, (sol.q, sol.v, sol.u), s.max_solve_time)
+                    again = self.method.solve(
+                        nearest, Guess(sol.q, sol.v, sol.u, sol.multipliers), s.max_solve_time)
                     again.solve_time += sol.solve_time
                     sol = again
             error = '' if sol.success else f'solver: {sol.message}'
@@ -293,7 +294,8 @@ class RecedingHorizonPlanner:
 
     @staticmethod
     def _shifted(problem: TrackingProblem, previous: Solution) -> Solution:
-        q, v, u = sample_plan(problem, previous)
+        q, v, u, _ = sample_plan(problem, previous)
+        assert u is not None  # (a plan's controls, sampled)
         return dataclasses.replace(
             previous, t=problem.grid, q=q, v=v, u=u, route='shifted', minima=[],
             terminal_error=terminal_error(problem, q[-1], v[-1]), costates=None)

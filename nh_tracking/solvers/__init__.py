@@ -25,15 +25,15 @@ import numpy as np
 
 from nh_tracking.problem import Solution, TrackingProblem
 from nh_tracking.solvers import search
-from nh_tracking.solvers.base import Method, Structure
+from nh_tracking.solvers.base import Guess, Method, Structure
 from nh_tracking.solvers.multiple_shooting import MultipleShooting
 from nh_tracking.solvers.nlp import deadline_after
 from nh_tracking.solvers.pmp import Pontryagin
 from nh_tracking.solvers.variational import Variational
 from nh_tracking.trajectory import Trajectory
 
-__all__ = ['METHODS', 'Method', 'MultipleShooting', 'Pontryagin', 'Structure', 'Variational',
-           'make_method', 'solve']
+__all__ = ['METHODS', 'Guess', 'Method', 'MultipleShooting', 'Pontryagin', 'Structure',
+           'Variational', 'make_method', 'solve']
 
 METHODS: dict[str, type[Method]] = {m.name: m for m in (Variational, Pontryagin,
                                                         MultipleShooting)}
@@ -91,12 +91,12 @@ def solve(problem: TrackingProblem, method: str | Method = 'variational', *, sta
     return search.second_look(problem, solver, solution, max_time, seed)
 
 
-def sample_plan(problem: TrackingProblem,
-                plan: Solution | Trajectory) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def sample_plan(problem: TrackingProblem, plan: Solution | Trajectory) -> Guess:
     """(q, v, u) of a previous plan or trajectory at this problem's knots (held past its end).
 
     Its angles moved by whole turns onto q0's branch: a warm start, or a shifted plan. Linear
-    between knots: a guess needs no spline, and replanning runs this every cycle.
+    between knots: a guess needs no spline, and replanning runs this every cycle. A plan's
+    multipliers come along, on their own time axis (the solver shifts them).
     """
     if not isinstance(plan, (Solution, Trajectory)):
         raise TypeError('initial_guess must be a Solution or a Trajectory (e.g. a previous '
@@ -115,4 +115,5 @@ def sample_plan(problem: TrackingProblem,
     turns = np.rint((problem.q0 - q[0]) / (2 * np.pi)) * sys.angle_mask
     mids = problem.grid[:-1] + 0.5 * problem.h
     idx = np.minimum(np.maximum(t.searchsorted(mids, 'right') - 1, 0), len(plan.u) - 1)
-    return q + 2 * np.pi * turns, v, plan.u[idx]
+    return Guess(q + 2 * np.pi * turns, v, plan.u[idx],
+                 plan.multipliers if isinstance(plan, Solution) else None)

@@ -25,16 +25,27 @@ from __future__ import annotations
 from abc import ABC, abstractmethod
 import dataclasses
 from dataclasses import dataclass
-from typing import ClassVar
+from typing import ClassVar, NamedTuple
 
 import numpy as np
 
-from nh_tracking.problem import Solution, Terminal, TrackingProblem
+from nh_tracking.problem import Multipliers, Solution, Terminal, TrackingProblem
 from nh_tracking.solvers.inequalities import Shape
 from nh_tracking.solvers.nlp import deadline_after
 from nh_tracking.system import NonholonomicSystem
 
-Guess = tuple[np.ndarray, np.ndarray, np.ndarray | None]  # q (N+1, n), v (N+1, k), u (N, r)
+
+class Guess(NamedTuple):
+    """A plan to start a solve from: q (N+1, n), v (N+1, k), u (N, r) or None.
+
+    With the ``multipliers`` of the NLP that made it, if any (a warm start's Newton steps
+    take them; a plain (q, v, u) tuple serves as a guess without them).
+    """
+
+    q: np.ndarray
+    v: np.ndarray
+    u: np.ndarray | None
+    multipliers: Multipliers | None = None
 
 
 @dataclass(frozen=True)

@@ -59,15 +59,15 @@ def random_guess(problem: TrackingProblem, rng: np.random.Generator,
         amp = rng.normal(size=(3, columns)) * amplitude
         return np.einsum('jc,tjc->tc', amp, np.sin(np.pi * freq[None] * s[:, None, None]))
     q_scale = scale * np.where(sys.angle_mask, 5 / 3, 1.0)
-    return (q + excursion(sys.n, q_scale), v + excursion(sys.k, np.full(sys.k, scale)),
-            np.zeros((problem.steps, sys.r)) if u is None else u)
+    return Guess(q + excursion(sys.n, q_scale), v + excursion(sys.k, np.full(sys.k, scale)),
+                 np.zeros((problem.steps, sys.r)) if u is None else u)
 
 
 def second_look(problem: TrackingProblem, method: Method, first: Solution,
                 max_time: float | None, seed: int) -> Solution:
     """Re-solve from a perturbed copy of ``first`` (or of the reference, if it failed)."""
     rng = np.random.default_rng(seed)
-    base: Guess | None = (first.q, first.v, first.u) if first.success else None
+    base = Guess(first.q, first.v, first.u) if first.success else None
     size = 1.0 + np.abs(problem.reference_samples[0]).max()
     guess = random_guess(problem, rng, base, LOOK_SCALE * size)
     second = method.globalised().solve(problem, guess, max_time)

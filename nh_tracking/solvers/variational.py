@@ -39,6 +39,7 @@ import numpy as np
 from nh_tracking.problem import Solution, TrackingProblem
 from nh_tracking.solvers.base import Guess, Method, Structure
 from nh_tracking.solvers.cache import NotPrepared
+from nh_tracking.solvers.duals import carried_multipliers, multipliers_at
 from nh_tracking.solvers.inequalities import Shape, start_violation, VIOLATION_TOL
 from nh_tracking.solvers.line_search import line_search_solve
 from nh_tracking.solvers.midpoint import (BACKENDS, Transcription, transcription,
@@ -77,10 +78,10 @@ def solve_variational(problem: TrackingProblem, initial_guess: Guess | None = No
     guess: a real-time iteration — that many Newton steps on the guess (a warm-started previous
     plan), converged or not; without a guess the solve converges. ``newton``: a guess within
     the limits (a previous plan) is solved by Newton steps on a working set of the limit rows
-    (none without limits), and any other without obstacles (interpreted fatrop) by the same
-    steps with a line search (:mod:`.line_search`); the interior point from the same guess if
-    they do not settle. False: always the interior point (a search from
-    perturbed guesses, where Newton's method would converge to the saddle it looks past).
+    (none without limits), any other without obstacles (interpreted fatrop) by the same steps
+    with a line search (:mod:`.line_search`); the interior point if they do not settle. False:
+    always the interior point (a search from perturbed guesses, where Newton's method would
+    converge to the saddle it looks past).
     """
     return solve_variational_until(problem, initial_guess, deadline_after(max_time), solver,
                                    compiled, iterations, newton)
@@ -111,7 +112,7 @@ def solve_variational_until(problem: TrackingProblem, initial_guess: Guess | Non
         coarse_time += coarse_plan.solve_time
         if coarse_plan.success:
             q, v = coarse_plan.trajectory().sample(problem.grid)
-            initial_guess = (q, v, None)
+            initial_guess = Guess(q, v, None)
     result = _solve_with(problem, initial_guess, stop, solver, compiled, soft, newton=newton)
     result.solve_time += coarse_time
 
@@ -147,8 +148,7 @@ def _solve_with(problem: TrackingProblem, initial_guess: Guess | None, stop: flo
     sys = problem.system
     tr = transcription(sys, problem.steps, problem.terminal, stop is not None, solver,
                        compiled, Shape.of(problem.limits, soft), iterations)
-    q_g, v_g = default_guess(problem) if initial_guess is None else initial_guess[:2]
-    u_g = None if initial_guess is None else initial_guess[2]
+    q_g, v_g, u_g = (*default_guess(problem), None) if initial_guess is None else initial_guess[:3]
     q_g, v_g = np.array(q_g, dtype=float), np.array(v_g, dtype=float)
     q_g[0], v_g[0] = problem.q0, problem.v0
     if problem.terminal == 'equality':
@@ -179,12 +179,13 @@ def _solve_with(problem: TrackingProblem, initial_guess: Guess | None, stop: flo
         # (a guess with NaN gets no Newton steps: they would count as the structure failing)
         held = None
         if held_step is not None and np.isfinite(w0).all():
-            if searched:  # not converged: the interior point from the guess, with at least
+            if searched:  # not converged: the interior point, with at least half the time left
                 held = line_search_solve(held_step.step, w0, p, bounds['lbg'], bounds['ubg'],
-                                         halfway(stop))  # half the time left
+                                         halfway(stop))
                 held = None if not held.success and before(stop) else held
             else:
-                held = _working_set(held_step, w0, p, bounds, stop)
+                held = _working_set(held_step, w0, p, bounds, stop,
+                                    carried_multipliers(tr, problem, p, initial_guess))
         if held is not None:
             outcome, route = held, f"newton ({'line search' if searched else 'working set'})"
         elif not all(np.all(np.isfinite(a)) for a in tr.readout(w0, p)):
@@ -216,7 +217,7 @@ def _solve_with(problem: TrackingProblem, initial_guess: Guess | None, stop: flo
         iterations=outcome.iterations, solve_time=elapsed,
         terminal_error=float(end_error[0]), method='variational',
         message=message, route=route,
-        costates=(lam, mu),
+        costates=(lam, mu), multipliers=multipliers_at(tr, problem, p, lam_g),
         details={'admissibility_residual': max_residual, 'violation': violation,
                  'least_violating': tr.soft_index is not None and outcome.success
                  and bool(np.isfinite(w).all())},  # the best plan a broken start has
@@ -235,7 +236,8 @@ def _held_step(problem: TrackingProblem, tr: Transcription) -> WorkingSetStep | 
 
 
 def _working_set(step: WorkingSetStep, w0: np.ndarray, p: np.ndarray,
-                 bounds: dict[str, np.ndarray], stop: float | None) -> Outcome | None:
+                 bounds: dict[str, np.ndarray], stop: float | None,
+                 multipliers: np.ndarray | None) -> Outcome | None:
     """Replan by Newton steps on a working set of the limit rows (None: it did not settle).
 
     Where it keeps failing (a degenerate set: a robot turning on the spot at a disc's edge),
@@ -245,13 +247,11 @@ def _working_set(step: WorkingSetStep, w0: np.ndarray, p: np.ndarray,
     if step.failures >= PAUSE_AFTER and step.tries % PAUSE:
         return None
     held = working_set_solve(step.step, step.constraints, w0, p, bounds['lbg'], bounds['ubg'],
-                             step.nonconvex, stop)
+                             step.nonconvex, stop, multipliers)
     step.failures = 0 if held is not None else step.failures + 1
-    if held is None:
-        return None
-    return Outcome({'x': held.w, 'lam_g': held.multipliers}, True, held.factorisations,
-                   f'converged ({held.active} limit rows active)' if held.limited
-                   else 'converged')
+    return None if held is None else Outcome(
+        {'x': held.w, 'lam_g': held.multipliers}, True, held.factorisations,
+        f'converged ({held.active} limit rows active)' if held.limited else 'converged')
 
 
 def _failed(problem: TrackingProblem, q: np.ndarray, v: np.ndarray, elapsed: float,

@@ -1,0 +1,88 @@
+# Copyright 2026 nh_tracking maintainers
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+
+"""A previous plan's multipliers on a new problem's rows: the curvature of a warm first step.
+
+A warm replan's Newton steps take the Lagrangian's Hessian, which needs multipliers. Started
+from zero, the first step is Gauss-Newton's: it leaves out the curvature of the admissibility
+constraint (a turning robot) and of the obstacles' clearance, and replans that turn or slide
+along a disc take a step more to converge. The previous plan's multipliers, moved by the time
+the plan itself moved (linear between stages, the last held, as the plan is shifted), estimate
+them well. Only rows with curvature are carried — admissibility, an underactuated system's
+dynamics, clearance while the discs are the same; linear rows (the explicit dynamics, the
+start, bounds) add nothing to the Hessian and start from zero.
+"""
+from __future__ import annotations
+
+from collections.abc import Hashable
+
+import numpy as np
+
+from nh_tracking.problem import Multipliers, TrackingProblem
+from nh_tracking.solvers.base import Guess
+from nh_tracking.solvers.midpoint import Transcription
+
+
+def _layout(tr: Transcription, problem: TrackingProblem) -> Hashable:
+    """Return what fixes the rows of g and their order: equal layouts, the same rows."""
+    return problem.system.name, tr.steps, tr.terminal, tr.limits.shape
+
+
+def _obstacles(tr: Transcription, p: np.ndarray) -> np.ndarray:
+    """Return the disc parameters at the end of p (what the clearance rows stand for)."""
+    return p[len(p) - 4 * tr.limits.shape.slots:].copy()
+
+
+def multipliers_at(tr: Transcription, problem: TrackingProblem, p: np.ndarray,
+                   values: np.ndarray) -> Multipliers | None:
+    """Return a plan's multipliers ``values`` (one per row of g) with where they belong."""
+    if len(values) != tr.rows or not np.isfinite(values).all():
+        return None
+    return Multipliers(values, float(problem.grid[0]), problem.h, _layout(tr, problem),
+                       _obstacles(tr, p))
+
+
+def carried_multipliers(tr: Transcription, problem: TrackingProblem, p: np.ndarray,
+                        guess: Guess | tuple | None) -> np.ndarray | None:
+    """Return the guess's multipliers placed on this problem's rows, or None if none fit.
+
+    They fit from a plan of the same NLP with the same interval h that started earlier within
+    the horizon. Clearance rows keep theirs only if the discs are the same.
+    """
+    old = guess[3] if guess is not None and len(guess) > 3 else None
+    if old is None or old.layout != _layout(tr, problem) or \
+            not np.isclose(old.h, problem.h, rtol=1e-9, atol=0.0):
+        return None
+    stages = (float(problem.grid[0]) - old.t0) / problem.h
+    if not 0.0 <= stages < tr.steps:
+        return None
+    carried = np.zeros(tr.rows)
+    for rows in (tr.admissibility_rows, tr.dynamics_rows):
+        if len(rows):
+            _shift(carried, old.values, rows.reshape(tr.steps, -1), stages)
+    clearance = np.flatnonzero(tr.limits.inequality_mask(tr.rows, ('clear',)))
+    if len(clearance) and np.array_equal(old.obstacles, _obstacles(tr, p)):
+        # a midpoint's rows, then the next knot's: blocks half an interval apart
+        _shift(carried, old.values, clearance.reshape(2 * tr.steps, -1), 2 * stages)
+    return carried
+
+
+def _shift(out: np.ndarray, values: np.ndarray, blocks: np.ndarray, by: float) -> None:
+    """Set out's rows ``blocks`` (one block a row) to ``values``' blocks ``by`` further on."""
+    last = len(blocks) - 1
+    at = np.minimum(np.arange(len(blocks)) + by, last)
+    low = np.floor(at).astype(int)
+    high = np.minimum(low + 1, last)
+    weight = (at - low)[:, None]
+    out[blocks] = (1 - weight) * values[blocks[low]] + weight * values[blocks[high]]
