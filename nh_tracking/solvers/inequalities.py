@@ -16,7 +16,7 @@
 
 An NLP is built for a *shape* of limits — which kinds are bounded, how many obstacle slots —
 so replanning with new bound values or moving obstacles only changes numbers. Obstacle slots
-come in powers of two (at least 8): unused ones are switched off by a parameter, so a changing
+come in powers of two (at least 2): unused ones are switched off by a parameter, so a changing
 number of obstacles rarely rebuilds anything. Clearance is written squared, |p - c|^2 - R^2 >= 0,
 which is smooth.
 
