@@ -50,8 +50,13 @@ def _at(values, blocks, position):
 
 @pytest.mark.parametrize('later', [0.1, 0.05, 0.03])  # one interval, half of one, a 100 Hz tick
 def test_multipliers_move_with_the_plan(later):
-    """Admissibility and clearance rows take the values the same time had in the old plan."""
-    problem = _problem(obstacles=[(1.2, 0.05, 0.3)], robot_radius=0.2)
+    """Admissibility, control-bound and clearance rows take the old plan's values at that time.
+
+    (The unicycle is fully actuated: its controls are eliminated, u = dv/dt - f(q, v), so their
+    bounds are curved rows.) Velocity bounds and the other linear rows start from zero.
+    """
+    problem = _problem(obstacles=[(1.2, 0.05, 0.3)], robot_radius=0.2,
+                       control_bounds=(-0.15, 0.15), velocity_bounds=(-1.0, 1.0))
     plan = solve_variational(problem)
     assert plan.success and plan.multipliers is not None
     moved = dataclasses.replace(problem, t0=1.0 + later)
@@ -61,13 +66,15 @@ def test_multipliers_move_with_the_plan(later):
     old = plan.multipliers.values
     stages = later / problem.h
     adm = tr.admissibility_rows.reshape(problem.steps, -1)
+    controls = np.flatnonzero(tr.limits.inequality_mask(tr.rows, ('u',)))
     clear = np.flatnonzero(tr.limits.inequality_mask(tr.rows, ('clear',)))
-    assert np.abs(old[clear]).max() > 1e-3  # the plan touches the disc
+    assert np.abs(old[clear]).max() > 1e-3 and np.abs(old[controls]).max() > 1e-3  # both held
     half = clear.reshape(2 * problem.steps, -1)  # midpoint 0, knot 1, midpoint 1, ...
-    for blocks, by in ((adm, stages), (half, 2 * stages)):
+    for blocks, by in ((adm, stages), (controls.reshape(problem.steps, -1), stages),
+                       (half, 2 * stages)):
         for k, rows in enumerate(blocks):
             np.testing.assert_allclose(carried[rows], _at(old, blocks, k + by), atol=1e-12)
-    linear = np.setdiff1d(np.arange(tr.rows), np.concatenate([adm.ravel(), clear]))
+    linear = np.setdiff1d(np.arange(tr.rows), np.concatenate([adm.ravel(), controls, clear]))
     assert not carried[linear].any()  # rows without curvature start from zero
 
 

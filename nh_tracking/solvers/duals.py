@@ -20,8 +20,9 @@ constraint (a turning robot) and of the obstacles' clearance, and replans that t
 along a disc take a step more to converge. The previous plan's multipliers, moved by the time
 the plan itself moved (linear between stages, the last held, as the plan is shifted), estimate
 them well. Only rows with curvature are carried — admissibility, an underactuated system's
-dynamics, clearance while the discs are the same; linear rows (the explicit dynamics, the
-start, bounds) add nothing to the Hessian and start from zero.
+dynamics, control bounds (a fully actuated system's u is eliminated: u = dv/dt - f(q, v)),
+clearance while the discs are the same; linear rows (the explicit dynamics, the start,
+velocity bounds) add nothing to the Hessian and start from zero.
 """
 from __future__ import annotations
 
@@ -68,7 +69,8 @@ def carried_multipliers(tr: Transcription, problem: TrackingProblem, p: np.ndarr
     if not 0.0 <= stages < tr.steps:
         return None
     carried = np.zeros(tr.rows)
-    for rows in (tr.admissibility_rows, tr.dynamics_rows):
+    controls = np.flatnonzero(tr.limits.inequality_mask(tr.rows, ('u',)))
+    for rows in (tr.admissibility_rows, tr.dynamics_rows, controls):  # one block an interval
         if len(rows):
             _shift(carried, old.values, rows.reshape(tr.steps, -1), stages)
     clearance = np.flatnonzero(tr.limits.inequality_mask(tr.rows, ('clear',)))
