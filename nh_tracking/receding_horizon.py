@@ -28,7 +28,7 @@ import dataclasses
 from dataclasses import dataclass, field
 from enum import Enum
 import time
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 
@@ -295,10 +295,10 @@ class RecedingHorizonPlanner:
     @staticmethod
     def _shifted(problem: TrackingProblem, previous: Solution) -> Solution:
         q, v, u, _ = sample_plan(problem, previous)
-        assert u is not None  # (a plan's controls, sampled)
         return dataclasses.replace(
-            previous, t=problem.grid, q=q, v=v, u=u, route='shifted', minima=[],
-            terminal_error=terminal_error(problem, q[-1], v[-1]), costates=None)
+            previous, t=problem.grid, q=q, v=v, u=cast(np.ndarray, u),  # (sampled: never None)
+            route='shifted', minima=[], terminal_error=terminal_error(problem, q[-1], v[-1]),
+            costates=None)
 
 
 def _finite(sol: Solution) -> bool:

@@ -15,6 +15,7 @@
 """A plan's multipliers carried to the next replan: placed right, and worth a factorisation."""
 import dataclasses
 
+import casadi as ca
 import numpy as np
 import pytest
 
@@ -35,9 +36,8 @@ def _problem(model_name: str = 'unicycle', **limits) -> nht.TrackingProblem:
 
 
 def _rows(problem):
-    tr = transcription(problem.system, problem.steps, problem.terminal, False, 'fatrop', False,
-                       Shape.of(problem.limits), 0)
-    return tr, tr.parameters(problem)
+    return transcription(problem.system, problem.steps, problem.terminal, False, 'fatrop',
+                         False, Shape.of(problem.limits), 0)
 
 
 def _at(values, blocks, position):
@@ -60,8 +60,8 @@ def test_multipliers_move_with_the_plan(later):
     plan = solve_variational(problem)
     assert plan.success and plan.multipliers is not None
     moved = dataclasses.replace(problem, t0=1.0 + later)
-    tr, p = _rows(moved)
-    carried = carried_multipliers(tr, moved, p, sample_plan(moved, plan))
+    tr = _rows(moved)
+    carried = carried_multipliers(tr, moved, sample_plan(moved, plan))
     assert carried is not None
     old = plan.multipliers.values
     stages = later / problem.h
@@ -83,21 +83,60 @@ def test_multipliers_that_do_not_fit_are_not_carried():
     problem = _problem(obstacles=[(1.2, 0.05, 0.3)], robot_radius=0.2)
     plan = solve_variational(problem)
     later = dataclasses.replace(problem, t0=1.1)
-    tr, p = _rows(later)
+    tr = _rows(later)
     clear = np.flatnonzero(tr.limits.inequality_mask(tr.rows, ('clear',)))
     moved_disc = dataclasses.replace(later, obstacles=[(1.2, 0.1, 0.3)])
-    tr_m, p_m = _rows(moved_disc)
-    carried = carried_multipliers(tr_m, moved_disc, p_m, sample_plan(moved_disc, plan))
+    tr_m = _rows(moved_disc)
+    carried = carried_multipliers(tr_m, moved_disc, sample_plan(moved_disc, plan))
     assert carried is not None and not carried[clear].any() and carried.any()
     for other in (dataclasses.replace(problem, t0=0.9),  # the old plan starts later
                   dataclasses.replace(problem, t0=1.1, horizon=2.2),  # another h
                   dataclasses.replace(problem, t0=1.1, obstacles=[]),  # another NLP
                   dataclasses.replace(problem, t0=1.0 + problem.horizon)):  # its horizon gone
-        tr_o, p_o = _rows(other)
-        assert carried_multipliers(tr_o, other, p_o, sample_plan(other, plan)) is None
+        tr_o = _rows(other)
+        assert carried_multipliers(tr_o, other, sample_plan(other, plan)) is None
     plain = Guess(plan.q, plan.v, plan.u)  # a guess without multipliers
-    assert carried_multipliers(tr, later, p, plain) is None
-    assert carried_multipliers(tr, later, p, (plan.q, plan.v, plan.u)) is None
+    assert carried_multipliers(tr, later, plain) is None
+    assert carried_multipliers(tr, later, (plan.q, plan.v, plan.u)) is None
+    guess = sample_plan(later, plan)
+    for values in (plan.multipliers.values[:-5], np.full_like(plan.multipliers.values, np.nan)):
+        broken = dataclasses.replace(plan.multipliers, values=values)
+        assert carried_multipliers(tr, later, guess._replace(multipliers=broken)) is None
+
+
+def _knife(actuated: bool) -> nht.NonholonomicSystem:
+    """Return a knife edge on a slope, named like any user's system: actuators or none.
+
+    Given, the actuators keep u an unknown of the NLP (its dynamics are rows); without, u is
+    eliminated. The same name, q, v and u either way.
+    """
+    return nht.NonholonomicSystem.from_constraints(
+        ['x', 'y', 'theta'], lambda q: ca.SX.eye(3),
+        lambda q: ca.horzcat(ca.sin(q[2]), -ca.cos(q[2]), 0), potential=lambda q: 0.1 * q[0],
+        actuators=(lambda q: ca.blockcat([[ca.cos(q[2]), 0], [ca.sin(q[2]), 0], [0, 2.0]]))
+        if actuated else None, angles=['theta'])
+
+
+def test_a_plan_of_another_system_alike_in_name_and_size_is_a_guess_without_multipliers():
+    """Two users' systems called alike, with the same (n, k, r), one with more rows in its NLP.
+
+    Each one's plan warm-starts the other's solve without error; the multipliers stay behind.
+    """
+    plans = {}
+    for actuated in (False, True):
+        problem = nht.TrackingProblem(_knife(actuated), line_reference(10.0),
+                                      np.array([0.0, 0.1, 0.0]), np.array([0.5, 0.0]), 1.0, 10,
+                                      terminal='cost')
+        plans[actuated] = (problem, nht.solve(problem, second_look=False))
+        assert plans[actuated][1].success
+    for actuated in (False, True):
+        problem, own = plans[actuated]
+        other = plans[not actuated][1]
+        assert problem.system.name == plans[not actuated][0].system.name
+        tr = _rows(problem)
+        assert carried_multipliers(tr, problem, sample_plan(problem, other)) is None
+        again = nht.solve(problem, initial_guess=other, second_look=False)
+        assert again.success and abs(again.cost - own.cost) <= 1e-6 * own.cost
 
 
 @pytest.mark.parametrize('model_name, discs', [

@@ -135,8 +135,9 @@ def test_warm_replans_without_limits_take_newton_steps_and_match_the_interior_po
     """No limits: the set is empty, and a converged replan is Newton steps on the KKT system.
 
     The interior point only where they do not settle; the same plan as fatrop's from the same
-    guess (newton=False), to the Newton steps' tolerance: they stop once the next step would
-    move the plan by less than about 1e-9 (relative), which leaves it admissible to 1e-8.
+    guess (newton=False), to the Newton steps' tolerance: they may stop once the next step
+    would move the plan by less than about 1e-9 (relative) and g is within 1e-8 of zero — the
+    admissibility residual read from the knots, (q' - q)/h - rho v, then within 2e-8/h.
     """
     build, (q_r, v_r), offset = FREE_CASES[case]
     model = build()
@@ -164,7 +165,7 @@ def test_warm_replans_without_limits_take_newton_steps_and_match_the_interior_po
     print(f'\n{case}: {compared} of 30 replans by Newton steps; cost within {worst_cost:.1e}, '
           f'plan within {worst_q:.1e} of fatrop, admissible to {worst_residual:.1e}')
     assert compared >= 25, f'only {compared} of 30 replans took Newton steps'
-    assert worst_cost <= 1e-6 and worst_q <= 1e-7 and worst_residual <= 1e-8, (
+    assert worst_cost <= 1e-6 and worst_q <= 1e-7 and worst_residual <= 2e-8 / 0.1, (
         worst_cost, worst_q, worst_residual)
 
 

@@ -19,7 +19,7 @@ from zero, the first step is Gauss-Newton's: it leaves out the curvature of the 
 constraint (a turning robot) and of the obstacles' clearance, and replans that turn or slide
 along a disc take a step more to converge. The previous plan's multipliers, moved by the time
 the plan itself moved (linear between stages, the last held, as the plan is shifted), estimate
-them well. Only rows with curvature are carried — admissibility, an underactuated system's
+them well. Only rows that may curve are carried — admissibility, an underactuated system's
 dynamics, control bounds (a fully actuated system's u is eliminated: u = dv/dt - f(q, v)),
 clearance while the discs are the same; linear rows (the explicit dynamics, the start,
 velocity bounds) add nothing to the Hessian and start from zero.
@@ -36,33 +36,35 @@ from nh_tracking.solvers.midpoint import Transcription
 
 
 def _layout(tr: Transcription, problem: TrackingProblem) -> Hashable:
-    """Return what fixes the rows of g and their order: equal layouts, the same rows."""
-    return problem.system.name, tr.steps, tr.terminal, tr.limits.shape
+    """Return what fixes the rows of g and their order: equal layouts, the same rows.
+
+    (Two systems alike in these have the same rows: their multipliers are then only a worse
+    estimate of the curvature, never misplaced.)
+    """
+    sys = problem.system
+    return (sys.name, sys.n, sys.k, sys.r, sys.fully_actuated, tr.steps, tr.terminal,
+            tr.limits.shape, tr.rows, tr.unknowns)
 
 
-def _obstacles(tr: Transcription, p: np.ndarray) -> np.ndarray:
-    """Return the disc parameters at the end of p (what the clearance rows stand for)."""
-    return p[len(p) - 4 * tr.limits.shape.slots:].copy()
-
-
-def multipliers_at(tr: Transcription, problem: TrackingProblem, p: np.ndarray,
+def multipliers_at(tr: Transcription, problem: TrackingProblem,
                    values: np.ndarray) -> Multipliers | None:
     """Return a plan's multipliers ``values`` (one per row of g) with where they belong."""
     if len(values) != tr.rows or not np.isfinite(values).all():
         return None
     return Multipliers(values, float(problem.grid[0]), problem.h, _layout(tr, problem),
-                       _obstacles(tr, p))
+                       tr.limits.parameters(problem.limits))
 
 
-def carried_multipliers(tr: Transcription, problem: TrackingProblem, p: np.ndarray,
-                        guess: Guess | tuple | None) -> np.ndarray | None:
+def carried_multipliers(tr: Transcription, problem: TrackingProblem,
+                        guess: Guess | None) -> np.ndarray | None:
     """Return the guess's multipliers placed on this problem's rows, or None if none fit.
 
     They fit from a plan of the same NLP with the same interval h that started earlier within
     the horizon. Clearance rows keep theirs only if the discs are the same.
     """
-    old = guess[3] if guess is not None and len(guess) > 3 else None
-    if old is None or old.layout != _layout(tr, problem) or \
+    old = getattr(guess, 'multipliers', None)  # (a plain (q, v, u) tuple has none)
+    if not isinstance(old, Multipliers) or old.layout != _layout(tr, problem) or \
+            len(old.values) != tr.rows or not np.isfinite(old.values).all() or \
             not np.isclose(old.h, problem.h, rtol=1e-9, atol=0.0):
         return None
     stages = (float(problem.grid[0]) - old.t0) / problem.h
@@ -74,7 +76,7 @@ def carried_multipliers(tr: Transcription, problem: TrackingProblem, p: np.ndarr
         if len(rows):
             _shift(carried, old.values, rows.reshape(tr.steps, -1), stages)
     clearance = np.flatnonzero(tr.limits.inequality_mask(tr.rows, ('clear',)))
-    if len(clearance) and np.array_equal(old.obstacles, _obstacles(tr, p)):
+    if len(clearance) and np.array_equal(old.obstacles, tr.limits.parameters(problem.limits)):
         # a midpoint's rows, then the next knot's: blocks half an interval apart
         _shift(carried, old.values, clearance.reshape(2 * tr.steps, -1), 2 * stages)
     return carried

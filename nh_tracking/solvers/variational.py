@@ -185,7 +185,7 @@ def _solve_with(problem: TrackingProblem, initial_guess: Guess | None, stop: flo
                 held = None if not held.success and before(stop) else held
             else:
                 held = _working_set(held_step, w0, p, bounds, stop,
-                                    carried_multipliers(tr, problem, p, initial_guess))
+                                    carried_multipliers(tr, problem, initial_guess))
         if held is not None:
             outcome, route = held, f"newton ({'line search' if searched else 'working set'})"
         elif not all(np.all(np.isfinite(a)) for a in tr.readout(w0, p)):
@@ -217,7 +217,7 @@ def _solve_with(problem: TrackingProblem, initial_guess: Guess | None, stop: flo
         iterations=outcome.iterations, solve_time=elapsed,
         terminal_error=float(end_error[0]), method='variational',
         message=message, route=route,
-        costates=(lam, mu), multipliers=multipliers_at(tr, problem, p, lam_g),
+        costates=(lam, mu), multipliers=multipliers_at(tr, problem, lam_g),
         details={'admissibility_residual': max_residual, 'violation': violation,
                  'least_violating': tr.soft_index is not None and outcome.success
                  and bool(np.isfinite(w).all())},  # the best plan a broken start has
