@@ -48,7 +48,7 @@ def _at(values, blocks, position):
     return (low + 1 - position) * values[blocks[low]] + (position - low) * values[blocks[low + 1]]
 
 
-@pytest.mark.parametrize('later', [0.1, 0.05, 0.03])  # one interval, half of one, a 100 Hz tick
+@pytest.mark.parametrize('later', [0.1, 0.05, 0.03, 0.27])  # 1, 1/2, a 100 Hz tick, 2.7
 def test_multipliers_move_with_the_plan(later):
     """Admissibility, control-bound and clearance rows take the old plan's values at that time.
 

@@ -65,28 +65,23 @@ def carried_multipliers(tr: Transcription, problem: TrackingProblem,
     old = getattr(guess, 'multipliers', None)  # (a plain (q, v, u) tuple has none)
     if not isinstance(old, Multipliers) or old.layout != _layout(tr, problem) or \
             len(old.values) != tr.rows or not np.isfinite(old.values).all() or \
-            not np.isclose(old.h, problem.h, rtol=1e-9, atol=0.0):
+            abs(old.h - problem.h) > 1e-9 * problem.h:
         return None
     stages = (float(problem.grid[0]) - old.t0) / problem.h
     if not 0.0 <= stages < tr.steps:
         return None
     carried = np.zeros(tr.rows)
-    controls = np.flatnonzero(tr.limits.inequality_mask(tr.rows, ('u',)))
-    for rows in (tr.admissibility_rows, tr.dynamics_rows, controls):  # one block an interval
-        if len(rows):
-            _shift(carried, old.values, rows.reshape(tr.steps, -1), stages)
-    clearance = np.flatnonzero(tr.limits.inequality_mask(tr.rows, ('clear',)))
-    if len(clearance) and np.array_equal(old.obstacles, tr.limits.parameters(problem.limits)):
-        # a midpoint's rows, then the next knot's: blocks half an interval apart
-        _shift(carried, old.values, clearance.reshape(2 * tr.steps, -1), 2 * stages)
+    interval, clearance = tr.curved_rows
+    _shift(carried, old.values, interval, stages)
+    if clearance.size and np.array_equal(old.obstacles, tr.limits.parameters(problem.limits)):
+        _shift(carried, old.values, clearance, 2 * stages)  # blocks half an interval apart
     return carried
 
 
 def _shift(out: np.ndarray, values: np.ndarray, blocks: np.ndarray, by: float) -> None:
     """Set out's rows ``blocks`` (one block a row) to ``values``' blocks ``by`` further on."""
-    last = len(blocks) - 1
-    at = np.minimum(np.arange(len(blocks)) + by, last)
-    low = np.floor(at).astype(int)
-    high = np.minimum(low + 1, last)
-    weight = (at - low)[:, None]
-    out[blocks] = (1 - weight) * values[blocks[low]] + weight * values[blocks[high]]
+    whole, fraction = int(by), by - int(by)
+    old = values[blocks]
+    low = np.concatenate([old[whole:], np.repeat(old[-1:], whole, axis=0)])  # the last held
+    high = np.concatenate([low[1:], low[-1:]])
+    out[blocks] = (1.0 - fraction) * low + fraction * high

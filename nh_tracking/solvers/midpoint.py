@@ -22,6 +22,7 @@ parameters and bounds.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 from typing import Any
 
 import casadi as ca
@@ -65,6 +66,21 @@ class Transcription:
     unknowns: int  # of the hard NLP's x
     soft_index: np.ndarray | None  # softened: the inequality rows given slacks
     newton: GaussNewtonStep | None  # real-time iterations without limits
+
+    @cached_property
+    def curved_rows(self) -> tuple[np.ndarray, np.ndarray]:
+        """Return the rows of g that may curve, by time: (N, .) an interval's, (2N, .) clearance.
+
+        An interval's admissibility, underactuated dynamics and control-bound rows (a fully
+        actuated system's u is eliminated, u = dv/dt - f(q, v)); a midpoint's clearance rows,
+        then the next knot's, half an interval apart. A plan's multipliers move along them
+        (:mod:`.duals`).
+        """
+        controls = np.flatnonzero(self.limits.inequality_mask(self.rows, ('u',)))
+        interval = np.hstack([rows.reshape(self.steps, -1) for rows in (
+            self.admissibility_rows, self.dynamics_rows, controls) if len(rows)])
+        clearance = np.flatnonzero(self.limits.inequality_mask(self.rows, ('clear',)))
+        return interval, clearance.reshape(2 * self.steps, -1)
 
     def parameters(self, problem: TrackingProblem) -> np.ndarray:
         q_knots, v_knots, q_mid, v_mid = problem.reference_samples
