@@ -221,9 +221,13 @@ def working_set_solve(step: NewtonStep, constraints: NumericFunction, w: np.ndar
     multipliers = np.zeros(len(lower)) if multipliers is None else multipliers
     moved = np.inf
     guessed: np.ndarray | None = None
+    at_w: np.ndarray | None = None  # g at w, if the last convergence test read it
     for _ in range(MAX_STEPS):
         curvature = multipliers
-        now = constraints(w, p)[0] if rows.limited else lower  # (g unused without limits)
+        if not rows.limited:
+            now = lower  # (g unused without limits)
+        else:
+            now = constraints(w, p)[0] if at_w is None else at_w
         rows.hold_reached(now)  # a limit reached, or broken by the last step's curvature
         guessed = rows.held() if guessed is None else guessed  # the guess's contacts
         changed, offset = False, np.zeros_like(w)
@@ -261,9 +265,12 @@ def working_set_solve(step: NewtonStep, constraints: NumericFunction, w: np.ndar
             moved**3 <= NEXT_TOL * scale * last**2
         settled = not changed
         # (never on the first step: it is the reference the second is measured against)
-        converged = not changed and last < np.inf and (
-            stationarity[0] <= STATIONARITY_TOL and moved <= tolerance or (
-                quadratic and rows.residual(constraints(w, p)[0]) <= FEASIBLE_TOL))
+        converged = not changed and last < np.inf and \
+            stationarity[0] <= STATIONARITY_TOL and moved <= tolerance
+        at_w = None
+        if not (converged or changed) and quadratic:  # (quadratic: a second step at least)
+            at_w = constraints(w, p)[0]
+            converged = rows.residual(at_w) <= FEASIBLE_TOL
         if converged:
             if (wandered or np.any(nonconvex & rows.held() & ~guessed)) and \
                     not step.minimum(w, p, *rows.arguments(), multipliers):
