@@ -156,10 +156,11 @@ class RecedingHorizonPlanner:
     def prepare(self) -> None:
         """Build the solver for the current settings now, so the first plan is not late.
 
-        Every shape of its limits it meets in replanning: without obstacles and with each
-        number of obstacle slots (if its model has a pose in the plane, where obstacles are);
-        the Newton steps of warm replans for the obstacles it has now (the others' are built in
-        the background when first needed: they made a planner's start 0.7 s longer).
+        Every shape of its limits it meets in replanning: without obstacles, with each knot's
+        and midpoint's nearest discs, and with room for every disc at every point (a crowd's
+        last resort), if its model has a pose in the plane, where obstacles are; the Newton
+        steps of warm replans without obstacles and with the nearest discs (the others' are
+        built in the background when first needed: they made a planner's start 0.7 s longer).
         The soft forms, for a start that breaks a limit (a robot pushed into an obstacle), are
         built when first needed: rare, and building every form up front would hold the
         interpreter for seconds after each parameter change.
@@ -168,7 +169,8 @@ class RecedingHorizonPlanner:
         bounds = Limits.of(self.system, self.limits['control_bounds'],
                            self.limits['velocity_bounds'], (), 0.0)
         slots = {0} if self.method.name == 'pmp' or not in_the_plane(self.system) else {
-            obstacle_slots(count) for count in range(MAX_OBSTACLES + 1)}
+            obstacle_slots(count, every) for count in range(MAX_OBSTACLES + 1)
+            for every in (False, True)}
         now = obstacle_slots(min(len(self.obstacles), MAX_OBSTACLES))
         for count in sorted(slots):
             shape = dataclasses.replace(Shape.of(bounds), slots=count)

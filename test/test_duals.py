@@ -29,6 +29,11 @@ from nh_tracking.solvers.midpoint import transcription
 from nh_tracking.solvers.variational import solve_variational
 
 
+def _carried(tr, problem, guess):
+    """Return carried_multipliers with the solve's parameters (discs nearest the guess)."""
+    return carried_multipliers(tr, problem, guess, tr.parameters(problem, np.asarray(guess[0])))
+
+
 def _problem(model_name: str = 'unicycle', **limits) -> nht.TrackingProblem:
     return nht.TrackingProblem(getattr(nht.models, model_name)(), line_reference(10.0),
                                np.array([0.0, 0.3, 0.0]), np.array([0.5, 0.0]), 2.0, 20,
@@ -61,7 +66,7 @@ def test_multipliers_move_with_the_plan(later):
     assert plan.success and plan.multipliers is not None
     moved = dataclasses.replace(problem, t0=1.0 + later)
     tr = _rows(moved)
-    carried = carried_multipliers(tr, moved, sample_plan(moved, plan))
+    carried = _carried(tr, moved, sample_plan(moved, plan))
     assert carried is not None
     old = plan.multipliers.values
     stages = later / problem.h
@@ -78,6 +83,35 @@ def test_multipliers_move_with_the_plan(later):
     assert not carried[linear].any()  # rows without curvature start from zero
 
 
+def test_a_point_keeps_its_clearance_multipliers_while_its_discs_stay_the_same():
+    """Three discs, two a point: a disc moved costs the multipliers of the points it is in.
+
+    The points whose nearest two are the unmoved discs (before and after the shift) keep theirs.
+    """
+    discs = [(1.2, 0.05, 0.3), (1.3, -0.6, 0.2), (0.0, 1.2, 0.2)]  # the third: early points'
+    problem = _problem(obstacles=discs, robot_radius=0.2)
+    plan = solve_variational(problem, sample_plan(problem, solve_variational(problem)))
+    assert plan.success
+    later = dataclasses.replace(problem, t0=1.1, obstacles=discs[:2] + [(0.0, 1.3, 0.2)])
+    tr = _rows(later)
+    guess = sample_plan(later, plan)
+    carried = _carried(tr, later, guess)
+    half = np.flatnonzero(tr.limits.inequality_mask(tr.rows, ('clear',))).reshape(40, 2)
+    before = tr.limits.assigned(plan.multipliers.obstacles.ravel()).reshape(40, 2, 4)
+    now = tr.limits.assigned(tr.parameters(later, guess.q)).reshape(40, 2, 4)
+    kept = lost = 0
+    for k, rows in enumerate(half):
+        if np.array_equal(now[k], before[min(k + 2, 39)]):  # 1 interval: 2 points on
+            np.testing.assert_allclose(carried[rows], _at(plan.multipliers.values, half, k + 2),
+                                       atol=1e-12)
+            kept += 1
+        else:
+            assert not carried[rows].any()
+            lost += 1
+    assert kept and lost
+    assert np.abs(carried[half]).max() > 1e-3  # the first disc's contact is carried
+
+
 def test_multipliers_that_do_not_fit_are_not_carried():
     """Another disc, NLP, interval or an earlier start: no multipliers, or no clearance rows'."""
     problem = _problem(obstacles=[(1.2, 0.05, 0.3)], robot_radius=0.2)
@@ -87,21 +121,21 @@ def test_multipliers_that_do_not_fit_are_not_carried():
     clear = np.flatnonzero(tr.limits.inequality_mask(tr.rows, ('clear',)))
     moved_disc = dataclasses.replace(later, obstacles=[(1.2, 0.1, 0.3)])
     tr_m = _rows(moved_disc)
-    carried = carried_multipliers(tr_m, moved_disc, sample_plan(moved_disc, plan))
+    carried = _carried(tr_m, moved_disc, sample_plan(moved_disc, plan))
     assert carried is not None and not carried[clear].any() and carried.any()
     for other in (dataclasses.replace(problem, t0=0.9),  # the old plan starts later
                   dataclasses.replace(problem, t0=1.1, horizon=2.2),  # another h
                   dataclasses.replace(problem, t0=1.1, obstacles=[]),  # another NLP
                   dataclasses.replace(problem, t0=1.0 + problem.horizon)):  # its horizon gone
         tr_o = _rows(other)
-        assert carried_multipliers(tr_o, other, sample_plan(other, plan)) is None
+        assert _carried(tr_o, other, sample_plan(other, plan)) is None
     plain = Guess(plan.q, plan.v, plan.u)  # a guess without multipliers
-    assert carried_multipliers(tr, later, plain) is None
-    assert carried_multipliers(tr, later, (plan.q, plan.v, plan.u)) is None
+    assert _carried(tr, later, plain) is None
+    assert _carried(tr, later, (plan.q, plan.v, plan.u)) is None
     guess = sample_plan(later, plan)
     for values in (plan.multipliers.values[:-5], np.full_like(plan.multipliers.values, np.nan)):
         broken = dataclasses.replace(plan.multipliers, values=values)
-        assert carried_multipliers(tr, later, guess._replace(multipliers=broken)) is None
+        assert _carried(tr, later, guess._replace(multipliers=broken)) is None
 
 
 def _knife(actuated: bool) -> nht.NonholonomicSystem:
@@ -134,7 +168,7 @@ def test_a_plan_of_another_system_alike_in_name_and_size_is_a_guess_without_mult
         other = plans[not actuated][1]
         assert problem.system.name == plans[not actuated][0].system.name
         tr = _rows(problem)
-        assert carried_multipliers(tr, problem, sample_plan(problem, other)) is None
+        assert _carried(tr, problem, sample_plan(problem, other)) is None
         again = nht.solve(problem, initial_guess=other, second_look=False)
         assert again.success and abs(again.cost - own.cost) <= 1e-6 * own.cost
 

@@ -165,6 +165,66 @@ def test_a_plan_that_touches_a_left_out_obstacle_is_replanned_with_it(monkeypatc
     assert grown.clearance(np.vstack([plan.q, 0.5 * (plan.q[1:] + plan.q[:-1])])).min() > -TOL
 
 
+def test_each_knot_and_midpoint_keeps_clear_of_the_discs_nearest_it():
+    """A clearance point's rows take the two discs whose edges are nearest it on the guess.
+
+    Checked against a brute force over the points in g's order (midpoint, then the interval's
+    end knot); the NLP is the same for 1 disc as for 8 (its size does not grow with them).
+    """
+    from nh_tracking.solvers.inequalities import Shape
+    from nh_tracking.solvers.midpoint import transcription
+
+    rng = np.random.default_rng(7)
+    base = nht.TrackingProblem(nht.models.unicycle(), _line(), [0, 0.2, 0], [0.5, 0], 3.0, 30,
+                               terminal='cost', robot_radius=0.1)
+    q = base.reference_samples[0] + rng.normal(scale=0.3, size=(31, 3))
+    built = set()
+    for count in (1, 3, 8):
+        discs = np.c_[rng.uniform(0, 1.5, count), rng.uniform(-1, 1, count),
+                      rng.uniform(0.1, 0.4, count)]
+        problem = dataclasses.replace(base, obstacles=discs)
+        tr = transcription(problem.system, 30, 'cost', shape=Shape.of(problem.limits))
+        built.add(id(tr))
+        assigned = tr.limits.assigned(tr.parameters(problem, q)).reshape(60, 2, 4)
+        for j in range(60):
+            point = 0.5 * (q[j // 2] + q[j // 2 + 1]) if j % 2 == 0 else q[j // 2 + 1]
+            edge = [np.hypot(*(point[:2] - d[:2])) - d[2] - 0.1 for d in discs]
+            order = sorted(range(count), key=edge.__getitem__)[:2]
+            np.testing.assert_allclose(assigned[j, :len(order), :3],
+                                       problem.limits.obstacles[order], atol=1e-12)
+            assert assigned[j, :, 3].tolist() == [1.0] * len(order) + [0.0] * (2 - len(order))
+    assert len(built) == 1
+
+
+@pytest.mark.parametrize('method', ['variational', 'multiple_shooting'])
+@pytest.mark.parametrize('discs', [  # crowds where a plan meets discs its guess was not near
+    [(1.42, 0.46, 0.2), (1.59, -0.25, 0.1), (2.68, 0.25, 0.2), (1.2, -0.21, 0.29),
+     (2.78, -0.21, 0.16)],
+    [(2.47, 0.3, 0.18), (0.9, -0.61, 0.24), (2.46, -0.1, 0.14), (2.43, -0.11, 0.17),
+     (2.65, 0.24, 0.21)]])
+def test_a_plan_among_many_discs_is_clear_of_every_one(discs, method):
+    """Solved again from a plan that ran into a disc it was not given: clear of all of them.
+
+    Its points' discs are then those nearest the plan, or at last every disc; the plan is a
+    minimum of the problem with every disc at every point (a solve from it stays there).
+    """
+    from nh_tracking.solvers.base import Guess
+    from nh_tracking.solvers.variational import _solve_with
+
+    problem = nht.TrackingProblem(nht.models.unicycle(), _line(), [0, 0.3, 0], [0.5, 0], 6.0,
+                                  60, terminal='cost', omega=10.0, obstacles=discs,
+                                  robot_radius=0.1)
+    plan = nht.solve(problem, method, second_look=False)
+    assert plan.success, plan.message
+    assert 'again' in plan.route
+    points = plan.q if method == 'multiple_shooting' else np.vstack(
+        [plan.q, 0.5 * (plan.q[1:] + plan.q[:-1])])
+    assert problem.limits.clearance(points).min() >= -TOL
+    if method == 'variational':
+        every = _solve_with(problem, Guess(plan.q, plan.v, plan.u), None, 'fatrop', every=True)
+        assert every.success and abs(every.cost - plan.cost) <= 1e-6 * plan.cost
+
+
 def _line(duration: float = 20.0) -> nht.Trajectory:
     t = np.linspace(0.0, duration, int(duration * 10) + 1)
     return nht.Trajectory(t=t, q=np.c_[0.5 * t, 0 * t, 0 * t],

@@ -84,7 +84,7 @@ def _line_search_alone(problem):
     if problem.terminal == 'equality':
         q[-1], v[-1] = problem.reference_samples[0][-1], problem.reference_samples[1][-1]
     bounds = tr.bounds(problem)
-    return line_search.line_search_solve(step, tr.pack(q, v, None), tr.parameters(problem),
+    return line_search.line_search_solve(step, tr.pack(q, v, None), tr.parameters(problem, q),
                                          bounds['lbg'], bounds['ubg'], None)
 
 

@@ -177,7 +177,10 @@ def _replanning_with_limits(log: Callable[[str], None]) -> dict:
     model, reference = models.unicycle(), line_reference(30.0)
     cases: dict[str, tuple[dict[str, Any], tuple]] = {
         'free': ({}, ()), '|u| <= 0.15': ({'u_min': (-0.15,), 'u_max': (0.15,)}, ()),
-        'two discs on the line': ({'robot_radius': 0.2}, ((3.0, 0.05, 0.3), (6.0, -0.05, 0.3)))}
+        'two discs on the line': ({'robot_radius': 0.2}, ((3.0, 0.05, 0.3), (6.0, -0.05, 0.3))),
+        # a corridor, as a costmap's walls come: eight discs beside the line, 0.25 m off it
+        'eight discs beside the line': ({'robot_radius': 0.2}, tuple(
+            (x, side * 0.75, 0.3) for x in (1.0, 2.5, 4.0, 5.5) for side in (1, -1)))}
     out: dict[str, Any] = {}
     for name, (settings, discs) in cases.items():
         planner = RecedingHorizonPlanner(model, PlannerSettings(horizon=5.0, steps=50,

@@ -23,6 +23,7 @@ system and the problem's structure (an NLP, a flow — seconds, so once), and
 from __future__ import annotations
 
 from abc import ABC, abstractmethod
+from collections.abc import Callable
 import dataclasses
 from dataclasses import dataclass
 from typing import ClassVar, NamedTuple
@@ -31,7 +32,7 @@ import numpy as np
 
 from nh_tracking.problem import Multipliers, Solution, Terminal, TrackingProblem
 from nh_tracking.solvers.inequalities import Shape
-from nh_tracking.solvers.nlp import deadline_after
+from nh_tracking.solvers.nlp import before, deadline_after
 from nh_tracking.system import NonholonomicSystem
 
 
@@ -46,6 +47,28 @@ class Guess(NamedTuple):
     v: np.ndarray
     u: np.ndarray | None
     multipliers: Multipliers | None = None
+
+
+def clear_of_every_disc(solve: Callable[[Guess | None, bool], Solution], guess: Guess | None,
+                        stop: float | None) -> Solution:
+    """Solve from ``guess``; again where the plan converged into a disc it was not given.
+
+    ``solve(guess, every)``. Each knot and midpoint keeps clear of the discs nearest it on the
+    guess (:data:`.inequalities.POINT_SLOTS`); a plan that went far from its guess (round an
+    obstacle, into a crowd of them) may meet another. Solved again from that plan, its points
+    get the discs nearest them there; if it still meets one (a point among three discs), a
+    last solve gives every point every disc (``every``).
+    """
+    result = solve(guess, False)
+    for every in (False, True):
+        if not result.details.get('other_disc') or not before(stop):
+            break
+        retry = solve(Guess(result.q, result.v, result.u), every)
+        retry.solve_time += result.solve_time
+        retry.route = f"{result.route} -> again, {'every disc' if every else 'the discs'} " \
+            'nearest its plan'
+        result = retry
+    return result
 
 
 @dataclass(frozen=True)

@@ -46,21 +46,25 @@ def _layout(tr: Transcription, problem: TrackingProblem) -> Hashable:
             tr.limits.shape, tr.rows, tr.unknowns)
 
 
-def multipliers_at(tr: Transcription, problem: TrackingProblem,
-                   values: np.ndarray) -> Multipliers | None:
-    """Return a plan's multipliers ``values`` (one per row of g) with where they belong."""
+def multipliers_at(tr: Transcription, problem: TrackingProblem, values: np.ndarray,
+                   p: np.ndarray) -> Multipliers | None:
+    """Return a plan's multipliers ``values`` (one per row of g) with where they belong.
+
+    ``p``: the parameters of the solve, whose discs the clearance rows had.
+    """
     if len(values) != tr.rows or not np.isfinite(values).all():
         return None
     return Multipliers(values, float(problem.grid[0]), problem.h, _layout(tr, problem),
-                       tr.limits.parameters(problem.limits))
+                       tr.limits.assigned(p))
 
 
-def carried_multipliers(tr: Transcription, problem: TrackingProblem,
-                        guess: Guess | None) -> np.ndarray | None:
+def carried_multipliers(tr: Transcription, problem: TrackingProblem, guess: Guess | None,
+                        p: np.ndarray) -> np.ndarray | None:
     """Return the guess's multipliers placed on this problem's rows, or None if none fit.
 
     They fit from a plan of the same NLP with the same interval h that started earlier within
-    the horizon. Clearance rows keep theirs only if the discs are the same.
+    the horizon. A clearance point's rows keep theirs only if its discs (in ``p``, this solve's
+    parameters) are those the rows carried from had.
     """
     old = getattr(guess, 'multipliers', None)  # (a plain (q, v, u) tuple has none)
     if not isinstance(old, Multipliers) or old.layout != _layout(tr, problem) or \
@@ -73,15 +77,25 @@ def carried_multipliers(tr: Transcription, problem: TrackingProblem,
     carried = np.zeros(tr.rows)
     interval, clearance = tr.curved_rows
     _shift(carried, old.values, interval, stages)
-    if clearance.size and np.array_equal(old.obstacles, tr.limits.parameters(problem.limits)):
-        _shift(carried, old.values, clearance, 2 * stages)  # blocks half an interval apart
+    if clearance.size:  # blocks half an interval apart
+        _shift(carried, old.values, clearance, 2 * stages)
+        discs = tr.limits.assigned(p)
+        other = np.zeros(len(discs), dtype=bool)
+        for moved in _moved(old.obstacles, 2 * stages):
+            other |= np.any(moved != discs, axis=1)
+        carried[clearance[other]] = 0.0
     return carried
+
+
+def _moved(blocks: np.ndarray, by: float) -> list[np.ndarray]:
+    """Return the blocks that :func:`_shift` by ``by`` blends into each (one, or two)."""
+    whole = int(by)
+    low = np.concatenate([blocks[whole:], np.repeat(blocks[-1:], whole, axis=0)])
+    return [low] if by == whole else [low, np.concatenate([low[1:], low[-1:]])]
 
 
 def _shift(out: np.ndarray, values: np.ndarray, blocks: np.ndarray, by: float) -> None:
     """Set out's rows ``blocks`` (one block a row) to ``values``' blocks ``by`` further on."""
-    whole, fraction = int(by), by - int(by)
-    old = values[blocks]
-    low = np.concatenate([old[whole:], np.repeat(old[-1:], whole, axis=0)])  # the last held
-    high = np.concatenate([low[1:], low[-1:]])
-    out[blocks] = (1.0 - fraction) * low + fraction * high
+    fraction = by - int(by)
+    low, *high = _moved(values[blocks], by)  # the last held
+    out[blocks] = low if not high else (1.0 - fraction) * low + fraction * high[0]

@@ -14,11 +14,13 @@
 
 """A problem's limits as NLP rows: bounds given per solve, obstacles as parameters.
 
-An NLP is built for a *shape* of limits — which kinds are bounded, how many obstacle slots —
-so replanning with new bound values or moving obstacles only changes numbers. Obstacle slots
-come in powers of two (at least 2): unused ones are switched off by a parameter, so a changing
-number of obstacles rarely rebuilds anything. Clearance is written squared, |p - c|^2 - R^2 >= 0,
-which is smooth.
+An NLP is built for a *shape* of limits — which kinds are bounded, how many obstacle slots
+each clearance point has — so replanning with new bound values or moving obstacles only changes
+numbers. Each knot and midpoint keeps clear of its own :data:`POINT_SLOTS` discs, those nearest
+it at the guess (parameters of the solve): the NLP's size does not grow with the number of
+obstacles — 8 discs in every point's rows made every replan 2x a free one, in contact or not.
+The plan is then checked against every disc, and re-solved from itself where it touches one it
+was not given. Clearance is written squared, |p - c|^2 - R^2 >= 0, which is smooth.
 
 Soft form, for a start that itself breaks a limit (inside an obstacle, faster than a bound):
 each row gets a slack s >= 0 (lo - s <= g <= hi + s) and the cost an exact L1 penalty
@@ -35,12 +37,33 @@ from nh_tracking.limits import Limits
 from nh_tracking.problem import TrackingProblem
 
 SOFT_WEIGHT = 1e4  # per unit of violation: above the multipliers of any sane tracking cost
-MIN_SLOTS = 2  # obstacle slots of an NLP with obstacles (then 4, 8, ...: one NLP per size)
+POINT_SLOTS = 2  # discs a knot or midpoint keeps clear of (two: the walls of a gap)
 VIOLATION_TOL = 1e-6  # a plan breaking a limit by more is no success
 
 
-def obstacle_slots(count: int) -> int:
-    return 0 if count == 0 else max(MIN_SLOTS, 1 << (count - 1).bit_length())
+def obstacle_slots(count: int, every: bool = False) -> int:
+    """Return the discs per clearance point of an NLP for ``count`` obstacles.
+
+    :data:`POINT_SLOTS`, for one disc as for many (a slot without one is off): one NLP,
+    prepared once, whatever the number of obstacles a replanning robot meets. ``every``: room
+    for all of them at every point (powers of two: a changing count rarely rebuilds), for a
+    crowd where a point's nearest two are not enough (:func:`.base.clear_of_every_disc`), and
+    for the least-violating plan of a soft NLP (whose plan may break a disc it was not given).
+    """
+    if not count:
+        return 0
+    return max(POINT_SLOTS, 1 << (count - 1).bit_length()) if every else POINT_SLOTS
+
+
+def clearance_points(q: np.ndarray) -> np.ndarray:
+    """Return the configurations of a plan's clearance rows, in g's order.
+
+    Each interval's midpoint, then its end knot (the start is data, not a decision): the
+    order both transcriptions add them in.
+    """
+    points = np.empty((2 * (len(q) - 1), q.shape[1]))
+    points[0::2], points[1::2] = 0.5 * (q[1:] + q[:-1]), q[1:]
+    return points
 
 
 @dataclass(frozen=True)
@@ -53,9 +76,9 @@ class Shape:
     soft: bool = False
 
     @classmethod
-    def of(cls, limits: Limits, soft: bool = False) -> Shape:
+    def of(cls, limits: Limits, soft: bool = False, every: bool = False) -> Shape:
         return cls(limits.bounded_controls, limits.bounded_velocities,
-                   obstacle_slots(len(limits.obstacles)), soft)
+                   obstacle_slots(len(limits.obstacles), every), soft)
 
 
 class ConstraintStack:
@@ -80,12 +103,15 @@ class Rows:
 
     shape: Shape
     plane: tuple[int, int] | None
-    obstacles: ca.SX = field(init=False)  # parameters: (x, y, R, on) per slot
+    points: int  # clearance points: an interval's midpoint and end knot each
+    obstacles: ca.SX = field(init=False)  # parameters: (x, y, R, on) per point and slot
     kinds: list[tuple[int, int, str]] = field(default_factory=list)  # (first row, size, kind)
     _index: dict[str, tuple[np.ndarray, np.ndarray]] = field(default_factory=dict, repr=False)
 
+    _point: int = field(default=0, repr=False)  # the next clearance point's parameters
+
     def __post_init__(self) -> None:
-        self.obstacles = ca.SX.sym('obstacles', 4 * self.shape.slots)
+        self.obstacles = ca.SX.sym('obstacles', 4 * self.shape.slots * self.points)
 
     def control(self, u: ca.SX, start: int) -> list[ca.SX]:
         return self._add(u, start, 'u') if self.shape.controls else []
@@ -98,9 +124,10 @@ class Rows:
             return []
         p = ca.vertcat(q[self.plane[0]], q[self.plane[1]])
         rows = []
-        for j in range(self.shape.slots):
-            c, radius, on = self.obstacles[4 * j:4 * j + 2], self.obstacles[4 * j + 2], \
-                self.obstacles[4 * j + 3]
+        first = 4 * self.shape.slots * self._point
+        self._point += 1
+        for j in range(first, first + 4 * self.shape.slots, 4):
+            c, radius, on = self.obstacles[j:j + 2], self.obstacles[j + 2], self.obstacles[j + 3]
             # an unused slot is the constant 1 >= 0: strictly feasible (an identically
             # zero row would pin an interior-point slack to its bound)
             rows.append(on * (ca.sumsqr(p - c) - radius**2) + (1 - on))
@@ -110,11 +137,30 @@ class Rows:
         self.kinds.append((start, expr.shape[0], kind))
         return [expr]
 
-    def parameters(self, limits: Limits) -> np.ndarray:
-        values = np.zeros((self.shape.slots, 4))
-        count = len(limits.obstacles)
-        values[:count, :3] = limits.obstacles
-        values[:count, 3] = 1.0
+    def assigned(self, p: np.ndarray) -> np.ndarray:
+        """Return the discs each clearance point has in parameters ``p`` (they come last).
+
+        (points, 4 slots): the parameters of the point's rows.
+        """
+        size = 4 * self.shape.slots * self.points
+        return p[len(p) - size:].reshape(self.points, 4 * self.shape.slots)
+
+    def parameters(self, limits: Limits, q: np.ndarray) -> np.ndarray:
+        """Return each clearance point's discs: the nearest its place on the guess ``q``.
+
+        (points, slots, 4): x, y, R and 1 per disc, nearest edge first; 0 (off) where there
+        are fewer discs than slots.
+        """
+        values = np.zeros((self.points, self.shape.slots, 4))
+        discs = limits.obstacles
+        if not self.shape.slots or self.plane is None or not len(discs):
+            return values.ravel()
+        at = clearance_points(q)[:, list(self.plane)]
+        edge = np.hypot(at[:, None, 0] - discs[None, :, 0],
+                        at[:, None, 1] - discs[None, :, 1]) - discs[None, :, 2]
+        nearest = np.argsort(edge, axis=1, kind='stable')[:, :self.shape.slots]
+        values[:, :nearest.shape[1], :3] = discs[nearest]
+        values[:, :nearest.shape[1], 3] = 1.0
         return values.ravel()
 
     def bounds(self, rows: int, limits: Limits) -> tuple[np.ndarray, np.ndarray]:
@@ -175,3 +221,20 @@ def soft_bounds(lower: np.ndarray, upper: np.ndarray,
 def start_violation(problem: TrackingProblem) -> float:
     """How much the start itself breaks a limit: then only a soft NLP has a solution."""
     return problem.limits.violation(problem.q0[None], problem.v0[None])
+
+
+def judged(rows: Rows, limits: Limits, soft: bool, converged: bool, violation: float,
+           message: str) -> tuple[bool, str, dict[str, float]]:
+    """Return whether a plan that breaks its limits by ``violation`` succeeded, why, and details.
+
+    A soft NLP's plan is the least-violating one (its start breaks a limit); a hard NLP's plan
+    that converged past a limit went into a disc its clearance points were not given
+    (``other_disc``: solved again, :func:`.base.clear_of_every_disc`).
+    """
+    success = converged and violation <= VIOLATION_TOL
+    if soft:
+        message = f'{message}; least-violating plan: limits broken by {violation:.3g}'
+    return success, message, {
+        'violation': violation, 'least_violating': soft and converged,
+        'other_disc': not soft and converged and not success
+        and len(limits.obstacles) > rows.shape.slots}

@@ -82,11 +82,16 @@ class Transcription:
         clearance = np.flatnonzero(self.limits.inequality_mask(self.rows, ('clear',)))
         return interval, clearance.reshape(2 * self.steps, -1)
 
-    def parameters(self, problem: TrackingProblem) -> np.ndarray:
+    def parameters(self, problem: TrackingProblem, q: np.ndarray | None = None) -> np.ndarray:
+        """Return the NLP's parameters for a guess with knots ``q`` (default: the reference).
+
+        Each clearance point's discs are those nearest it on the guess.
+        """
         q_knots, v_knots, q_mid, v_mid = problem.reference_samples
         return np.concatenate([
             problem.q0, problem.v0, q_mid.ravel(), v_mid.ravel(), q_knots[-1], v_knots[-1],
-            [problem.h, problem.epsilon, problem.omega], self.limits.parameters(problem.limits),
+            [problem.h, problem.epsilon, problem.omega],
+            self.limits.parameters(problem.limits, q_knots if q is None else q),
         ])
 
     def bounds(self, problem: TrackingProblem) -> dict[str, np.ndarray]:
@@ -157,7 +162,7 @@ def _stage_form(system: NonholonomicSystem, steps: int, terminal: str,
     q_mid, v_mid = ca.SX.sym('q_r', n * big_n), ca.SX.sym('v_r', k * big_n)
     q_end, v_end = ca.SX.sym('q_rT', n), ca.SX.sym('v_rT', k)
     h, eps, omega = ca.SX.sym('h'), ca.SX.sym('eps'), ca.SX.sym('omega')
-    limits = Rows(shape, plane(system) if shape.slots else None)
+    limits = Rows(shape, plane(system) if shape.slots else None, 2 * steps)
     p = ca.vertcat(q0, v0, q_mid, v_mid, q_end, v_end, h, eps, omega, limits.obstacles)
 
     lagrangian, residual = tracking_lagrangian(system), tracking_residual(system)

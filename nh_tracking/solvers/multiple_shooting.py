@@ -29,10 +29,10 @@ import numpy as np
 from nh_tracking.limits import plane
 from nh_tracking.problem import (Solution, terminal_cost, terminal_error, tracking_lagrangian,
                                  TrackingProblem)
-from nh_tracking.solvers.base import Guess, Method, Structure
+from nh_tracking.solvers.base import clear_of_every_disc, Guess, Method, Structure
 from nh_tracking.solvers.cache import PerSystemCache
-from nh_tracking.solvers.inequalities import (ConstraintStack, Rows, Shape, soft_bounds, soften,
-                                              start_violation, VIOLATION_TOL)
+from nh_tracking.solvers.inequalities import (ConstraintStack, judged, Rows, Shape, soft_bounds,
+                                              soften, start_violation, VIOLATION_TOL)
 from nh_tracking.solvers.nlp import BoundedNlp, deadline_after
 from nh_tracking.system import NonholonomicSystem
 
@@ -48,12 +48,13 @@ class ShootingTranscription:
     rows: int  # of the hard NLP's g
     soft_index: np.ndarray | None  # softened: the inequality rows given slacks
 
-    def parameters(self, problem: TrackingProblem) -> np.ndarray:
+    def parameters(self, problem: TrackingProblem, q: np.ndarray) -> np.ndarray:
+        """Return the NLP's parameters; clearance points' discs: those nearest the guess q."""
         fine = problem.start + np.linspace(0.0, problem.horizon, 2 * SUBSTEPS * problem.steps + 1)
         q_ref, v_ref = problem.reference_at(fine)
         return np.concatenate([q_ref.ravel(), v_ref.ravel(),
                                [problem.h, problem.epsilon, problem.omega],
-                               self.limits.parameters(problem.limits)])
+                               self.limits.parameters(problem.limits, q)])
 
 
 _CACHE: PerSystemCache[ShootingTranscription] = PerSystemCache()
@@ -72,7 +73,7 @@ def _build(system: NonholonomicSystem, steps: int, terminal: str,
     points = 2 * SUBSTEPS * steps + 1  # reference at every RK4 stage time
     q_ref, v_ref = ca.SX.sym('q_r', n, points), ca.SX.sym('v_r', k, points)
     h, eps, omega = ca.SX.sym('h'), ca.SX.sym('eps'), ca.SX.sym('omega')
-    limits = Rows(shape, plane(system) if shape.slots else None)
+    limits = Rows(shape, plane(system) if shape.slots else None, 2 * steps)
     p = ca.vertcat(ca.vec(q_ref), ca.vec(v_ref), h, eps, omega, limits.obstacles)
     lagrangian = tracking_lagrangian(system)
 
@@ -126,18 +127,24 @@ def solve_multiple_shooting(problem: TrackingProblem, initial_guess: Guess | Non
 
 def _solve_until(problem: TrackingProblem, initial_guess: Guess | None,
                  stop: float | None) -> Solution:
+    return clear_of_every_disc(lambda guess, every: _solve_once(problem, guess, stop, every),
+                               initial_guess, stop)
+
+
+def _solve_once(problem: TrackingProblem, initial_guess: Guess | None,
+                stop: float | None, every: bool) -> Solution:
     sys, big_n = problem.system, problem.steps
     n, k, r = sys.n, sys.k, sys.r
     soft = start_violation(problem) > VIOLATION_TOL
     tr = shooting_transcription(sys, big_n, problem.terminal, stop is not None,
-                                Shape.of(problem.limits, soft))
-    p = tr.parameters(problem)
+                                Shape.of(problem.limits, soft, every or soft))
     q_g, v_g = problem.reference_samples[:2] if initial_guess is None else initial_guess[:2]
     u_g = None if initial_guess is None else initial_guess[2]
     if u_g is None:
         u_g = np.zeros((big_n, r))
     q_g, v_g = np.array(q_g, dtype=float), np.array(v_g, dtype=float)
     q_g[0], v_g[0] = problem.q0, problem.v0
+    p = tr.parameters(problem, q_g)
     x_g = np.hstack([q_g, v_g])
     w0 = np.concatenate([np.concatenate([x_g[i], u_g[i]]) for i in range(big_n)] + [x_g[-1]])
     lbw, ubw = np.full(w0.size, -np.inf), np.full(w0.size, np.inf)
@@ -161,20 +168,16 @@ def _solve_until(problem: TrackingProblem, initial_guess: Guess | None,
     x = np.vstack([stage[:, :n + k], w[-(n + k):]])
     q, v, u = x[:, :n], x[:, n:], stage[:, n + k:]
     cost = float(tr.running_cost(w, p)) + terminal_cost(problem, q[-1])
-    violation = problem.limits.violation(q, v, u)  # midpoints: between RK4 stages
-    message = outcome.message
-    if tr.soft_index is not None:
-        message = f'{message}; least-violating plan: limits broken by {violation:.3g}'
+    success, message, details = judged(
+        tr.limits, problem.limits, tr.soft_index is not None,
+        outcome.success and bool(np.all(np.isfinite(w))),
+        problem.limits.violation(q, v, u), outcome.message)  # (midpoints: between RK4 stages)
     return Solution(
-        t=problem.grid, q=q, v=v, u=u, cost=cost,
-        success=(outcome.success and bool(np.all(np.isfinite(w)))
-                 and violation <= VIOLATION_TOL),
+        t=problem.grid, q=q, v=v, u=u, cost=cost, success=success,
         iterations=outcome.iterations, solve_time=elapsed,
         terminal_error=terminal_error(problem, q[-1], v[-1]), method='multiple_shooting',
         message=message, route='ipopt' if tr.soft_index is None else 'ipopt (soft limits)',
-        details={'violation': violation, 'least_violating': tr.soft_index is not None
-                 and outcome.success and bool(np.all(np.isfinite(w)))},
-    )
+        details=details)
 
 
 @dataclass(frozen=True)

@@ -37,10 +37,10 @@ from typing import ClassVar, Literal
 import numpy as np
 
 from nh_tracking.problem import Solution, TrackingProblem
-from nh_tracking.solvers.base import Guess, Method, Structure
+from nh_tracking.solvers.base import clear_of_every_disc, Guess, Method, Structure
 from nh_tracking.solvers.cache import NotPrepared
 from nh_tracking.solvers.duals import carried_multipliers, multipliers_at
-from nh_tracking.solvers.inequalities import Shape, start_violation, VIOLATION_TOL
+from nh_tracking.solvers.inequalities import judged, Shape, start_violation, VIOLATION_TOL
 from nh_tracking.solvers.line_search import line_search_solve
 from nh_tracking.solvers.midpoint import (BACKENDS, Transcription, transcription,
                                           working_set_step, WorkingSetStep)
@@ -113,20 +113,24 @@ def solve_variational_until(problem: TrackingProblem, initial_guess: Guess | Non
         if coarse_plan.success:
             q, v = coarse_plan.trajectory().sample(problem.grid)
             initial_guess = Guess(q, v, None)
-    result = _solve_with(problem, initial_guess, stop, solver, compiled, soft, newton=newton)
-    result.solve_time += coarse_time
+
+    def route(solver: str, compiled: bool, soft: bool, newton: bool = False) -> Solution:
+        return clear_of_every_disc(lambda guess, every: _solve_with(
+            problem, guess, stop, solver, compiled, soft, newton=newton, every=every),
+            initial_guess, stop)
 
     def time_left(previous: Solution) -> bool:
         return previous.message != DEADLINE and before(stop)
 
+    result = route(solver, compiled, soft, newton)
+    result.solve_time += coarse_time
     if not result.success and solver == 'fatrop' and not soft and time_left(result):
         result = _next_route(result, f'fatrop failed ({result.message}) -> ipopt',
-                             lambda: _solve_with(problem, initial_guess, stop, 'ipopt'))
+                             lambda: route('ipopt', False, False))
     if not result.success and problem.limits.active and not soft and time_left(result):
         # e.g. a terminal state inside an obstacle: the least-violating plan, reported so
         result = _next_route(result, f'{result.route} failed ({result.message}) -> soft limits',
-                             lambda: _solve_with(problem, initial_guess, stop, solver, compiled,
-                                                 True))
+                             lambda: route(solver, compiled, True))
     return result
 
 
@@ -144,16 +148,16 @@ def _next_route(failed: Solution, route: str, solve: Callable[[], Solution]) -> 
 
 def _solve_with(problem: TrackingProblem, initial_guess: Guess | None, stop: float | None,
                 solver: str, compiled: bool = False, soft: bool = False,
-                iterations: int = 0, newton: bool = False) -> Solution:
+                iterations: int = 0, newton: bool = False, every: bool = False) -> Solution:
     sys = problem.system
     tr = transcription(sys, problem.steps, problem.terminal, stop is not None, solver,
-                       compiled, Shape.of(problem.limits, soft), iterations)
+                       compiled, Shape.of(problem.limits, soft, every or soft), iterations)
     q_g, v_g, u_g = (*default_guess(problem), None) if initial_guess is None else initial_guess[:3]
     q_g, v_g = np.array(q_g, dtype=float), np.array(v_g, dtype=float)
     q_g[0], v_g[0] = problem.q0, problem.v0
     if problem.terminal == 'equality':
         q_g[-1], v_g[-1] = problem.reference_samples[0][-1], problem.reference_samples[1][-1]
-    p = tr.parameters(problem)
+    p = tr.parameters(problem, q_g)  # each knot and midpoint keeps clear of the discs nearest it
     # a guess within the limits (a previous plan) is warm: near the optimum and its active set
     warm = initial_guess is not None and problem.limits.plan_violation(
         q_g, v_g, u_g) <= VIOLATION_TOL
@@ -185,7 +189,7 @@ def _solve_with(problem: TrackingProblem, initial_guess: Guess | None, stop: flo
                 held = None if not held.success and before(stop) else held
             else:
                 held = _working_set(held_step, w0, p, bounds, stop,
-                                    carried_multipliers(tr, problem, initial_guess))
+                                    carried_multipliers(tr, problem, initial_guess, p))
         if held is not None:
             outcome, route = held, f"newton ({'line search' if searched else 'working set'})"
         elif not all(np.all(np.isfinite(a)) for a in tr.readout(w0, p)):
@@ -207,21 +211,17 @@ def _solve_with(problem: TrackingProblem, initial_guess: Guess | None, stop: flo
     lam = -0.5 * lam_g[tr.admissibility_rows].reshape(problem.steps, sys.n)
     mu = (-problem.epsilon * u if sys.fully_actuated
           else -lam_g[tr.dynamics_rows].reshape(problem.steps, sys.k))
-    violation = problem.limits.plan_violation(q, v, u)
-    success = outcome.success and bool(np.isfinite(w).all()) and violation <= VIOLATION_TOL
-    message = outcome.message
-    if tr.soft_index is not None:
-        message = f'{message}; least-violating plan: limits broken by {violation:.3g}'
+    success, message, details = judged(
+        tr.limits, problem.limits, tr.soft_index is not None,
+        outcome.success and bool(np.isfinite(w).all()), problem.limits.plan_violation(q, v, u),
+        outcome.message)
     return Solution(
         t=problem.grid, q=q, v=v, u=u, cost=float(cost[0]), success=success,
         iterations=outcome.iterations, solve_time=elapsed,
         terminal_error=float(end_error[0]), method='variational',
         message=message, route=route,
-        costates=(lam, mu), multipliers=multipliers_at(tr, problem, lam_g),
-        details={'admissibility_residual': max_residual, 'violation': violation,
-                 'least_violating': tr.soft_index is not None and outcome.success
-                 and bool(np.isfinite(w).all())},  # the best plan a broken start has
-    )
+        costates=(lam, mu), multipliers=multipliers_at(tr, problem, lam_g, p),
+        details={'admissibility_residual': max_residual, **details})
 
 
 def _held_step(problem: TrackingProblem, tr: Transcription) -> WorkingSetStep | None:
@@ -230,7 +230,7 @@ def _held_step(problem: TrackingProblem, tr: Transcription) -> WorkingSetStep | 
         return None
     try:
         return working_set_step(problem.system, problem.steps, problem.terminal,
-                                Shape.of(problem.limits))
+                                tr.limits.shape)
     except NotPrepared:  # replanning: built in the background, ready next time
         return None
 
