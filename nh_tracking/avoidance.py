@@ -14,8 +14,10 @@
 
 """Which obstacles one replan keeps clear of, and whether its plan is clear of all the others.
 
-An NLP is built for a bounded number of obstacle slots, so each replan takes only the discs
-that can bend its plan; the plan is then checked against every disc the planner knows of. A
+Each knot and midpoint of an NLP keeps clear of the discs nearest it, and its last resort (a
+crowd) has a slot for every disc at every point: a bounded number, so each replan takes only
+the discs that can bend its plan; the plan is then checked against every disc the planner
+knows of. A
 robot already inside a disc's clearance (it drifted, or the disc was redrawn) has that disc
 shrunk for this replan, so the prepared NLP still has a solution.
 """

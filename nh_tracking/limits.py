@@ -221,8 +221,8 @@ def relevant_discs(discs: np.ndarray, robot: np.ndarray, path: np.ndarray,
     ``robot``: the robot's (x, y); ``path``: (., 2) the reference's positions over the horizon.
     A plan runs from the robot to the path and swerves around the obstacles near it, so a disc
     farther from the path than the robot's offset from it plus 0.5 m, plus twice the largest
-    disc near the path, cannot touch it: leaving it out keeps the NLP small (its slots cost
-    every iteration). The caller checks the plan against every disc all the same.
+    disc near the path, cannot touch it: leaving it out keeps the last-resort NLP (every disc
+    at every point) small. The caller checks the plan against every disc all the same.
     """
     if not len(discs):
         return discs
