@@ -25,9 +25,6 @@ import functools
 
 import numpy as np
 from numpy.typing import ArrayLike
-from scipy.sparse import coo_matrix
-from scipy.sparse.csgraph import connected_components
-from scipy.spatial import cKDTree
 
 from nh_tracking.system import NonholonomicSystem
 
@@ -87,6 +84,10 @@ def plane(system: NonholonomicSystem) -> tuple[int, int]:
     return axes['x'], axes['y']
 
 
+SWEPT_DEPTH = 0.1  # of a disc's radius: the most a plan's segment may cut into it (a chord)
+SHORT_CHORD = 2 * np.sqrt(1 - (1 - SWEPT_DEPTH)**2)  # of the radius: a chord cutting that deep
+
+
 @dataclass(frozen=True)
 class Limits:
     """The bounds and obstacles of one problem, checked and in arrays."""
@@ -143,6 +144,27 @@ class Limits:
                 worst.append(float(np.max(np.maximum(lo - value, value - hi), initial=0.0)))
         return max(worst)
 
+    def swept(self, path: np.ndarray) -> float:
+        """Return how far a path's straight segments cut into a disc beyond what is allowed.
+
+        ``path``: configurations in time order (a plan's knots and midpoints). A segment
+        between two points on a disc's edge cuts in by its chord's sagitta; more than that, or
+        than :data:`SWEPT_DEPTH` of the radius, and the path went through the disc between
+        its points (a plan so fast that its points are farther apart than the disc is wide).
+        """
+        if self.plane is None or len(path) < 2:
+            return 0.0
+        p = np.asarray(path)[:, list(self.plane)]
+        a, ab = p[:-1, None, :], (p[1:] - p[:-1])[:, None, :]
+        length2 = np.maximum(np.sum(ab**2, axis=2), 1e-300)
+        if length2.max() <= (SHORT_CHORD * self.obstacles[:, 2].min())**2:
+            return 0.0  # (a segment this short cuts in by less, if its ends are outside)
+        centre, radius = self.obstacles[None, :, :2], self.obstacles[None, :, 2]
+        along = np.clip(np.sum((centre - a) * ab, axis=2) / length2, 0.0, 1.0)
+        depth = radius - np.linalg.norm(a + along[..., None] * ab - centre, axis=2)
+        sagitta = radius - np.sqrt(np.maximum(radius**2 - length2 / 4, 0.0))
+        return float(np.max(depth - np.minimum(sagitta, SWEPT_DEPTH * radius), initial=0.0))
+
     def plan_violation(self, q: np.ndarray, v: np.ndarray, u: np.ndarray | None) -> float:
         """:meth:`violation` of a plan's knots q, v and controls u, midpoints included."""
         return self.violation(knots_and_midpoints(q), v, u) if self.active else 0.0
@@ -154,48 +176,6 @@ def _no_limits(controls: int, velocities: int) -> Limits:
     none = np.zeros((0, 3))
     none.flags.writeable = False
     return Limits(_unbounded(controls), _unbounded(velocities), none, None)
-
-
-def costmap_discs(cells: np.ndarray, cell_size: float, size: float) -> np.ndarray:
-    """Discs (x, y, r) covering occupied square cells of side ``cell_size``, from them alone.
-
-    ``cells``: (K, 2) cell centres. Each group of touching cells (diagonals included) is one
-    disc, the smallest about the group's mean holding its cells whole, when that disc's radius
-    is at most ``size`` (plus half a cell's diagonal); a larger group is cut along a grid of
-    side ``size`` fixed in the frame, a disc per piece. Never drawn about where the robot is:
-    discs that moved with the robot would put a plan that hugs one inside the next, and the
-    next solve would start from a plan that breaks a limit.
-    """
-    cells = np.asarray(cells, dtype=float).reshape(-1, 2)
-    if not len(cells):
-        return np.zeros((0, 3))
-    pairs = cKDTree(cells).query_pairs(1.5 * cell_size, output_type='ndarray')
-    links = coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])),
-                       shape=(len(cells), len(cells)))
-    _, group = connected_components(links, directed=False)
-    half_diagonal = cell_size / np.sqrt(2.0)
-    discs = []
-    for members in _groups(cells, group):
-        disc = _enclosing(members, half_diagonal)
-        if disc[2] > size + half_diagonal:
-            _, piece = np.unique(np.floor(members / size).astype(np.int64), axis=0,
-                                 return_inverse=True)
-            discs += [_enclosing(part, half_diagonal) for part in _groups(members, piece.ravel())]
-        else:
-            discs.append(disc)
-    return np.array(discs)
-
-
-def _groups(cells: np.ndarray, labels: np.ndarray) -> list[np.ndarray]:
-    """Split cells by their labels 0..L-1 (sorted once, not one pass per label)."""
-    order = np.argsort(labels, kind='stable')
-    return np.split(cells[order], np.cumsum(np.bincount(labels))[:-1])
-
-
-def _enclosing(cells: np.ndarray, half_diagonal: float) -> tuple[float, float, float]:
-    """Return the disc about the cells' mean that holds every (square) cell whole."""
-    middle = cells.mean(axis=0)
-    return middle[0], middle[1], float(np.hypot(*(cells - middle).T).max() + half_diagonal)
 
 
 def bounds_from_lists(lo: tuple, hi: tuple, size: int, name: str) -> tuple | None:
@@ -248,6 +228,22 @@ def nearest_discs(discs: np.ndarray, point: np.ndarray, count: int,
     return discs[order[to_point[order] <= reach][:max(count, 0)]]
 
 
+def clearance_points(q: np.ndarray) -> np.ndarray:
+    """Return the configurations of a plan's clearance rows, in g's order.
+
+    Each interval's midpoint, then its end knot (the start is data, not a decision): the
+    order both transcriptions add them in.
+    """
+    points = np.empty((2 * (len(q) - 1), q.shape[1]))
+    points[0::2], points[1::2] = 0.5 * (q[1:] + q[:-1]), q[1:]
+    return points
+
+
+def plan_path(q: np.ndarray) -> np.ndarray:
+    """Return a plan's knots and midpoints in time order: the path its limits hold on."""
+    return np.vstack([q[:1], clearance_points(q)])
+
+
 def knots_and_midpoints(q: np.ndarray, first: int = 0) -> np.ndarray:
     """Return the configurations where a plan's limits hold: knots from ``first``, midpoints."""
     return np.vstack([q[first:], 0.5 * (q[1:] + q[:-1])])
@@ -274,11 +270,3 @@ def clear_of_start(discs: np.ndarray, point: np.ndarray, velocity: np.ndarray,
     allowed = np.maximum(distance - robot_radius - approach * interval, 0.0)
     discs[:, 2] = np.minimum(discs[:, 2], allowed)
     return discs
-
-
-def gap(point: np.ndarray, discs: np.ndarray, cells: np.ndarray, cell_size: float) -> float:
-    """Distance from ``point`` (x, y) to the nearest disc edge or occupied cell (inf if none)."""
-    point = np.asarray(point, dtype=float)[:2]
-    to_discs = np.hypot(*(discs[:, :2] - point).T) - discs[:, 2]
-    to_cells = np.hypot(*(cells - point).T) - cell_size / np.sqrt(2.0)
-    return float(min(np.min(to_discs, initial=np.inf), np.min(to_cells, initial=np.inf)))

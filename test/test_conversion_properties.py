@@ -290,7 +290,8 @@ def test_costmaps_give_finite_cells_or_a_rejection(resolution, width, height, da
                                                    frame):
     from nav_msgs.msg import OccupancyGrid
 
-    from nh_tracking.limits import costmap_discs, nearest_discs
+    from nh_tracking.costmap import costmap_discs
+    from nh_tracking.limits import nearest_discs
     from nh_tracking.ros.obstacle_messages import occupied_cells
 
     grid = OccupancyGrid()

@@ -84,21 +84,24 @@ def test_multipliers_move_with_the_plan(later):
 
 
 def test_a_point_keeps_its_clearance_multipliers_while_its_discs_stay_the_same():
-    """Three discs, two a point: a disc moved costs the multipliers of the points it is in.
+    """Five discs, four a point: a disc moved costs the multipliers of the points it is in.
 
-    The points whose nearest two are the unmoved discs (before and after the shift) keep theirs.
+    The points whose nearest four are the unmoved discs (before and after the shift) keep
+    theirs. (Bounded speed: unbounded, this robot's plan would jump a disc between two points.)
     """
-    discs = [(1.2, 0.05, 0.3), (1.3, -0.6, 0.2), (0.0, 1.2, 0.2)]  # the third: early points'
-    problem = _problem(obstacles=discs, robot_radius=0.2)
+    discs = [(1.2, 0.05, 0.3), (1.3, -0.6, 0.2), (0.0, 1.2, 0.2),  # the third: early points'
+             (1.3, 1.0, 0.1), (1.6, -0.2, 0.1)]  # (nearer than it to the late points)
+    problem = _problem(obstacles=discs, robot_radius=0.2, velocity_bounds=(-1.0, 1.0))
     plan = solve_variational(problem, sample_plan(problem, solve_variational(problem)))
     assert plan.success
-    later = dataclasses.replace(problem, t0=1.1, obstacles=discs[:2] + [(0.0, 1.3, 0.2)])
+    later = dataclasses.replace(problem, t0=1.1,
+                                obstacles=discs[:2] + [(0.0, 1.3, 0.2)] + discs[3:])
     tr = _rows(later)
     guess = sample_plan(later, plan)
     carried = _carried(tr, later, guess)
-    half = np.flatnonzero(tr.limits.inequality_mask(tr.rows, ('clear',))).reshape(40, 2)
-    before = tr.limits.assigned(plan.multipliers.obstacles.ravel()).reshape(40, 2, 4)
-    now = tr.limits.assigned(tr.parameters(later, guess.q)).reshape(40, 2, 4)
+    half = np.flatnonzero(tr.limits.inequality_mask(tr.rows, ('clear',))).reshape(40, 4)
+    before = tr.limits.assigned(plan.multipliers.obstacles.ravel()).reshape(40, 4, 4)
+    now = tr.limits.assigned(tr.parameters(later, guess.q)).reshape(40, 4, 4)
     kept = lost = 0
     for k, rows in enumerate(half):
         if np.array_equal(now[k], before[min(k + 2, 39)]):  # 1 interval: 2 points on

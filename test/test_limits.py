@@ -166,10 +166,11 @@ def test_a_plan_that_touches_a_left_out_obstacle_is_replanned_with_it(monkeypatc
 
 
 def test_each_knot_and_midpoint_keeps_clear_of_the_discs_nearest_it():
-    """A clearance point's rows take the two discs whose edges are nearest it on the guess.
+    """A clearance point's rows take the discs whose edges are nearest it on the guess.
 
     Checked against a brute force over the points in g's order (midpoint, then the interval's
-    end knot); the NLP is the same for 1 disc as for 8 (its size does not grow with them).
+    end knot): all of them while they fit (2 or 4 slots), the nearest 4 of more; the NLP is
+    the same for 5 discs as for 8 (its size does not grow with them).
     """
     from nh_tracking.solvers.inequalities import Shape
     from nh_tracking.solvers.midpoint import transcription
@@ -178,51 +179,83 @@ def test_each_knot_and_midpoint_keeps_clear_of_the_discs_nearest_it():
     base = nht.TrackingProblem(nht.models.unicycle(), _line(), [0, 0.2, 0], [0.5, 0], 3.0, 30,
                                terminal='cost', robot_radius=0.1)
     q = base.reference_samples[0] + rng.normal(scale=0.3, size=(31, 3))
-    built = set()
-    for count in (1, 3, 8):
+    built = {}
+    for count in (1, 3, 5, 8):
         discs = np.c_[rng.uniform(0, 1.5, count), rng.uniform(-1, 1, count),
                       rng.uniform(0.1, 0.4, count)]
         problem = dataclasses.replace(base, obstacles=discs)
         tr = transcription(problem.system, 30, 'cost', shape=Shape.of(problem.limits))
-        built.add(id(tr))
-        assigned = tr.limits.assigned(tr.parameters(problem, q)).reshape(60, 2, 4)
+        slots = tr.limits.shape.slots
+        built[count] = (id(tr), slots)
+        assigned = tr.limits.assigned(tr.parameters(problem, q)).reshape(60, slots, 4)
         for j in range(60):
             point = 0.5 * (q[j // 2] + q[j // 2 + 1]) if j % 2 == 0 else q[j // 2 + 1]
             edge = [np.hypot(*(point[:2] - d[:2])) - d[2] - 0.1 for d in discs]
-            order = sorted(range(count), key=edge.__getitem__)[:2]
+            order = sorted(range(count), key=edge.__getitem__)[:slots]
             np.testing.assert_allclose(assigned[j, :len(order), :3],
                                        problem.limits.obstacles[order], atol=1e-12)
-            assert assigned[j, :, 3].tolist() == [1.0] * len(order) + [0.0] * (2 - len(order))
-    assert len(built) == 1
+            assert assigned[j, :, 3].tolist() == [1.0] * len(order) + [0.0] * (slots - len(order))
+    assert [s for _, s in built.values()] == [2, 4, 4, 4]
+    assert built[5][0] == built[8][0]  # one NLP for any crowd
 
 
-@pytest.mark.parametrize('method', ['variational', 'multiple_shooting'])
-@pytest.mark.parametrize('discs', [  # crowds where a plan meets discs its guess was not near
-    [(1.42, 0.46, 0.2), (1.59, -0.25, 0.1), (2.68, 0.25, 0.2), (1.2, -0.21, 0.29),
-     (2.78, -0.21, 0.16)],
-    [(2.47, 0.3, 0.18), (0.9, -0.61, 0.24), (2.46, -0.1, 0.14), (2.43, -0.11, 0.17),
-     (2.65, 0.24, 0.21)]])
-def test_a_plan_among_many_discs_is_clear_of_every_one(discs, method):
+@pytest.mark.parametrize('method, discs', [  # crowds the plan meets where its guess was not
+    ('variational', [(1.74, -0.19, 0.1), (2.79, 0.77, 0.2), (1.0, -0.37, 0.19), (1.39, 0.09, 0.15),
+                     (2.56, 0.13, 0.16), (1.67, -0.91, 0.11), (2.34, -0.8, 0.16),
+                     (1.67, -0.53, 0.23)]),
+    ('multiple_shooting', [(1.8, -0.59, 0.16), (2.18, -0.9, 0.2), (2.19, -0.57, 0.22),
+                           (0.81, 0.2, 0.24), (0.88, 0.77, 0.16), (1.1, -0.3, 0.21),
+                           (1.23, -0.27, 0.15)])])
+def test_a_plan_among_many_discs_is_clear_of_every_one(method, discs):
     """Solved again from a plan that ran into a disc it was not given: clear of all of them.
 
-    Its points' discs are then those nearest the plan, or at last every disc; the plan is a
-    minimum of the problem with every disc at every point (a solve from it stays there).
+    From the plan without obstacles (through them, on the line), each point has the 4 discs
+    nearest it there; the plan goes round them into another. Solved again with the discs
+    nearest that plan (and, if it still meets one, every disc at every point), it is clear of
+    all of them at its points and between them, and a minimum of the problem with every disc
+    at every point (a solve from it stays there).
     """
+    from nh_tracking.limits import plan_path
     from nh_tracking.solvers.base import Guess
     from nh_tracking.solvers.variational import _solve_with
 
-    problem = nht.TrackingProblem(nht.models.unicycle(), _line(), [0, 0.3, 0], [0.5, 0], 6.0,
-                                  60, terminal='cost', omega=10.0, obstacles=discs,
-                                  robot_radius=0.1)
-    plan = nht.solve(problem, method, second_look=False)
+    free = nht.TrackingProblem(nht.models.unicycle(), _line(), [0, 0.3, 0], [0.5, 0], 6.0, 60,
+                               terminal='cost', omega=10.0, robot_radius=0.1)
+    problem = dataclasses.replace(free, obstacles=discs)
+    plan = nht.solve(problem, method, initial_guess=nht.solve(free, second_look=False),
+                     second_look=False)
     assert plan.success, plan.message
     assert 'again' in plan.route
-    points = plan.q if method == 'multiple_shooting' else np.vstack(
-        [plan.q, 0.5 * (plan.q[1:] + plan.q[:-1])])
+    points = plan.q if method == 'multiple_shooting' else plan_path(plan.q)
     assert problem.limits.clearance(points).min() >= -TOL
+    assert problem.limits.swept(points) <= TOL  # nor between them
     if method == 'variational':
         every = _solve_with(problem, Guess(plan.q, plan.v, plan.u), None, 'fatrop', every=True)
         assert every.success and abs(every.cost - plan.cost) <= 1e-6 * plan.cost
+
+
+def test_a_path_through_a_disc_between_its_points_is_caught():
+    """Segments between consecutive points may cut into a disc as a chord does, at most 10 %.
+
+    Points on the disc's edge, close together: within (the sagitta); far apart: a polygon that
+    cuts in by 17 % of the radius; a jump across the disc from one side to the other, both
+    points clear of it: caught, by nearly the radius.
+    """
+    from nh_tracking.limits import Limits
+
+    limits = Limits.of(nht.models.unicycle(), None, None, [(0.5, 0.0, 0.1)], 0.05)  # R = 0.15
+
+    def arc(step: float) -> np.ndarray:
+        angle = np.arange(0.0, np.pi, step)
+        return np.c_[0.5 + 0.15 * np.cos(angle), 0.15 * np.sin(angle), 0 * angle]
+
+    assert limits.clearance(arc(0.1)).min() >= -1e-12
+    assert limits.swept(arc(0.1)) <= 1e-12
+    assert limits.swept(arc(1.2)) == pytest.approx(0.15 * (1 - np.cos(0.6)) - 0.015, rel=1e-9)
+    jump = np.c_[[0.0, 0.1, 0.2, 0.3, 0.7, 0.8], np.zeros(6), np.zeros(6)]
+    assert limits.clearance(jump).min() == pytest.approx(0.05)
+    assert limits.swept(jump) == pytest.approx(0.15 - 0.015)
+    assert limits.swept(jump[:4]) == 0.0  # short segments, all clear
 
 
 def _line(duration: float = 20.0) -> nht.Trajectory:
@@ -236,7 +269,8 @@ def test_costmap_discs_do_not_move_with_the_robot():
 
     Discs redrawn about the robot's position put a plan hugging one inside the next one.
     """
-    from nh_tracking.limits import costmap_discs, nearest_discs
+    from nh_tracking.costmap import costmap_discs
+    from nh_tracking.limits import nearest_discs
 
     size = 0.05
     x, y = np.meshgrid(np.arange(-40, 200) * size, np.arange(-40, 40) * size)

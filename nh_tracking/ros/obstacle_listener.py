@@ -19,7 +19,8 @@ from nav_msgs.msg import OccupancyGrid
 import numpy as np
 from visualization_msgs.msg import MarkerArray
 
-from nh_tracking.limits import costmap_discs, nearest_discs
+from nh_tracking.costmap import costmap_discs
+from nh_tracking.limits import nearest_discs
 from nh_tracking.ros.obstacle_messages import MarkerObstacles, occupied_cells
 from nh_tracking.ros.safety import guarded, SafeNode
 

@@ -32,7 +32,8 @@ from rosgraph_msgs.msg import Clock as ClockMsg
 from trajectory_msgs.msg import JointTrajectory
 
 from nh_tracking import models
-from nh_tracking.limits import bounds_from_lists, gap
+from nh_tracking.costmap import gap
+from nh_tracking.limits import bounds_from_lists
 from nh_tracking.poses import PoseMap
 from nh_tracking.ros import conversions as cv
 from nh_tracking.ros.obstacle_listener import ObstacleListener

@@ -53,20 +53,23 @@ def clear_of_every_disc(solve: Callable[[Guess | None, bool], Solution], guess: 
                         stop: float | None) -> Solution:
     """Solve from ``guess``; again where the plan converged into a disc it was not given.
 
-    ``solve(guess, every)``. Each knot and midpoint keeps clear of the discs nearest it on the
-    guess (:data:`.inequalities.POINT_SLOTS`); a plan that went far from its guess (round an
-    obstacle, into a crowd of them) may meet another. Solved again from that plan, its points
-    get the discs nearest them there; if it still meets one (a point among three discs), a
-    last solve gives every point every disc (``every``).
+    ``solve(guess, every)``. Each knot and midpoint keeps clear of the discs nearest it on a
+    guess that is a plan (:data:`.inequalities.POINT_SLOTS`); a plan that went far from its
+    guess (round an obstacle, into a crowd of them) may meet another. Solved again from that
+    plan, its points get the discs nearest them there; if it still meets one (a point among
+    more discs), a last solve from ``guess`` gives every point every disc (``every``): the NLP
+    of 0.4.10 (started from the plan that ran into the crowd, it often ended infeasible). A
+    cold solve (no guess: the reference, which runs through the obstacles and tells little of
+    where the plan will pass) has every disc at once.
     """
-    result = solve(guess, False)
+    result = solve(guess, guess is None)
     for every in (False, True):
         if not result.details.get('other_disc') or not before(stop):
             break
-        retry = solve(Guess(result.q, result.v, result.u), every)
+        retry = solve(guess if every else Guess(result.q, result.v, result.u), every)
         retry.solve_time += result.solve_time
-        retry.route = f"{result.route} -> again, {'every disc' if every else 'the discs'} " \
-            'nearest its plan'
+        retry.route = f'{result.route} -> again, ' + (
+            'every disc at every point' if every else 'the discs nearest its plan')
         result = retry
     return result
 

@@ -72,6 +72,8 @@ def carried_multipliers(tr: Transcription, problem: TrackingProblem, guess: Gues
             abs(old.h - problem.h) > 1e-9 * problem.h:
         return None
     stages = (float(problem.grid[0]) - old.t0) / problem.h
+    if abs(stages - round(stages)) <= 1e-9:  # a whole number of intervals, but for rounding:
+        stages = round(stages)  # no block blended in at 1e-15, whose discs would then count
     if not 0.0 <= stages < tr.steps:
         return None
     carried = np.zeros(tr.rows)

@@ -37,33 +37,24 @@ from nh_tracking.limits import Limits
 from nh_tracking.problem import TrackingProblem
 
 SOFT_WEIGHT = 1e4  # per unit of violation: above the multipliers of any sane tracking cost
-POINT_SLOTS = 2  # discs a knot or midpoint keeps clear of (two: the walls of a gap)
+MIN_SLOTS = 2  # obstacle slots of an NLP with obstacles (then 4: one NLP per size)
+POINT_SLOTS = 4  # discs a knot or midpoint keeps clear of at most (those nearest it)
 VIOLATION_TOL = 1e-6  # a plan breaking a limit by more is no success
 
 
 def obstacle_slots(count: int, every: bool = False) -> int:
     """Return the discs per clearance point of an NLP for ``count`` obstacles.
 
-    :data:`POINT_SLOTS`, for one disc as for many (a slot without one is off): one NLP,
-    prepared once, whatever the number of obstacles a replanning robot meets. ``every``: room
-    for all of them at every point (powers of two: a changing count rarely rebuilds), for a
-    crowd where a point's nearest two are not enough (:func:`.base.clear_of_every_disc`), and
-    for the least-violating plan of a soft NLP (whose plan may break a disc it was not given).
+    Room for all of them (powers of two from 2: a changing count rarely rebuilds), up to
+    :data:`POINT_SLOTS`: past that each point has the nearest ones only. ``every``: room for
+    all of them past it too, for a crowd where a point's nearest are not enough
+    (:func:`.base.clear_of_every_disc`), and for the least-violating plan of a soft NLP
+    (whose plan may break a disc it was not given).
     """
     if not count:
         return 0
-    return max(POINT_SLOTS, 1 << (count - 1).bit_length()) if every else POINT_SLOTS
-
-
-def clearance_points(q: np.ndarray) -> np.ndarray:
-    """Return the configurations of a plan's clearance rows, in g's order.
-
-    Each interval's midpoint, then its end knot (the start is data, not a decision): the
-    order both transcriptions add them in.
-    """
-    points = np.empty((2 * (len(q) - 1), q.shape[1]))
-    points[0::2], points[1::2] = 0.5 * (q[1:] + q[:-1]), q[1:]
-    return points
+    room = max(MIN_SLOTS, 1 << (count - 1).bit_length())
+    return room if every else min(room, POINT_SLOTS)
 
 
 @dataclass(frozen=True)
@@ -106,6 +97,7 @@ class Rows:
     points: int  # clearance points: an interval's midpoint and end knot each
     obstacles: ca.SX = field(init=False)  # parameters: (x, y, R, on) per point and slot
     kinds: list[tuple[int, int, str]] = field(default_factory=list)  # (first row, size, kind)
+    at: list[ca.SX] = field(default_factory=list)  # the clearance points' configurations
     _index: dict[str, tuple[np.ndarray, np.ndarray]] = field(default_factory=dict, repr=False)
 
     _point: int = field(default=0, repr=False)  # the next clearance point's parameters
@@ -126,6 +118,7 @@ class Rows:
         rows = []
         first = 4 * self.shape.slots * self._point
         self._point += 1
+        self.at.append(q)
         for j in range(first, first + 4 * self.shape.slots, 4):
             c, radius, on = self.obstacles[j:j + 2], self.obstacles[j + 2], self.obstacles[j + 3]
             # an unused slot is the constant 1 >= 0: strictly feasible (an identically
@@ -145,9 +138,15 @@ class Rows:
         size = 4 * self.shape.slots * self.points
         return p[len(p) - size:].reshape(self.points, 4 * self.shape.slots)
 
-    def parameters(self, limits: Limits, q: np.ndarray) -> np.ndarray:
-        """Return each clearance point's discs: the nearest its place on the guess ``q``.
+    def built(self) -> None:
+        """Check that the NLP took every clearance point's parameters (none left, none more)."""
+        if self.shape.slots and self.plane is not None and self._point != self.points:
+            raise RuntimeError(f'{self._point} clearance points built for {self.points}')
 
+    def parameters(self, limits: Limits, points: np.ndarray) -> np.ndarray:
+        """Return each clearance point's discs: the nearest its configuration on the guess.
+
+        ``points``: (points, n) the guess's configurations at the clearance rows, in g's order.
         (points, slots, 4): x, y, R and 1 per disc, nearest edge first; 0 (off) where there
         are fewer discs than slots.
         """
@@ -155,7 +154,7 @@ class Rows:
         discs = limits.obstacles
         if not self.shape.slots or self.plane is None or not len(discs):
             return values.ravel()
-        at = clearance_points(q)[:, list(self.plane)]
+        at = points[:, list(self.plane)]
         edge = np.hypot(at[:, None, 0] - discs[None, :, 0],
                         at[:, None, 1] - discs[None, :, 1]) - discs[None, :, 2]
         nearest = np.argsort(edge, axis=1, kind='stable')[:, :self.shape.slots]
@@ -223,18 +222,27 @@ def start_violation(problem: TrackingProblem) -> float:
     return problem.limits.violation(problem.q0[None], problem.v0[None])
 
 
-def judged(rows: Rows, limits: Limits, soft: bool, converged: bool, violation: float,
+def judged(rows: Rows, limits: Limits, soft: bool, converged: bool, path: np.ndarray,
+           v: np.ndarray, u: np.ndarray | None,
            message: str) -> tuple[bool, str, dict[str, float]]:
-    """Return whether a plan that breaks its limits by ``violation`` succeeded, why, and details.
+    """Return whether a plan succeeded within its limits, why not, and the details.
 
-    A soft NLP's plan is the least-violating one (its start breaks a limit); a hard NLP's plan
-    that converged past a limit went into a disc its clearance points were not given
-    (``other_disc``: solved again, :func:`.base.clear_of_every_disc`).
+    ``path``: its configurations at the start and the clearance points, in time order. A soft
+    NLP's plan is the least-violating one (its start breaks a limit); a hard NLP's plan that
+    converged into a disc went into one its clearance points were not given (``other_disc``:
+    solved again, :func:`.base.clear_of_every_disc`), and one clear at its points may still
+    pass through a disc between two of them (:meth:`.Limits.swept`).
     """
+    at_points, swept = limits.violation(path, v, u), limits.swept(path)
+    violation = max(at_points, swept)
     success = converged and violation <= VIOLATION_TOL
     if soft:
         message = f'{message}; least-violating plan: limits broken by {violation:.3g}'
+    elif converged and swept > max(at_points, VIOLATION_TOL):
+        message = (f'{message}; but the plan passes through a disc between its knots and '
+                   f'midpoints (by {swept:.3g} m: they are too far apart for its speed; more '
+                   'steps or velocity bounds)')
     return success, message, {
         'violation': violation, 'least_violating': soft and converged,
-        'other_disc': not soft and converged and not success
+        'other_disc': not soft and converged and at_points > VIOLATION_TOL
         and len(limits.obstacles) > rows.shape.slots}

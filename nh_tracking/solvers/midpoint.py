@@ -28,11 +28,12 @@ from typing import Any
 import casadi as ca
 import numpy as np
 
-from nh_tracking.limits import plane
+from nh_tracking.limits import clearance_points, plane
 from nh_tracking.numeric import NumericFunction
 from nh_tracking.problem import tracking_lagrangian, tracking_residual, TrackingProblem
 from nh_tracking.solvers.cache import PerSystemCache
-from nh_tracking.solvers.inequalities import ConstraintStack, Rows, Shape, soft_bounds, soften
+from nh_tracking.solvers.inequalities import (ConstraintStack, Rows, Shape,
+                                              soft_bounds, soften)
 from nh_tracking.solvers.newton import GaussNewtonStep, NewtonStep
 from nh_tracking.solvers.nlp import BoundedNlp
 from nh_tracking.system import NonholonomicSystem
@@ -91,7 +92,8 @@ class Transcription:
         return np.concatenate([
             problem.q0, problem.v0, q_mid.ravel(), v_mid.ravel(), q_knots[-1], v_knots[-1],
             [problem.h, problem.epsilon, problem.omega],
-            self.limits.parameters(problem.limits, q_knots if q is None else q),
+            self.limits.parameters(problem.limits,
+                                   clearance_points(q_knots if q is None else q)),
         ])
 
     def bounds(self, problem: TrackingProblem) -> dict[str, np.ndarray]:
@@ -208,6 +210,7 @@ def _stage_form(system: NonholonomicSystem, steps: int, terminal: str,
         residuals.append((q_next - q) / h - system.rho_fn(qm) @ (0.5 * (v + xs[i + 1][n:])))
     w.append(xs[-1])
     knot_limits(xs[-1])
+    limits.built()
     objective = running
     if terminal == 'cost':
         objective += 0.5 * omega * ca.sumsqr(xs[-1][:n] - q_end)

@@ -26,13 +26,14 @@ from typing import ClassVar
 import casadi as ca
 import numpy as np
 
-from nh_tracking.limits import plane
+from nh_tracking.limits import clearance_points, plane
 from nh_tracking.problem import (Solution, terminal_cost, terminal_error, tracking_lagrangian,
                                  TrackingProblem)
 from nh_tracking.solvers.base import clear_of_every_disc, Guess, Method, Structure
 from nh_tracking.solvers.cache import PerSystemCache
-from nh_tracking.solvers.inequalities import (ConstraintStack, judged, Rows, Shape, soft_bounds,
-                                              soften, start_violation, VIOLATION_TOL)
+from nh_tracking.solvers.inequalities import (ConstraintStack, judged, Rows,
+                                              Shape, soft_bounds, soften, start_violation,
+                                              VIOLATION_TOL)
 from nh_tracking.solvers.nlp import BoundedNlp, deadline_after
 from nh_tracking.system import NonholonomicSystem
 
@@ -44,17 +45,22 @@ class ShootingTranscription:
     steps: int
     nlp: BoundedNlp
     running_cost: ca.Function  # (w, p) -> integrated running cost
+    # (w, p) -> (points, n) the configurations at the clearance rows: knots, RK4 midpoints
+    clearance_at: ca.Function
     limits: Rows
     rows: int  # of the hard NLP's g
     soft_index: np.ndarray | None  # softened: the inequality rows given slacks
 
-    def parameters(self, problem: TrackingProblem, q: np.ndarray) -> np.ndarray:
-        """Return the NLP's parameters; clearance points' discs: those nearest the guess q."""
+    def parameters(self, problem: TrackingProblem, points: np.ndarray) -> np.ndarray:
+        """Return the NLP's parameters; each clearance point's discs: those nearest ``points``.
+
+        (Its configurations on the guess, in g's order.)
+        """
         fine = problem.start + np.linspace(0.0, problem.horizon, 2 * SUBSTEPS * problem.steps + 1)
         q_ref, v_ref = problem.reference_at(fine)
         return np.concatenate([q_ref.ravel(), v_ref.ravel(),
                                [problem.h, problem.epsilon, problem.omega],
-                               self.limits.parameters(problem.limits, q)])
+                               self.limits.parameters(problem.limits, points)])
 
 
 _CACHE: PerSystemCache[ShootingTranscription] = PerSystemCache()
@@ -106,6 +112,7 @@ def _build(system: NonholonomicSystem, steps: int, terminal: str,
         g.add(x - xs[i + 1])
     g.add(*limits.velocity(xs[-1][n:], g.rows))
     g.add(*limits.clearance(xs[-1][:n], g.rows))
+    limits.built()
     objective = running
     if terminal == 'cost':
         objective += 0.5 * omega * ca.sumsqr(xs[-1][:n] - q_ref[:, -1])
@@ -114,8 +121,10 @@ def _build(system: NonholonomicSystem, steps: int, terminal: str,
     if shape.soft:
         nlp, soft_index = soften(nlp, limits)
     solver = BoundedNlp(f'multiple_shooting_{system.name}_{steps}', 'ipopt', nlp, {}, bounded)
+    at = ca.horzcat(*limits.at).T if limits.at else ca.SX(0, n)
     return ShootingTranscription(steps=steps, nlp=solver,
                                  running_cost=ca.Function('running', [w, p], [running]),
+                                 clearance_at=ca.Function('clearance_at', [w, p], [at]),
                                  limits=limits, rows=g.rows, soft_index=soft_index)
 
 
@@ -144,9 +153,12 @@ def _solve_once(problem: TrackingProblem, initial_guess: Guess | None,
         u_g = np.zeros((big_n, r))
     q_g, v_g = np.array(q_g, dtype=float), np.array(v_g, dtype=float)
     q_g[0], v_g[0] = problem.q0, problem.v0
-    p = tr.parameters(problem, q_g)
     x_g = np.hstack([q_g, v_g])
     w0 = np.concatenate([np.concatenate([x_g[i], u_g[i]]) for i in range(big_n)] + [x_g[-1]])
+    # each clearance point's discs: those nearest its configuration on the guess, the RK4
+    # midpoints integrated from the knots (the discs are not in the dynamics: any will do)
+    p = tr.parameters(problem, clearance_points(q_g))
+    p = tr.parameters(problem, np.array(tr.clearance_at(w0, p)))
     lbw, ubw = np.full(w0.size, -np.inf), np.full(w0.size, np.inf)
     lbw[:n + k] = ubw[:n + k] = x_g[0]
     if problem.terminal == 'equality':
@@ -171,7 +183,8 @@ def _solve_once(problem: TrackingProblem, initial_guess: Guess | None,
     success, message, details = judged(
         tr.limits, problem.limits, tr.soft_index is not None,
         outcome.success and bool(np.all(np.isfinite(w))),
-        problem.limits.violation(q, v, u), outcome.message)  # (midpoints: between RK4 stages)
+        np.vstack([q[:1], np.array(tr.clearance_at(w, p))]), v, u,  # knots, RK4 midpoints
+        outcome.message)
     return Solution(
         t=problem.grid, q=q, v=v, u=u, cost=cost, success=success,
         iterations=outcome.iterations, solve_time=elapsed,

@@ -36,6 +36,7 @@ from typing import ClassVar, Literal
 
 import numpy as np
 
+from nh_tracking.limits import plan_path
 from nh_tracking.problem import Solution, TrackingProblem
 from nh_tracking.solvers.base import clear_of_every_disc, Guess, Method, Structure
 from nh_tracking.solvers.cache import NotPrepared
@@ -213,8 +214,7 @@ def _solve_with(problem: TrackingProblem, initial_guess: Guess | None, stop: flo
           else -lam_g[tr.dynamics_rows].reshape(problem.steps, sys.k))
     success, message, details = judged(
         tr.limits, problem.limits, tr.soft_index is not None,
-        outcome.success and bool(np.isfinite(w).all()), problem.limits.plan_violation(q, v, u),
-        outcome.message)
+        outcome.success and bool(np.isfinite(w).all()), plan_path(q), v, u, outcome.message)
     return Solution(
         t=problem.grid, q=q, v=v, u=u, cost=float(cost[0]), success=success,
         iterations=outcome.iterations, solve_time=elapsed,

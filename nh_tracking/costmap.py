@@ -1,0 +1,76 @@
+# Copyright 2026 nh_tracking maintainers
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+
+"""Occupied cells of a costmap as discs an NLP can keep clear of, and the gap to them.
+
+A costmap (nav_msgs/OccupancyGrid) marks cells; the planner's obstacles are discs. Touching
+cells become one disc, and large groups are cut on a grid fixed in the frame, so the discs do
+not move with the robot.
+"""
+from __future__ import annotations
+
+import numpy as np
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import connected_components
+from scipy.spatial import cKDTree
+
+
+def costmap_discs(cells: np.ndarray, cell_size: float, size: float) -> np.ndarray:
+    """Discs (x, y, r) covering occupied square cells of side ``cell_size``, from them alone.
+
+    ``cells``: (K, 2) cell centres. Each group of touching cells (diagonals included) is one
+    disc, the smallest about the group's mean holding its cells whole, when that disc's radius
+    is at most ``size`` (plus half a cell's diagonal); a larger group is cut along a grid of
+    side ``size`` fixed in the frame, a disc per piece. Never drawn about where the robot is:
+    discs that moved with the robot would put a plan that hugs one inside the next, and the
+    next solve would start from a plan that breaks a limit.
+    """
+    cells = np.asarray(cells, dtype=float).reshape(-1, 2)
+    if not len(cells):
+        return np.zeros((0, 3))
+    pairs = cKDTree(cells).query_pairs(1.5 * cell_size, output_type='ndarray')
+    links = coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])),
+                       shape=(len(cells), len(cells)))
+    _, group = connected_components(links, directed=False)
+    half_diagonal = cell_size / np.sqrt(2.0)
+    discs = []
+    for members in _groups(cells, group):
+        disc = _enclosing(members, half_diagonal)
+        if disc[2] > size + half_diagonal:
+            _, piece = np.unique(np.floor(members / size).astype(np.int64), axis=0,
+                                 return_inverse=True)
+            discs += [_enclosing(part, half_diagonal) for part in _groups(members, piece.ravel())]
+        else:
+            discs.append(disc)
+    return np.array(discs)
+
+
+def _groups(cells: np.ndarray, labels: np.ndarray) -> list[np.ndarray]:
+    """Split cells by their labels 0..L-1 (sorted once, not one pass per label)."""
+    order = np.argsort(labels, kind='stable')
+    return np.split(cells[order], np.cumsum(np.bincount(labels))[:-1])
+
+
+def _enclosing(cells: np.ndarray, half_diagonal: float) -> tuple[float, float, float]:
+    """Return the disc about the cells' mean that holds every (square) cell whole."""
+    middle = cells.mean(axis=0)
+    return middle[0], middle[1], float(np.hypot(*(cells - middle).T).max() + half_diagonal)
+
+
+def gap(point: np.ndarray, discs: np.ndarray, cells: np.ndarray, cell_size: float) -> float:
+    """Distance from ``point`` (x, y) to the nearest disc edge or occupied cell (inf if none)."""
+    point = np.asarray(point, dtype=float)[:2]
+    to_discs = np.hypot(*(discs[:, :2] - point).T) - discs[:, 2]
+    to_cells = np.hypot(*(cells - point).T) - cell_size / np.sqrt(2.0)
+    return float(min(np.min(to_discs, initial=np.inf), np.min(to_cells, initial=np.inf)))
