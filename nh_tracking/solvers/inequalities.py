@@ -16,11 +16,12 @@
 
 An NLP is built for a *shape* of limits — which kinds are bounded, how many obstacle slots
 each clearance point has — so replanning with new bound values or moving obstacles only changes
-numbers. Each knot and midpoint keeps clear of its own :data:`POINT_SLOTS` discs, those nearest
-it at the guess (parameters of the solve): the NLP's size does not grow with the number of
-obstacles — 8 discs in every point's rows made every replan 2x a free one, in contact or not.
-The plan is then checked against every disc, and re-solved from itself where it touches one it
-was not given. Clearance is written squared, |p - c|^2 - R^2 >= 0, which is smooth.
+numbers. Each knot and midpoint has slots of its own, filled with the discs nearest it on the
+guess (parameters of the solve): all of them while they fit, the nearest :data:`POINT_SLOTS`
+of more, so past 4 obstacles the NLP's size no longer grows with them (8 discs in every point's
+rows made every replan about 2x a free one, in contact or not). The plan is then checked
+against every disc, and re-solved where it touches one it was not given. Clearance is written
+squared, |p - c|^2 - R^2 >= 0, which is smooth.
 
 Soft form, for a start that itself breaks a limit (inside an obstacle, faster than a bound):
 each row gets a slack s >= 0 (lo - s <= g <= hi + s) and the cost an exact L1 penalty
