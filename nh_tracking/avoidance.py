@@ -27,8 +27,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from nh_tracking.limits import (clear_of_start, knots_and_midpoints, Limits, nearest_discs, plane,
-                                relevant_discs)
+from nh_tracking.limits import (clear_of_start, knots_and_midpoints, Limits, nearest_discs,
+                                plan_path, plane, relevant_discs)
 from nh_tracking.problem import Solution, TrackingProblem
 from nh_tracking.solvers.inequalities import VIOLATION_TOL
 from nh_tracking.system import NonholonomicSystem
@@ -73,8 +73,9 @@ class Avoidance:
         """Whether a plan built with some of ``discs`` touches one left out (knots, midpoints)."""
         if len(problem.limits.obstacles) == len(discs):
             return False
-        return bool(self.limits(discs).clearance(knots_and_midpoints(sol.q)).min()
-                    < -VIOLATION_TOL)
+        every = self.limits(discs)
+        return bool(every.clearance(knots_and_midpoints(sol.q)).min() < -VIOLATION_TOL
+                    or every.swept(plan_path(sol.q)) > VIOLATION_TOL)
 
     def no_deeper(self, problem: TrackingProblem, sol: Solution, discs: np.ndarray) -> bool:
         """Whether a plan from a start that breaks a limit breaks none more than the start does.
@@ -89,7 +90,8 @@ class Avoidance:
         start = max(problem.limits.violation(problem.q0[None], problem.v0[None]),
                     float(np.max(-every.clearance(problem.q0[None]), initial=0.0)))
         worst = max(problem.limits.violation(after, sol.v[1:], sol.u),
-                    float(np.max(-every.clearance(after), initial=0.0)))
+                    float(np.max(-every.clearance(after), initial=0.0)),
+                    every.swept(plan_path(sol.q)))  # (nor through one between its points)
         return worst <= start + VIOLATION_TOL
 
     def limits(self, discs: np.ndarray) -> Limits:

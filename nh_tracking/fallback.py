@@ -29,7 +29,7 @@ from dataclasses import dataclass
 import casadi as ca
 import numpy as np
 
-from nh_tracking.limits import knots_and_midpoints, Limits
+from nh_tracking.limits import knots_and_midpoints, Limits, plan_path
 from nh_tracking.poses import PoseMap, wrap_angle
 from nh_tracking.problem import Solution, terminal_error, TrackingProblem
 from nh_tracking.simulate import held_rk4
@@ -150,9 +150,13 @@ def fallback(problem: TrackingProblem, clear_of: Limits) -> tuple[Solution, str]
 
 
 def _closest(plan: Solution, clear_of: Limits) -> tuple[float, float]:
-    """(closest approach after the start at knots and midpoints, clearance at the end), mm."""
-    return (round(float(clear_of.clearance(knots_and_midpoints(plan.q, first=1)).min()), 3),
-            round(float(clear_of.clearance(plan.q[-1:]).min()), 3))
+    """(closest approach after the start at knots and midpoints, clearance at the end), mm.
+
+    A path through a disc between its points comes as close as it cuts in (negative).
+    """
+    closest = min(float(clear_of.clearance(knots_and_midpoints(plan.q, first=1)).min()),
+                  -clear_of.swept(plan_path(plan.q)))
+    return round(closest, 3), round(float(clear_of.clearance(plan.q[-1:]).min()), 3)
 
 
 def _finite(plan: Solution) -> Solution:

@@ -151,6 +151,9 @@ class Limits:
         between two points on a disc's edge cuts in by its chord's sagitta; more than that, or
         than :data:`SWEPT_DEPTH` of the radius, and the path went through the disc between
         its points (a plan so fast that its points are farther apart than the disc is wide).
+        Points inside a disc are :meth:`clearance`'s to report (short segments are not looked
+        at: theirs can cut in deeper only from a point inside). A path that curves between
+        its points is judged by its chords (a replay may go a little deeper).
         """
         if self.plane is None or len(path) < 2:
             return 0.0

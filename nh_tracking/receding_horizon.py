@@ -240,6 +240,9 @@ class RecedingHorizonPlanner:
                         nearest, Guess(sol.q, sol.v, sol.u, sol.multipliers), s.max_solve_time)
                     again.solve_time += sol.solve_time
                     sol = again
+                    if sol.success and avoidance.hits_one_left_out(nearest, sol, discs):
+                        sol.success = False  # (more obstacles about it than an NLP takes)
+                        sol.message = f'{sol.message}; the plan touches an obstacle left out'
             error = '' if sol.success else f'solver: {sol.message}'
         except (ArithmeticError, RuntimeError, ValueError) as exc:  # a numerical failure
             sol, error = None, f'solver raised {type(exc).__name__}: {exc}'

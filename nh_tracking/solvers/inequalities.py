@@ -232,7 +232,8 @@ def judged(rows: Rows, limits: Limits, soft: bool, converged: bool, path: np.nda
     NLP's plan is the least-violating one (its start breaks a limit); a hard NLP's plan that
     converged into a disc went into one its clearance points were not given (``other_disc``:
     solved again, :func:`.base.clear_of_every_disc`), and one clear at its points may still
-    pass through a disc between two of them (:meth:`.Limits.swept`).
+    pass through a disc between two of them (:meth:`.Limits.swept`: ``through_disc``, which a
+    soft NLP, blind to it as well, does not mend).
     """
     at_points, swept = limits.violation(path, v, u), limits.swept(path)
     violation = max(at_points, swept)
@@ -246,4 +247,5 @@ def judged(rows: Rows, limits: Limits, soft: bool, converged: bool, path: np.nda
     return success, message, {
         'violation': violation, 'least_violating': soft and converged,
         'other_disc': not soft and converged and at_points > VIOLATION_TOL
-        and len(limits.obstacles) > rows.shape.slots}
+        and len(limits.obstacles) > rows.shape.slots,
+        'through_disc': converged and at_points <= VIOLATION_TOL < swept}

@@ -137,7 +137,7 @@ def solve_multiple_shooting(problem: TrackingProblem, initial_guess: Guess | Non
 def _solve_until(problem: TrackingProblem, initial_guess: Guess | None,
                  stop: float | None) -> Solution:
     return clear_of_every_disc(lambda guess, every: _solve_once(problem, guess, stop, every),
-                               initial_guess, stop)
+                               initial_guess, stop, problem)
 
 
 def _solve_once(problem: TrackingProblem, initial_guess: Guess | None,

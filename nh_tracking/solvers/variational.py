@@ -118,7 +118,7 @@ def solve_variational_until(problem: TrackingProblem, initial_guess: Guess | Non
     def route(solver: str, compiled: bool, soft: bool, newton: bool = False) -> Solution:
         return clear_of_every_disc(lambda guess, every: _solve_with(
             problem, guess, stop, solver, compiled, soft, newton=newton, every=every),
-            initial_guess, stop)
+            initial_guess, stop, problem)
 
     def time_left(previous: Solution) -> bool:
         return previous.message != DEADLINE and before(stop)
@@ -128,8 +128,8 @@ def solve_variational_until(problem: TrackingProblem, initial_guess: Guess | Non
     if not result.success and solver == 'fatrop' and not soft and time_left(result):
         result = _next_route(result, f'fatrop failed ({result.message}) -> ipopt',
                              lambda: route('ipopt', False, False))
-    if not result.success and problem.limits.active and not soft and time_left(result):
-        # e.g. a terminal state inside an obstacle: the least-violating plan, reported so
+    if not result.success and problem.limits.active and not soft and time_left(result) and \
+            not result.details.get('through_disc'):  # e.g. a terminal state inside an obstacle
         result = _next_route(result, f'{result.route} failed ({result.message}) -> soft limits',
                              lambda: route(solver, compiled, True))
     return result
