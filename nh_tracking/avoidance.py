@@ -27,8 +27,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from nh_tracking.limits import (clear_of_start, knots_and_midpoints, Limits, nearest_discs,
-                                plan_path, plane, relevant_discs)
+from nh_tracking.limits import (clear_of_start, knots_and_midpoints, Limits, plan_path, plane,
+                                relevant_discs)
 from nh_tracking.problem import Solution, TrackingProblem
 from nh_tracking.solvers.inequalities import VIOLATION_TOL
 from nh_tracking.system import NonholonomicSystem
@@ -64,9 +64,13 @@ class Avoidance:
         path = self.reference.sample(np.linspace(t, t + self.horizon, self.steps + 1))[0]
         return relevant_discs(discs, q[axes], path[:, axes], self.robot_radius, MAX_OBSTACLES)
 
-    def nearest(self, q: np.ndarray, discs: np.ndarray) -> np.ndarray:
-        """Return the discs an NLP can take that are nearest the robot at q."""
-        return nearest_discs(discs, q[list(plane(self.system))], MAX_OBSTACLES)
+    def nearest(self, plan: Solution, discs: np.ndarray) -> np.ndarray:
+        """Return the discs an NLP can take that come nearest a plan (those it touches first).
+
+        (Nearest the robot instead, a plan through a crowd of more could touch a ninth.)
+        """
+        grown = self.limits(discs).clearance(plan_path(plan.q)).min(axis=0)
+        return discs[np.argsort(grown, kind='stable')[:MAX_OBSTACLES]]
 
     def hits_one_left_out(self, problem: TrackingProblem, sol: Solution,
                           discs: np.ndarray) -> bool:

@@ -235,7 +235,7 @@ class RecedingHorizonPlanner:
                 sol = self.method.solve(problem, None if guess is None
                                         else sample_plan(problem, guess), s.max_solve_time)
                 if sol.success and avoidance.hits_one_left_out(problem, sol, discs):
-                    nearest = dataclasses.replace(problem, obstacles=avoidance.nearest(q, discs))
+                    nearest = dataclasses.replace(problem, obstacles=avoidance.nearest(sol, discs))
                     again = self.method.solve(
                         nearest, Guess(sol.q, sol.v, sol.u, sol.multipliers), s.max_solve_time)
                     again.solve_time += sol.solve_time
