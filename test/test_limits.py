@@ -169,8 +169,9 @@ def test_each_knot_and_midpoint_keeps_clear_of_the_discs_nearest_it():
     """A clearance point's rows take the discs whose edges are nearest it on the guess.
 
     Checked against a brute force over the points in g's order (midpoint, then the interval's
-    end knot): all of them while they fit (2 or 4 slots), the nearest 4 of more; the NLP is
-    the same for 5 discs as for 8 (its size does not grow with them).
+    end knot): all of them while they fit (2 or 4 slots), the nearest 4 of more, in the discs'
+    own order (a disc keeps its slot); the NLP is the same for 5 discs as for 8 (its size
+    does not grow with them).
     """
     from nh_tracking.solvers.inequalities import Shape
     from nh_tracking.solvers.midpoint import transcription
@@ -191,7 +192,7 @@ def test_each_knot_and_midpoint_keeps_clear_of_the_discs_nearest_it():
         for j in range(60):
             point = 0.5 * (q[j // 2] + q[j // 2 + 1]) if j % 2 == 0 else q[j // 2 + 1]
             edge = [np.hypot(*(point[:2] - d[:2])) - d[2] - 0.1 for d in discs]
-            order = sorted(range(count), key=edge.__getitem__)[:slots]
+            order = sorted(sorted(range(count), key=edge.__getitem__)[:slots])  # the given order
             np.testing.assert_allclose(assigned[j, :len(order), :3],
                                        problem.limits.obstacles[order], atol=1e-12)
             assert assigned[j, :, 3].tolist() == [1.0] * len(order) + [0.0] * (slots - len(order))

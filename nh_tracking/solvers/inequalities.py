@@ -148,19 +148,23 @@ class Rows:
         """Return each clearance point's discs: the nearest its configuration on the guess.
 
         ``points``: (points, n) the guess's configurations at the clearance rows, in g's order.
-        (points, slots, 4): x, y, R and 1 per disc, nearest edge first; 0 (off) where there
-        are fewer discs than slots.
+        (points, slots, 4): x, y, R and 1 per disc, in the order of ``limits``' discs (a disc
+        keeps its slot while it stays among the point's nearest: its multiplier is carried);
+        0 (off) where there are fewer discs than slots. All of them at every point while they
+        fit.
         """
         values = np.zeros((self.points, self.shape.slots, 4))
-        discs = limits.obstacles
-        if not self.shape.slots or self.plane is None or not len(discs):
+        discs, slots = limits.obstacles, self.shape.slots
+        if not slots or self.plane is None or not len(discs):
+            return values.ravel()
+        if len(discs) <= slots:
+            values[:, :len(discs), :3], values[:, :len(discs), 3] = discs, 1.0
             return values.ravel()
         at = points[:, list(self.plane)]
         edge = np.hypot(at[:, None, 0] - discs[None, :, 0],
                         at[:, None, 1] - discs[None, :, 1]) - discs[None, :, 2]
-        nearest = np.argsort(edge, axis=1, kind='stable')[:, :self.shape.slots]
-        values[:, :nearest.shape[1], :3] = discs[nearest]
-        values[:, :nearest.shape[1], 3] = 1.0
+        nearest = np.sort(np.argpartition(edge, slots - 1, axis=1)[:, :slots], axis=1)
+        values[:, :, :3], values[:, :, 3] = discs[nearest], 1.0
         return values.ravel()
 
     def bounds(self, rows: int, limits: Limits) -> tuple[np.ndarray, np.ndarray]:
