@@ -17,9 +17,8 @@
 Each knot and midpoint of an NLP keeps clear of the discs nearest it, and its last resort (a
 crowd) has a slot for every disc at every point: a bounded number, so each replan takes only
 the discs that can bend its plan; the plan is then checked against every disc the planner
-knows of. A
-robot already inside a disc's clearance (it drifted, or the disc was redrawn) has that disc
-shrunk for this replan, so the prepared NLP still has a solution.
+knows of. A robot already inside a disc's clearance (it drifted, or the disc was redrawn) has
+that disc shrunk for this replan, so the prepared NLP still has a solution.
 """
 from __future__ import annotations
 
@@ -74,7 +73,10 @@ class Avoidance:
 
     def hits_one_left_out(self, problem: TrackingProblem, sol: Solution,
                           discs: np.ndarray) -> bool:
-        """Whether a plan built with some of ``discs`` touches one left out (knots, midpoints)."""
+        """Whether a plan built with some of ``discs`` touches one left out.
+
+        At its knots and midpoints, or between them (:meth:`.Limits.swept`).
+        """
         if len(problem.limits.obstacles) == len(discs):
             return False
         every = self.limits(discs)

@@ -38,7 +38,7 @@ from nh_tracking.limits import Limits
 from nh_tracking.problem import TrackingProblem
 
 SOFT_WEIGHT = 1e4  # per unit of violation: above the multipliers of any sane tracking cost
-MIN_SLOTS = 2  # obstacle slots of an NLP with obstacles (then 4: one NLP per size)
+MIN_SLOTS = 2  # obstacle slots of an NLP with obstacles (then 4, 8: one NLP per size)
 POINT_SLOTS = 4  # discs a knot or midpoint keeps clear of at most (those nearest it)
 VIOLATION_TOL = 1e-6  # a plan breaking a limit by more is no success
 
@@ -100,7 +100,6 @@ class Rows:
     kinds: list[tuple[int, int, str]] = field(default_factory=list)  # (first row, size, kind)
     at: list[ca.SX] = field(default_factory=list)  # the clearance points' configurations
     _index: dict[str, tuple[np.ndarray, np.ndarray]] = field(default_factory=dict, repr=False)
-
     _point: int = field(default=0, repr=False)  # the next clearance point's parameters
 
     def __post_init__(self) -> None:
