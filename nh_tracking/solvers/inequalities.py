@@ -69,8 +69,9 @@ class Shape:
 
     @classmethod
     def of(cls, limits: Limits, soft: bool = False, every: bool = False) -> Shape:
+        """Return the shape of ``limits``' NLP; a soft one has every disc at every point."""
         return cls(limits.bounded_controls, limits.bounded_velocities,
-                   obstacle_slots(len(limits.obstacles), every), soft)
+                   obstacle_slots(len(limits.obstacles), every or soft), soft)
 
 
 class ConstraintStack:

@@ -32,8 +32,7 @@ from nh_tracking.limits import clearance_points, plane
 from nh_tracking.numeric import NumericFunction
 from nh_tracking.problem import tracking_lagrangian, tracking_residual, TrackingProblem
 from nh_tracking.solvers.cache import PerSystemCache
-from nh_tracking.solvers.inequalities import (ConstraintStack, Rows, Shape,
-                                              soft_bounds, soften)
+from nh_tracking.solvers.inequalities import ConstraintStack, Rows, Shape, soft_bounds, soften
 from nh_tracking.solvers.newton import GaussNewtonStep, NewtonStep
 from nh_tracking.solvers.nlp import BoundedNlp
 from nh_tracking.system import NonholonomicSystem

@@ -31,9 +31,8 @@ from nh_tracking.problem import (Solution, terminal_cost, terminal_error, tracki
                                  TrackingProblem)
 from nh_tracking.solvers.base import clear_of_every_disc, Guess, Method, Structure
 from nh_tracking.solvers.cache import PerSystemCache
-from nh_tracking.solvers.inequalities import (ConstraintStack, judged, Rows,
-                                              Shape, soft_bounds, soften, start_violation,
-                                              VIOLATION_TOL)
+from nh_tracking.solvers.inequalities import (ConstraintStack, judged, Rows, Shape, soft_bounds,
+                                              soften, start_violation, VIOLATION_TOL)
 from nh_tracking.solvers.nlp import BoundedNlp, deadline_after
 from nh_tracking.system import NonholonomicSystem
 
@@ -146,7 +145,7 @@ def _solve_once(problem: TrackingProblem, initial_guess: Guess | None,
     n, k, r = sys.n, sys.k, sys.r
     soft = start_violation(problem) > VIOLATION_TOL
     tr = shooting_transcription(sys, big_n, problem.terminal, stop is not None,
-                                Shape.of(problem.limits, soft, every or soft))
+                                Shape.of(problem.limits, soft, every))
     q_g, v_g = problem.reference_samples[:2] if initial_guess is None else initial_guess[:2]
     u_g = None if initial_guess is None else initial_guess[2]
     if u_g is None:

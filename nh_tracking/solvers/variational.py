@@ -152,7 +152,7 @@ def _solve_with(problem: TrackingProblem, initial_guess: Guess | None, stop: flo
                 iterations: int = 0, newton: bool = False, every: bool = False) -> Solution:
     sys = problem.system
     tr = transcription(sys, problem.steps, problem.terminal, stop is not None, solver,
-                       compiled, Shape.of(problem.limits, soft, every or soft), iterations)
+                       compiled, Shape.of(problem.limits, soft, every), iterations)
     q_g, v_g, u_g = (*default_guess(problem), None) if initial_guess is None else initial_guess[:3]
     q_g, v_g = np.array(q_g, dtype=float), np.array(v_g, dtype=float)
     q_g[0], v_g[0] = problem.q0, problem.v0
