@@ -14,18 +14,15 @@
 
 """A tracking session: reference and odometry in, plans out, on one time base — without ROS.
 
-What a planner front end needs between its messages and the planner: the time base (integer
-nanoseconds in, seconds from an epoch inside, so wall-clock stamps near 1.8e18 ns keep their
-resolution), the latest state, a worker thread that solves so callbacks never wait, and
-rebuilds in the background: a model or NLP rebuild (seconds, when compiling) never stops the
-plan in force — the old solver replans until the new one is swapped in between two replans.
+Integer nanoseconds in, seconds from an epoch inside (wall-clock stamps keep their resolution);
+a solver thread so callbacks never wait, and a builder thread: a rebuild never stops the plan
+in force, the new solver is swapped in between two replans.
 """
 from __future__ import annotations
 
 from collections import deque
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
-import gc
 import threading
 import time
 
@@ -36,7 +33,9 @@ from nh_tracking.limits import obstacle_discs
 from nh_tracking.poses import PoseMap
 from nh_tracking.problem import Solution
 from nh_tracking.receding_horizon import PlannerSettings, PlanOutcome, RecedingHorizonPlanner
-from nh_tracking.session_types import Clock, PlanResult, StateEstimate
+from nh_tracking.reference_checks import check_implied_motion
+from nh_tracking.session_types import (Clock, ClockSkew, PlanResult, settle_heap,
+                                       StateEstimate)
 from nh_tracking.system import NonholonomicSystem
 from nh_tracking.trajectory import Trajectory
 
@@ -45,21 +44,6 @@ from nh_tracking.trajectory import Trajectory
 class _Build:
     physical: dict
     settings: PlannerSettings
-
-
-def settle_heap(generation: int) -> None:
-    """Collect ``generation`` and exempt every object alive then from later collections.
-
-    A full collection holds the interpreter while it walks every tracked object: 100 ms in a
-    planner process (imports, models, NLPs), which stopped ``cmd_vel`` and the solver alike.
-    What is alive once a planner is built lives as long as it. At start the full collection
-    runs first (start-up waits anyway); after a rebuild only the young generations, as a full
-    one would be the stop this avoids: cyclic garbage already in the oldest generation then
-    stays (the planner's own leaves none: replaced planners and systems go by reference
-    counting, as the tests check).
-    """
-    gc.collect(generation)
-    gc.freeze()
 
 
 class TrackingSession:
@@ -71,6 +55,9 @@ class TrackingSession:
         self.model = model
         self.clock = clock
         self.odom_timeout = odom_timeout
+        self.max_clock_skew = 0.1  # [s] odometry stamped further ahead of the clock is refused
+        self.reference_bounds = (0.0, 0.0)  # (max speed [m/s], max accel [m/s^2]); 0: unchecked
+        self.on_stale: Callable[[], None] = lambda: None  # said at once, on the thread that saw it
         self.log = log
         self.epoch_ns = clock()
         system = models.create(model, **physical)
@@ -107,11 +94,7 @@ class TrackingSession:
 
     # threads ----------------------------------------------------------------------------------
     def start(self, on_plan: Callable[[PlanResult], None]) -> None:
-        """Start the solver and builder threads; every new plan goes to ``on_plan`` at once.
-
-        Nothing else runs on the solver thread between two plans: what people look at is read
-        from :attr:`outcome` at its own rate.
-        """
+        """Start the threads; each plan goes to ``on_plan`` at once (displays read outcome)."""
         self._on_plan = on_plan
         self._stop.clear()
         self._threads = [threading.Thread(target=self._loop, args=(self._wake, self.replan),
@@ -149,10 +132,11 @@ class TrackingSession:
     # inputs -----------------------------------------------------------------------------------
     def set_reference(self, stamps_ns: np.ndarray, poses: np.ndarray,
                       twists: np.ndarray | None) -> Trajectory:
-        """Track timed poses (and body twists, if given) from the next plan on."""
+        """Track timed poses (and twists) from the next plan on; else ReferenceRejected."""
         with self._lock:
             hidden = None if self._state is None else self._state.q
-        times = np.array([self.seconds(int(ns)) for ns in stamps_ns])
+        times = (np.asarray(stamps_ns, dtype=np.int64) - self.epoch_ns) * 1e-9
+        check_implied_motion(times, np.asarray(poses)[:, :2], *self.reference_bounds)
         with self._solve_lock:
             reference = self.pose_map.reference(times, poses, twists, hidden)
             self.planner.set_reference(reference)
@@ -160,7 +144,16 @@ class TrackingSession:
 
     def set_odometry(self, ns: int, pose: np.ndarray, twist: np.ndarray,
                      received: float) -> None:
-        """Take the latest measured pose and body twist (hidden coordinates dead-reckoned)."""
+        """Take the latest pose and body twist (hidden coordinates dead-reckoned).
+
+        ClockSkew if stamped over max_clock_skew ahead; a state is never later than the clock.
+        """
+        now = self.clock()
+        ahead = (ns - now) * 1e-9
+        if ahead > self.max_clock_skew:
+            raise ClockSkew(f'stamped {ahead:.3f} s ahead of this clock (max_clock_skew is '
+                            f'{self.max_clock_skew:g} s): clocks out of step?')
+        ns = min(ns, now)
         with self._lock:
             prev = self._state
         pose_map = self.pose_map
@@ -191,10 +184,7 @@ class TrackingSession:
 
     # reconfiguration --------------------------------------------------------------------------
     def reconfigure(self, physical: Mapping[str, float], settings: PlannerSettings) -> None:
-        """Apply new model parameters and/or settings, built on the builder thread.
-
-        Until they are ready, the current solver keeps planning. The latest request wins.
-        """
+        """Rebuild with new parameters on the builder thread (the latest request wins)."""
         with self._lock:
             self._pending = _Build(dict(physical), settings)
         self._rebuild.set()
@@ -259,21 +249,27 @@ class TrackingSession:
             return 'no reference yet'
         if state is None:
             return 'no odometry yet'
-        age = (self.clock() - state.ns) * 1e-9
-        if age > self.odom_timeout:
-            with self._lock:
-                newly_stale, self.stale = not self.stale, True
-            if newly_stale:
-                self.log('warn', f'odometry is {age:.2f} s old: stopped commanding')
+        age = self.check_stale(state)
+        if age is not None:
             return f'odometry is stale ({age:.2f} s old); not planning'
         return ''
 
-    def preview(self, pose: np.ndarray | None) -> tuple[Solution | None, str]:
-        """Return a plan from ``pose`` at rest now.
+    def check_stale(self, state: StateEstimate | None) -> float | None:
+        """Return the state's age [s] if it is stale (and mark the session so), else None."""
+        if state is None:
+            return None
+        age = (self.clock() - state.ns) * 1e-9
+        if age <= self.odom_timeout:
+            return None
+        with self._lock:
+            newly_stale, self.stale = not self.stale, True
+        if newly_stale:
+            self.log('warn', f'odometry is {age:.2f} s old: stopped commanding')
+            self.on_stale()
+        return age
 
-        Or from the latest state when ``pose`` is None, leaving the replanning loop alone; (None,
-        reason) when there is none to give.
-        """
+    def preview(self, pose: np.ndarray | None) -> tuple[Solution | None, str]:
+        """Return a plan from ``pose`` at rest (None: the latest state), or (None, why not)."""
         state = self.state
         if self.planner.reference is None:
             return None, 'no reference to track yet'
@@ -293,8 +289,9 @@ class TrackingSession:
 
     def command(self, now_ns: int) -> np.ndarray | None:
         """Return the plan's body twist now (zero if stale or outside it); None before one."""
+        stale = self.active and self.check_stale(self.state) is not None
         with self._lock:
-            outcome, stale, commanded = self.outcome, self.stale, self._commanded
+            outcome, stale, commanded = self.outcome, stale or self.stale, self._commanded
         if outcome is None:
             return None
         if commanded is None or commanded[0] is not outcome:

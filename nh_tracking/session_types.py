@@ -17,6 +17,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass
+import gc
 
 import numpy as np
 
@@ -38,6 +39,13 @@ class SessionSettings:
                                   'Hz', (0.1, 1000.0))
     odom_timeout: float = setting(0.5, 'odometry older than this is stale: zero command, no '
                                   'plans', 's', (1e-3, 3600.0))
+    max_clock_skew: float = setting(0.1, 'odometry stamped further ahead of this clock is '
+                                    'refused (clocks out of step)', 's', (1e-3, 60.0))
+    reference_max_speed: float = setting(10.0, 'references faster than this are refused '
+                                         '(0: not checked)', 'm/s', (0.0, 1e3))
+    reference_max_accel: float = setting(20.0, 'references accelerating more than this (over '
+                                         '0.2 s) are refused (0: not checked)', 'm/s^2',
+                                         (0.0, 1e4))
 
     def __post_init__(self) -> None:
         check_fields(self)
@@ -60,3 +68,22 @@ class PlanResult:
     outcome: PlanOutcome | None
     state: StateEstimate | None
     reason: str
+
+
+class ClockSkew(ValueError):
+    """A state stamped ahead of the clock that receives it."""
+
+
+def settle_heap(generation: int) -> None:
+    """Collect ``generation`` and exempt every object alive then from later collections.
+
+    A full collection holds the interpreter while it walks every tracked object: 100 ms in a
+    planner process (imports, models, NLPs), which stopped ``cmd_vel`` and the solver alike.
+    What is alive once a planner is built lives as long as it. At start the full collection
+    runs first (start-up waits anyway); after a rebuild only the young generations, as a full
+    one would be the stop this avoids: cyclic garbage already in the oldest generation then
+    stays (the planner's own leaves none: replaced planners and systems go by reference
+    counting, as the tests check).
+    """
+    gc.collect(generation)
+    gc.freeze()

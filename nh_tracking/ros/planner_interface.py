@@ -32,6 +32,21 @@ LATCHED = QoSProfile(depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL,
 # a sample both deliver is recognised by its publication stamp and sequence number.
 REFERENCE_QOS = (LATCHED, QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE))
 
+
+class FirstDelivery:
+    """``self(info)`` is False for the second copy of a sample (both subscriptions get it)."""
+
+    def __init__(self) -> None:
+        self._last: tuple[object, object] | None = None
+
+    def __call__(self, info: dict | None) -> bool:
+        if not info:
+            return True
+        key = (info.get('source_timestamp'), info.get('publication_sequence_number'))
+        duplicate, self._last = key == self._last, key
+        return not duplicate
+
+
 SETTINGS = ParameterSpec.of(PlannerSettings)
 SESSION = ParameterSpec.of(SessionSettings)
 NODE = (

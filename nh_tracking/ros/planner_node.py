@@ -14,14 +14,9 @@
 
 """The planner node: reference + odometry in, optimal tracking plans out, as a lifecycle node.
 
-The numerics live in a ROS-free :class:`~nh_tracking.session.TrackingSession`: its solver
-thread plans, its builder thread rebuilds after a parameter change while the plan in force keeps
-going. Executor callbacks only convert messages; services run on a thread of their own, so a
-solve behind ``plan`` or ``replan`` never stops ``cmd_vel``. Odometry arrives on a thread of its
-own too (:mod:`~nh_tracking.ros.odometry_receiver`); with ``replan_on_odom`` the plan is made
-there, on receipt, rather than handed to the solver thread. Lifecycle as in Nav2: configure
-builds the model and NLP, activate commands, deactivate stops with a zero ``cmd_vel``, cleanup
-frees; ``autostart`` (default true) goes to active at start-up, no lifecycle manager needed.
+Numerics live in a ROS-free :class:`~nh_tracking.session.TrackingSession`; callbacks only
+convert messages. Services and odometry run on threads of their own (``replan_on_odom``: plans
+on receipt). Lifecycle as in Nav2; ``autostart`` (default true) goes to active at start-up.
 """
 from __future__ import annotations
 
@@ -40,17 +35,21 @@ from visualization_msgs.msg import MarkerArray
 from nh_tracking.avoidance import MAX_OBSTACLES
 from nh_tracking.health import session_health
 from nh_tracking.receding_horizon import PlannerSettings
+from nh_tracking.reference_checks import ReferenceRejected
 from nh_tracking.ros import cdr, conversions as cv
+from nh_tracking.ros.lifecycle import answer_every_transition
 from nh_tracking.ros.markers import obstacle_markers, plan_markers
 from nh_tracking.ros.obstacle_listener import DISC_SIZE, ObstacleListener
 from nh_tracking.ros.odometry_receiver import OdometryReceiver
 from nh_tracking.ros.parameters import declare_all, declare_model
-from nh_tracking.ros.planner_interface import LATCHED, PARAMETERS, REFERENCE_QOS
+from nh_tracking.ros.planner_interface import (FirstDelivery, LATCHED, PARAMETERS,
+                                               REFERENCE_QOS)
 from nh_tracking.ros.planner_parameters import RuntimeParameters
 from nh_tracking.ros.planner_services import PlannerServices
 from nh_tracking.ros.runner import autostart
 from nh_tracking.ros.safety import guarded
 from nh_tracking.session import PlanResult, TrackingSession
+from nh_tracking.session_types import ClockSkew
 
 
 class PlannerNode(RuntimeParameters, ObstacleListener, LifecycleNode):
@@ -60,6 +59,7 @@ class PlannerNode(RuntimeParameters, ObstacleListener, LifecycleNode):
 
     def __init__(self, **kwargs) -> None:
         super().__init__('nh_tracking_planner', **kwargs)
+        answer_every_transition(self, self.reject)
         self.model, self.physical = declare_model(self)
         self.params = declare_all(self, PARAMETERS)
         self.frame = self.params['frame_id']
@@ -71,7 +71,7 @@ class PlannerNode(RuntimeParameters, ObstacleListener, LifecycleNode):
         self._odometry: OdometryReceiver | None = None
         self._obstacles_lock = threading.Lock()
         self._planned_ns = 0  # system time the last plan made on receipt of odometry ended
-        self._last_reference: tuple[object, object] | None = None
+        self._first_delivery = FirstDelivery()
         self._configure_error = ''  # why the last configure failed
         self.add_on_set_parameters_callback(self._validate_parameters)
         self.add_post_set_parameters_callback(self._apply_parameters)
@@ -117,6 +117,8 @@ class PlannerNode(RuntimeParameters, ObstacleListener, LifecycleNode):
             self._configure_error = f'{type(exc).__name__}: {exc}'
             self.fail('configure', exc)
             return TransitionCallbackReturn.FAILURE
+        self._tune(session)
+        session.on_stale = self.publish_diagnostics
         self.session = session
         cmd_type = TwistStamped if self.params['cmd_vel_stamped'] else Twist
         self.pub_path = self.create_lifecycle_publisher(Path, 'planned_path', LATCHED)
@@ -128,8 +130,7 @@ class PlannerNode(RuntimeParameters, ObstacleListener, LifecycleNode):
         self.pub_diag = self.create_publisher(DiagnosticArray, '/diagnostics', 10)
         self._entities = [self.pub_path, self.pub_controls, self.pub_cmd, self.pub_markers,
                           self.pub_diag, self.create_timer(1.0, self.publish_diagnostics)]
-        # a volatile publisher cannot match the transient-local listener; that is expected
-        # (the volatile one takes its messages), so no warning for it
+        # a volatile publisher cannot match the latched listener (the other one takes it)
         quiet = SubscriptionEventCallbacks(incompatible_qos=lambda info: None)
         for qos in REFERENCE_QOS:
             self._entities += [
@@ -192,20 +193,7 @@ class PlannerNode(RuntimeParameters, ObstacleListener, LifecycleNode):
             else:
                 self.destroy_subscription(entity)
         self._entities = []
-        self._last_reference = None  # a new session takes the latched reference again
-
-    # inputs -----------------------------------------------------------------------------------
-    def on_problem(self) -> None:
-        self.publish_diagnostics()
-
-    def _first_delivery(self, info: dict | None) -> bool:
-        """Return False for the second copy of a sample (both reference subscriptions get it)."""
-        if not info:
-            return True
-        key = (info.get('source_timestamp'), info.get('publication_sequence_number'))
-        duplicate = key == self._last_reference
-        self._last_reference = key
-        return not duplicate
+        self._first_delivery = FirstDelivery()  # a new session takes the latched one again
 
     @guarded('reference_path')
     def on_reference_path(self, msg: Path, info: dict) -> None:
@@ -218,7 +206,10 @@ class PlannerNode(RuntimeParameters, ObstacleListener, LifecycleNode):
             self._set_reference(*cv.multidof_to_arrays(msg, self.frame, self._now_ns()))
 
     def _set_reference(self, stamps: np.ndarray, poses: np.ndarray, twists) -> None:
-        reference = self.live.set_reference(stamps, poses, twists)
+        try:
+            reference = self.live.set_reference(stamps, poses, twists)
+        except ReferenceRejected as exc:
+            raise cv.InputRejected(str(exc)) from None
         self.get_logger().info(f'new reference: {len(reference.t)} points over '
                                f'{reference.t[-1] - reference.t[0]:.2f} s')
         self.live.wake()
@@ -228,7 +219,10 @@ class PlannerNode(RuntimeParameters, ObstacleListener, LifecycleNode):
         """Take the state; replan_on_odom: plan here, unless it waited (odometry_receiver)."""
         received = time.perf_counter()
         stamp, pose, twist = cv.odom_to_arrays(msg, self.frame)
-        self.live.set_odometry(stamp, pose, twist, received)
+        try:
+            self.live.set_odometry(stamp, pose, twist, received)
+        except ClockSkew as exc:
+            raise cv.InputRejected(str(exc)) from None
         if len(self.costmap[0]) and np.hypot(*(pose[:2] - self._discs_centre)) > DISC_SIZE:
             self.obstacles_changed()  # re-choose the costmap discs near the robot
         arrived = info.get('received_timestamp') or 0  # 0: not known (rmw_cyclonedds)
@@ -291,6 +285,9 @@ class PlannerNode(RuntimeParameters, ObstacleListener, LifecycleNode):
             self.pub_cmd.publish(cv.twist_msg(twist))
 
     # diagnostics ------------------------------------------------------------------------------
+    def on_problem(self) -> None:
+        self.publish_diagnostics()
+
     @guarded('diagnostics')
     def publish_diagnostics(self) -> None:
         session = self.session
@@ -307,7 +304,10 @@ class PlannerNode(RuntimeParameters, ObstacleListener, LifecycleNode):
         self.pub_diag.publish(array)
 
     def destroy_node(self) -> None:
-        if self.session is not None:
+        """Free everything; a robot still commanded gets a zero ``cmd_vel`` first."""
+        if self.session is not None and self.live.active:
             self.live.active = False
+            if self.context.ok():  # (after Ctrl-C it is down already)
+                self._publish_twist(np.zeros(4))
         self._release()
         super().destroy_node()

@@ -35,6 +35,13 @@ class RuntimeParameters(SafeNode):
     physical: dict[str, float]
     _command_timers: list
 
+    def _tune(self, session: TrackingSession) -> None:
+        """Hand the session the input checks' parameters (they need no rebuild)."""
+        session.odom_timeout = self.params['odom_timeout']
+        session.max_clock_skew = self.params['max_clock_skew']
+        session.reference_bounds = (self.params['reference_max_speed'],
+                                    self.params['reference_max_accel'])
+
     def _settings_values(self) -> dict:
         return {s.name: self.get_parameter(s.name).value for s in SETTINGS}
 
@@ -66,7 +73,7 @@ class RuntimeParameters(SafeNode):
                 timer.reset()  # from now: else the call already due at the old period comes first
         session = self.session
         if session is not None:
-            session.odom_timeout = self.params['odom_timeout']
+            self._tune(session)
             if names & (_SETTING_NAMES | set(self.physical)):
                 # built on the session's builder thread; the plan in force keeps going
                 session.reconfigure(self.physical, PlannerSettings(**self._settings_values()))
