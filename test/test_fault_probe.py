@@ -1,0 +1,172 @@
+# Copyright 2026 nh_tracking maintainers
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+
+"""The fault probe's cases: ordinary input that once drove the robot wrong or ended the planner.
+
+Lifecycle requests by id (a separate planner process, as a lifecycle manager meets it), odometry
+stamped ahead of the clock, references no robot can follow.
+"""
+import time
+
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
+from geometry_msgs.msg import Twist
+from lifecycle_msgs.msg import Transition
+from lifecycle_msgs.srv import ChangeState, GetState
+from nav_msgs.msg import Odometry, Path
+import numpy as np
+import pytest
+
+from nh_tracking.ros import conversions as cv
+from nh_tracking.ros.graph import parameters, wait_until
+from nh_tracking.ros.planner_node import LATCHED, PlannerNode
+from processes import domain_env, Peer, Process
+from test_ros import unique_namespace
+
+pytestmark = pytest.mark.timeout(300)
+LABELS = ('configure', 'cleanup', 'activate', 'deactivate', 'shutdown', 'transition_success',
+          'transition_failure', 'transition_error', 'create', 'destroy', 'bogus')
+
+
+def test_every_lifecycle_request_is_answered_in_every_state_and_never_ends_the_planner():
+    env = domain_env()
+    planner = Process('planner', ['--ros-args', '-p', 'autostart:=false', '-p', 'steps:=10'],
+                      env)
+    peer = Peer(env)
+    try:
+        node = peer.node
+        get_state = node.create_client(GetState, 'nh_tracking_planner/get_state')
+        change = node.create_client(ChangeState, 'nh_tracking_planner/change_state')
+        assert get_state.wait_for_service(30.0) and change.wait_for_service(30.0)
+
+        def call(client, request, timeout=60.0):
+            future = client.call_async(request)
+            assert wait_until(future.done, timeout), 'no answer'
+            return future.result()
+
+        def state() -> str:
+            return call(get_state, GetState.Request()).current_state.label
+
+        refused = 0
+        # unconfigured -> inactive -> active -> (deactivate) inactive -> finalized
+        for step in ('configure', 'activate', 'deactivate', 'shutdown', None):
+            here = state()
+            for transition in [Transition(id=i) for i in range(100)] + [
+                    Transition(label=label) for label in LABELS]:
+                valid = {'unconfigured': {1, 5}, 'inactive': {2, 3, 6}, 'active': {4, 7},
+                         'finalized': set()}[here]
+                named = {'configure': 1, 'cleanup': 2, 'activate': 3, 'deactivate': 4}
+                if transition.label:
+                    if transition.label == 'shutdown' and here != 'finalized' or \
+                            named.get(transition.label) in valid:
+                        continue  # carried out below, in order
+                elif transition.id in valid:
+                    continue
+                answer = call(change, ChangeState.Request(transition=transition))
+                assert answer.success is False, (here, transition)
+                refused += 1
+                assert planner.proc.poll() is None, planner.output
+            assert state() == here
+            if step is not None:
+                assert call(change, ChangeState.Request(
+                    transition=Transition(label=step))).success, (here, step)
+        assert state() == 'finalized' and refused > 4 * 100
+        print(f'\n{refused} lifecycle requests refused over 4 states; the planner lived')
+        assert 'Traceback' not in planner.output and 'RCLError' not in planner.output
+    finally:
+        peer.close()
+        code = planner.interrupt()
+    assert code == 0, planner.output
+
+
+def _line(start_ns: int, length: float, duration: float, points: int = 11) -> Path:
+    t = np.linspace(0.0, duration, points)
+    poses = np.stack([t / duration * length, 0 * t, 0 * t, 0 * t], axis=1)
+    return cv.path_msg('odom', [start_ns + int(s * 1e9) for s in t], poses)
+
+
+class Probe:
+    """A planner in process and this test as its robot: odometry out, commands in."""
+
+    def __init__(self, graph, **params) -> None:
+        ns = unique_namespace()
+        self.planner = graph.add(PlannerNode, namespace=ns, parameter_overrides=parameters(
+            model='unicycle', steps=20, horizon=2.0, **params))
+        self.node = graph.plain_node('probe', ns)
+        self.cmd: list[tuple[float, float]] = []  # (monotonic, |v|)
+        self.sequences: list[float] = []
+        self.stale: list[float] = []
+        self.node.create_subscription(Twist, 'cmd_vel', lambda m: self.cmd.append(
+            (time.monotonic(), abs(m.linear.x) + abs(m.angular.z))), 100)
+        self.node.create_subscription(
+            __import__('trajectory_msgs.msg', fromlist=['JointTrajectory']).JointTrajectory,
+            'control_sequence', lambda m: self.sequences.append(time.monotonic()), 100)
+        self.node.create_subscription(DiagnosticArray, '/diagnostics', self._on_diag, 100)
+        self.odom = self.node.create_publisher(Odometry, 'odom', 10)
+        self.reference = self.node.create_publisher(Path, 'reference_path', LATCHED)
+        assert wait_until(lambda: self.odom.get_subscription_count() > 0, 10.0)
+
+    def _on_diag(self, msg: DiagnosticArray) -> None:
+        for status in msg.status:
+            if status.level == DiagnosticStatus.STALE and self.planner.get_name() in status.name:
+                self.stale.append(time.monotonic())
+
+    def now_ns(self) -> int:
+        return self.planner.get_clock().now().nanoseconds
+
+    def send_odom(self, ahead: float = 0.0, x: float = 0.0) -> None:
+        self.odom.publish(cv.odometry_msg('odom', 'base_link', self.now_ns() + int(ahead * 1e9),
+                                          np.array([x, 0.0, 0.0, 0.0]), np.zeros(4)))
+
+
+@pytest.mark.parametrize('ahead', [2.0, 3600.0])
+def test_odometry_stamped_ahead_is_refused_and_goes_stale_on_time(graph, ahead):
+    probe = Probe(graph, odom_timeout=0.3)
+    probe.reference.publish(_line(probe.now_ns(), 5.0, 20.0))
+    for _ in range(60):  # 1.2 s of good odometry: plans are made
+        probe.send_odom()
+        time.sleep(0.02)
+    assert wait_until(lambda: len(probe.sequences) > 3, 10.0)
+    last_valid = time.monotonic()
+    for _ in range(50):  # 1 s stamped ahead, then silence
+        probe.send_odom(ahead)
+        time.sleep(0.02)
+    wait_until(lambda: False, 0.5)
+    assert probe.planner.rejected_inputs >= 40
+    assert probe.stale, 'no STALE diagnostic'
+    went_stale = probe.stale[0] - last_valid
+    late_plans = [t for t in probe.sequences if t > last_valid + 0.3 + 0.1]
+    zero_after = [v for t, v in probe.cmd if t > last_valid + 0.3 + 0.1]
+    print(f'\n+{ahead:g} s: STALE {went_stale:.3f} s after the last valid odometry; '
+          f'{len(late_plans)} plans after it; {len(zero_after)} cmd_vel, max {max(zero_after):g}')
+    assert went_stale < 0.3 + 0.1
+    assert late_plans == [] and zero_after and max(zero_after) == 0.0
+
+
+@pytest.mark.parametrize('duration', [10.0, 1000.0])
+def test_a_reference_no_robot_can_follow_is_refused(graph, duration):
+    probe = Probe(graph)
+    for _ in range(10):
+        probe.send_odom()
+        time.sleep(0.02)
+    probe.reference.publish(_line(probe.now_ns(), 100e3, duration))
+    assert wait_until(lambda: probe.planner.rejected_inputs > 0, 10.0)
+    for _ in range(50):
+        probe.send_odom()
+        time.sleep(0.02)
+    assert probe.planner.planner.reference is None
+    assert 'reference_max_speed' in probe.planner.last_problem or probe.planner.rejected_inputs
+    assert probe.sequences == [] and all(v == 0.0 for _, v in probe.cmd)
+    # a reference a robot can follow is still taken
+    probe.reference.publish(_line(probe.now_ns(), 2.0, duration))
+    assert wait_until(lambda: probe.planner.planner.reference is not None, 10.0)
