@@ -168,3 +168,27 @@ def test_a_reference_no_robot_can_follow_is_refused(graph, duration):
     # a reference a robot can follow is still taken
     probe.reference.publish(_line(probe.now_ns(), 2.0, duration))
     assert wait_until(lambda: probe.planner.planner.reference is not None, 10.0)
+
+
+def _rss_mb() -> float:
+    with open('/proc/self/status') as status:
+        return next(int(line.split()[1]) for line in status if line.startswith('VmRSS')) / 1024
+
+
+def test_memory_stays_bounded_through_a_storm_of_horizon_sizes(graph):
+    from rclpy.parameter import Parameter
+
+    probe = Probe(graph)
+    probe.reference.publish(_line(probe.now_ns(), 2.0, 10.0))
+    planner, growth = probe.planner, []
+    start = _rss_mb()
+    for steps in range(10, 35):  # 25 distinct values, each a rebuild of every structure
+        planner.set_parameters([Parameter('steps', value=steps)])
+        assert wait_until(lambda: planner.planner.settings.steps == steps
+                          and not planner.live.reconfiguring, 60.0), steps
+        probe.send_odom()
+        growth.append(_rss_mb() - start)
+    print(f'\nRSS after 25 steps values: +{growth[-1]:.0f} MB (largest +{max(growth):.0f} MB; '
+          f'after 5: +{growth[4]:.0f} MB)')
+    assert max(growth) < 150.0
+    assert wait_until(lambda: len(probe.sequences) > 0, 10.0)  # and it still plans

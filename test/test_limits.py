@@ -350,6 +350,31 @@ def test_an_unprepared_structure_is_built_in_the_background_not_in_the_loop():
     assert cache.get(system, 'other', lambda: 'in line') == 'in line'  # outside: at once
 
 
+def test_the_cache_keeps_the_horizon_sizes_used_last_and_drops_older_ones_together():
+    from nh_tracking.solvers.cache import by_steps, PerSystemCache
+
+    cache, system, builds = PerSystemCache(group=by_steps, groups=2), nht.models.unicycle(), []
+
+    def get(steps: int, variant: str) -> tuple:
+        return cache.get(system, (steps, variant), lambda: builds.append((steps, variant)) or (
+            steps, variant))
+
+    for steps in (10, 20):
+        get(steps, 'fatrop'), get(steps, 'ipopt')
+    get(10, 'fatrop')  # 10 used last: 20 is the oldest now
+    get(30, 'fatrop')
+    assert len(cache) == 3 and len(builds) == 5
+    get(10, 'ipopt'), get(30, 'fatrop')  # kept: no build
+    assert len(builds) == 5
+    get(20, 'fatrop')  # dropped with its group: built again, and 10 goes
+    assert len(builds) == 6 and len(cache) == 2
+    other = nht.models.unicycle()  # another system has groups of its own
+    cache.get(other, (10, 'fatrop'), lambda: 'x')
+    assert len(cache) == 3
+    del other
+    assert len(cache) == 2
+
+
 def test_the_fallback_brakes_where_tracking_would_hit_an_obstacle():
     """No optimal plan and an obstacle on the reference: brake as hard as the limits allow."""
     from nh_tracking.fallback import fallback

@@ -31,7 +31,7 @@ import numpy as np
 from nh_tracking.limits import clearance_points, plane
 from nh_tracking.numeric import NumericFunction
 from nh_tracking.problem import tracking_lagrangian, tracking_residual, TrackingProblem
-from nh_tracking.solvers.cache import PerSystemCache
+from nh_tracking.solvers.cache import by_steps, PerSystemCache
 from nh_tracking.solvers.inequalities import ConstraintStack, Rows, Shape, soft_bounds, soften
 from nh_tracking.solvers.newton import GaussNewtonStep, NewtonStep
 from nh_tracking.solvers.nlp import BoundedNlp
@@ -113,7 +113,7 @@ class Transcription:
         return np.concatenate([np.hstack(parts).ravel(), q[-1], v[-1]])
 
 
-_CACHE: PerSystemCache[Transcription] = PerSystemCache()
+_CACHE: PerSystemCache[Transcription] = PerSystemCache(group=by_steps)
 
 
 def transcription(system: NonholonomicSystem, steps: int, terminal: str,
@@ -265,7 +265,7 @@ class WorkingSetStep:
     tries: int = 0
 
 
-_STEPS: PerSystemCache[WorkingSetStep] = PerSystemCache()
+_STEPS: PerSystemCache[WorkingSetStep] = PerSystemCache(group=by_steps)
 
 
 def working_set_step(system: NonholonomicSystem, steps: int, terminal: str,

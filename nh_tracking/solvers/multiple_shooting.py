@@ -30,7 +30,7 @@ from nh_tracking.limits import clearance_points, plane
 from nh_tracking.problem import (Solution, terminal_cost, terminal_error, tracking_lagrangian,
                                  TrackingProblem)
 from nh_tracking.solvers.base import clear_of_every_disc, Guess, Method, Structure
-from nh_tracking.solvers.cache import PerSystemCache
+from nh_tracking.solvers.cache import by_steps, PerSystemCache
 from nh_tracking.solvers.inequalities import (ConstraintStack, judged, Rows, Shape, soft_bounds,
                                               soften, start_violation, VIOLATION_TOL)
 from nh_tracking.solvers.nlp import BoundedNlp, deadline_after
@@ -62,7 +62,7 @@ class ShootingTranscription:
                                self.limits.parameters(problem.limits, points)])
 
 
-_CACHE: PerSystemCache[ShootingTranscription] = PerSystemCache()
+_CACHE: PerSystemCache[ShootingTranscription] = PerSystemCache(group=by_steps)
 
 
 def shooting_transcription(system: NonholonomicSystem, steps: int, terminal: str,
