@@ -20,6 +20,7 @@ computed once, here.
 from __future__ import annotations
 
 from dataclasses import dataclass
+import enum
 
 import numpy as np
 
@@ -29,31 +30,42 @@ from nh_tracking.session import TrackingSession
 RECENT = 200  # solves the solve-time percentiles are taken over
 
 
+class HealthLevel(enum.IntEnum):
+    """Worse is larger (a report gives the worst since the previous one)."""
+
+    OK = 0
+    WARN = 1
+    STALE = 2
+
+
 @dataclass(frozen=True)
 class Health:
-    level: str  # "ok", "warn" or "stale"
+    level: HealthLevel
     message: str
     values: dict[str, object]
 
 
 def session_health(session: TrackingSession, problem: str, counts: dict[str, int]) -> Health:
-    """Return the session's state.
+    """Return the session's state: the worst since the previous call.
 
     ``problem`` is the last input or callback problem ('' if none), ``counts`` the front end's own
     counters (rejected inputs, errors).
     """
     outcome, stats = session.outcome, session.planner.stats
-    level, message = 'ok', 'planning'
+    stale = session.staleness.take_fraction()
+    level, message = HealthLevel.OK, 'planning'
     if not session.active:
-        level, message = 'warn', 'inactive: not commanding'
+        level, message = HealthLevel.WARN, 'inactive: not commanding'
     elif session.planner.reference is None or session.state is None:
-        level, message = 'warn', 'waiting for reference and odometry'
-    elif session.stale:
-        level, message = 'stale', 'odometry is stale: not commanding'
+        level, message = HealthLevel.WARN, 'waiting for reference and odometry'
+    elif session.staleness.now or stale > 0.0:
+        level, message = HealthLevel.STALE, (
+            f'odometry {"is" if session.staleness.now else "was"} stale ({stale:.0%} of the '
+            'time since the last report): not commanding')
     elif outcome is not None and outcome.status is not PlanStatus.OPTIMAL:
-        level, message = 'warn', f'{outcome.status}: {outcome.message}'
-    if problem and level == 'ok':
-        level, message = 'warn', problem
+        level, message = HealthLevel.WARN, f'{outcome.status}: {outcome.message}'
+    if problem and level is HealthLevel.OK:
+        level, message = HealthLevel.WARN, problem
     times = np.array(stats.solve_times)[-RECENT:] if stats.solve_times else np.zeros(1)
     recent = list(session.latencies)[-RECENT:]
     latency = np.array([row[0] for row in recent]) if recent else np.zeros(1)
@@ -61,7 +73,7 @@ def session_health(session: TrackingSession, problem: str, counts: dict[str, int
         'status': str(outcome.status) if outcome else 'none', 'plans': stats.plans,
         'optimal': stats.optimal, 'shifted': stats.shifted, 'fallbacks': stats.fallbacks,
         'deadline_misses': stats.deadline_misses, **counts, 'last_problem': problem,
-        'reconfiguring': session.reconfiguring,
+        'reconfiguring': session.reconfiguring, 'stale_fraction': f'{stale:.2f}',
         'solve_time_last_ms': f'{(outcome.solve_time if outcome else 0.0) * 1e3:.2f}',
         'solve_time_p50_ms': f'{np.percentile(times, 50) * 1e3:.2f}',
         'solve_time_p99_ms': f'{np.percentile(times, 99) * 1e3:.2f}',

@@ -35,7 +35,7 @@ from nh_tracking.problem import Solution
 from nh_tracking.receding_horizon import PlannerSettings, PlanOutcome, RecedingHorizonPlanner
 from nh_tracking.reference_checks import check_implied_motion
 from nh_tracking.session_types import (Clock, ClockSkew, PlanResult, settle_heap,
-                                       StateEstimate)
+                                       Staleness, StateEstimate)
 from nh_tracking.system import NonholonomicSystem
 from nh_tracking.trajectory import Trajectory
 
@@ -64,7 +64,7 @@ class TrackingSession:
         self.pose_map = PoseMap(system)
         self.planner = RecedingHorizonPlanner(system, settings)
         self.active = False  # plans are made only while active (the lifecycle's "active")
-        self.stale = False
+        self.staleness = Staleness()
         self.outcome: PlanOutcome | None = None
         self._commanded: tuple[PlanOutcome, Trajectory] | None = None  # and its interpolant
         # (odometry receipt -> plan published, of which the numerical planner, of which the
@@ -235,9 +235,8 @@ class TrackingSession:
             self.latencies.append((time.perf_counter() - state.received,
                                    planner.stats.plan_durations[-1], outcome.solve_time))
             with self._lock:
-                if self.stale:
+                if self.staleness.mark(False):
                     self.log('info', 'odometry is fresh again: planning resumed')
-                self.stale = False
                 self.outcome = outcome
         return result
 
@@ -261,9 +260,7 @@ class TrackingSession:
         age = (self.clock() - state.ns) * 1e-9
         if age <= self.odom_timeout:
             return None
-        with self._lock:
-            newly_stale, self.stale = not self.stale, True
-        if newly_stale:
+        if self.staleness.mark(True):
             self.log('warn', f'odometry is {age:.2f} s old: stopped commanding')
             self.on_stale()
         return age
@@ -291,7 +288,7 @@ class TrackingSession:
         """Return the plan's body twist now (zero if stale or outside it); None before one."""
         stale = self.active and self.check_stale(self.state) is not None
         with self._lock:
-            outcome, stale, commanded = self.outcome, stale or self.stale, self._commanded
+            outcome, stale, commanded = self.outcome, stale or self.staleness.now, self._commanded
         if outcome is None:
             return None
         if commanded is None or commanded[0] is not outcome:

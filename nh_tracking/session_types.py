@@ -18,6 +18,8 @@ from __future__ import annotations
 from collections.abc import Callable
 from dataclasses import dataclass
 import gc
+import threading
+import time
 
 import numpy as np
 
@@ -87,3 +89,34 @@ def settle_heap(generation: int) -> None:
     """
     gc.collect(generation)
     gc.freeze()
+
+
+class Staleness:
+    """Whether the odometry is stale now, and for how much of the time since the last look."""
+
+    def __init__(self) -> None:
+        self.now = False
+        self._lock = threading.Lock()
+        self._changed = self._looked = time.monotonic()
+        self._stale_for = 0.0  # [s] since the last look, up to the last change
+
+    def mark(self, stale: bool) -> bool:
+        """Record whether it is stale now; return whether that changed."""
+        with self._lock:
+            if stale == self.now:
+                return False
+            now = time.monotonic()
+            if self.now:
+                self._stale_for += now - max(self._changed, self._looked)
+            self.now, self._changed = stale, now
+            return True
+
+    def take_fraction(self) -> float:
+        """Return the fraction of the time since the last call it was stale."""
+        with self._lock:
+            now = time.monotonic()
+            stale_for = self._stale_for + (now - max(self._changed, self._looked)
+                                           if self.now else 0.0)
+            fraction = stale_for / max(now - self._looked, 1e-9)
+            self._stale_for, self._looked = 0.0, now
+            return min(fraction, 1.0)

@@ -192,3 +192,60 @@ def test_memory_stays_bounded_through_a_storm_of_horizon_sizes(graph):
           f'after 5: +{growth[4]:.0f} MB)')
     assert max(growth) < 150.0
     assert wait_until(lambda: len(probe.sequences) > 0, 10.0)  # and it still plans
+
+
+def test_every_one_of_a_burst_of_plan_requests_is_answered():
+    from geometry_msgs.msg import PoseStamped
+    from nav_msgs.srv import GetPlan
+    from rclpy.qos import QoSProfile
+
+    from nh_tracking.ros.planner_services import BACKLOG
+
+    env = domain_env()
+    planner = Process('planner', ['--ros-args', '-p', 'model:=unicycle', '-p', 'steps:=20'],
+                      env)
+    peer = Peer(env)
+    try:
+        node = peer.node
+        reference = node.create_publisher(Path, 'reference_path', LATCHED)
+        reference.publish(_line(time.time_ns(), 2.0, 10.0))
+        # a client as deep as the burst: the default depth (10) drops answers not yet taken
+        client = node.create_client(GetPlan, 'plan', qos_profile=QoSProfile(depth=1000))
+        assert client.wait_for_service(30.0)
+        request = GetPlan.Request(start=PoseStamped())
+        request.start.header.frame_id = 'odom'
+
+        def answered(count: int, timeout: float) -> list:
+            futures = [client.call_async(request) for _ in range(count)]
+            assert wait_until(lambda: all(f.done() for f in futures), timeout), (
+                f'{sum(not f.done() for f in futures)} of {count} unanswered')
+            return [len(f.result().plan.poses) for f in futures]
+
+        assert wait_until(lambda: answered(1, 30.0)[0] > 0, 30.0)  # the reference is in force
+        lengths = answered(200, 120.0)
+        planned = sum(n > 0 for n in lengths)
+        print(f'\n200 simultaneous plan requests: 200 answered, {planned} with a plan, '
+              f'{200 - planned} busy')
+        assert planned >= BACKLOG and set(lengths) <= {0, 21}
+        assert planned == 200 or 'busy' in planner.output
+        assert answered(1, 30.0)[0] == 21  # and it serves the next one
+        assert planner.proc.poll() is None and 'Traceback' not in planner.output
+    finally:
+        peer.close()
+        planner.kill()
+
+
+def test_odometry_stale_between_reports_is_reported_not_ok(graph):
+    probe = Probe(graph, odom_timeout=0.5)
+    levels: list[tuple[int, str]] = []
+    probe.node.create_subscription(DiagnosticArray, '/diagnostics', lambda m: levels.extend(
+        (s.level, s.message) for s in m.status if probe.planner.get_name() in s.name), 100)
+    probe.reference.publish(_line(probe.now_ns(), 5.0, 20.0))
+    for _ in range(6):  # 1 Hz odometry: fresh for 0.5 s of every second
+        probe.send_odom()
+        time.sleep(1.0)
+    later = levels[2:]  # (the first reports: before the reference and odometry)
+    print(f'\n1 Hz odometry, odom_timeout 0.5 s: {len(later)} reports, '
+          f'{sum(level == DiagnosticStatus.OK for level, _ in later)} OK; e.g. {later[-1][1]!r}')
+    assert later and not any(level == DiagnosticStatus.OK for level, _ in later), later
+    assert any('% of the time since the last report' in message for _, message in later), later

@@ -357,7 +357,7 @@ def test_stale_odometry_stops_commanding_and_fresh_odometry_resumes(graph):
     pair.send_reference()
     assert wait_until(lambda: any(abs(m.linear.x) > 0.1 for m in pair.published['cmd_vel']), 10)
     graph.executor.remove_node(pair.sim)  # the robot's odometry stops
-    assert wait_until(lambda: pair.planner.live.stale, 5.0)
+    assert wait_until(lambda: pair.planner.live.staleness.now, 5.0)
     sequences = len(pair.published['control_sequence'])
     # commands sent before the planner knew may still be on their way: let five more pass
     received = len(pair.published['cmd_vel'])
@@ -368,7 +368,7 @@ def test_stale_odometry_stops_commanding_and_fresh_odometry_resumes(graph):
     assert len(pair.published['control_sequence']) == sequences  # no new plan while stale
     assert wait_until(lambda: any(s.level == DiagnosticStatus.STALE for s in statuses), 5.0)
     graph.executor.add_node(pair.sim)  # odometry is back
-    assert wait_until(lambda: not pair.planner.live.stale, 5.0)
+    assert wait_until(lambda: not pair.planner.live.staleness.now, 5.0)
     assert wait_until(lambda: len(pair.published['control_sequence']) > sequences + 3, 5.0)
     assert wait_until(lambda: abs(pair.published['cmd_vel'][-1].linear.x) > 0.1, 5.0)
 

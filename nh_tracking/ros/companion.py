@@ -31,10 +31,12 @@ POLL = 0.1  # [s] how long a wait may last before the thread looks whether it is
 class CompanionNode:
     """``<owner>_<suffix>``: create its entities on :attr:`node`, then :meth:`start`."""
 
-    def __init__(self, owner: Node, suffix: str, **node_options: object) -> None:
+    def __init__(self, owner: Node, suffix: str,
+                 executor: type[SingleThreadedExecutor] = SingleThreadedExecutor,
+                 **node_options: object) -> None:
         self.node = Node(f'{owner.get_name()}_{suffix}', namespace=owner.get_namespace(),
                          context=owner.context, **node_options)  # type: ignore[arg-type]
-        self._executor = SingleThreadedExecutor(context=owner.context)
+        self._executor = executor(context=owner.context)
         self._executor.add_node(self.node)
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._spin, name=f'nh_tracking_{suffix}',

@@ -33,7 +33,7 @@ from trajectory_msgs.msg import JointTrajectory, MultiDOFJointTrajectory
 from visualization_msgs.msg import MarkerArray
 
 from nh_tracking.avoidance import MAX_OBSTACLES
-from nh_tracking.health import session_health
+from nh_tracking.health import HealthLevel, session_health
 from nh_tracking.receding_horizon import PlannerSettings
 from nh_tracking.reference_checks import ReferenceRejected
 from nh_tracking.ros import cdr, conversions as cv
@@ -295,8 +295,8 @@ class PlannerNode(RuntimeParameters, ObstacleListener, LifecycleNode):
             return
         health = session_health(session, self.take_problem(), {
             'rejected_inputs': self.rejected_inputs, 'errors': self.errors})
-        level = {'ok': DiagnosticStatus.OK, 'warn': DiagnosticStatus.WARN,
-                 'stale': DiagnosticStatus.STALE}[health.level]
+        level = {HealthLevel.OK: DiagnosticStatus.OK, HealthLevel.WARN: DiagnosticStatus.WARN,
+                 HealthLevel.STALE: DiagnosticStatus.STALE}[health.level]
         array = DiagnosticArray(status=[cv.diagnostic_status(
             f'{self.get_name()}: planning', self.get_fully_qualified_name(), level,
             health.message, health.values)])

@@ -12,22 +12,28 @@
 # See the License for the specific language governing permissions and
 # limitations under the License.
 
-"""The planner's services, answered on a thread of their own.
+"""The planner's services, taken at once on a thread of their own and answered by a worker.
 
 A service that solves (``plan``) or waits for a solve (``replan``) must not hold the executor
-that publishes ``cmd_vel``. rclpy cannot hand one node's callback group to a second executor,
-and its MultiThreadedExecutor starves timers (ros2/rclpy#1223), so — like Nav2's controller
-server, which spins a dedicated callback-group executor on its own thread — the services live
-on a companion node (``<planner>_services``, same namespace, so the service names are the
-planner's) spun by a single-threaded executor of its own.
+that publishes ``cmd_vel``, so — like Nav2's controller server, which spins a dedicated executor
+on its own thread — the services live on a companion node (``<planner>_services``, same
+namespace, so the service names are the planner's). Its executor only takes requests; a worker
+thread answers them in turn. A burst beyond :data:`BACKLOG` waiting requests is answered at once
+as busy (an empty plan; ``success=false``, "busy"): every request gets a response.
 """
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
+from collections.abc import Callable
+from dataclasses import dataclass
+import queue
+import threading
+from typing import Any, TYPE_CHECKING
 
 from nav_msgs.msg import Path
 from nav_msgs.srv import GetPlan
 import numpy as np
+from rclpy.exceptions import InvalidHandle
+from rclpy.executors import SingleThreadedExecutor
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 from std_srvs.srv import Trigger
 
@@ -37,7 +43,54 @@ from nh_tracking.ros.companion import CompanionNode
 if TYPE_CHECKING:
     from nh_tracking.ros.planner_node import PlannerNode
 
-SERVICE_QUEUE = 100  # requests: a burst is queued, not dropped (the default keeps 10)
+BACKLOG = 64  # requests waiting for the worker (~2 s of solves); more are answered busy at once
+SERVICE_QUEUE = 1000  # requests DDS keeps until the executor takes them (a take is quick)
+
+
+@dataclass
+class Answerer:
+    """A service callback answered later: ``take`` queues, ``answer`` fills, ``busy`` refuses."""
+
+    answer: Callable[[Any, Any], Any]  # (request, response) -> response
+    busy: Callable[[Any], Any]  # (response) -> response
+    take: Callable[[_Request], None]
+
+
+@dataclass
+class _Request:
+    service: Any  # an rclpy Service whose callback is an Answerer
+    answerer: Answerer
+    request: Any
+    header: Any
+
+    def respond(self, fill: Callable[..., Any], *args: Any) -> None:
+        """Send ``fill(*args, response)``; a service destroyed meanwhile answers nobody."""
+        response = fill(*args, self.service.srv_type.Response())
+        try:
+            self.service.send_response(response, self.header)
+        except InvalidHandle:  # the planner is closing
+            pass
+
+
+class TakingExecutor(SingleThreadedExecutor):
+    """An executor that hands an :class:`Answerer` service its request with the header.
+
+    rclpy's executor sends a response when the callback returns, and resumes an async callback
+    without pause while it waits (a busy loop): neither lets a slow service take a burst.
+    """
+
+    def _take_service(self, srv: Any):
+        answerer: Any = srv.callback
+        if not isinstance(answerer, Answerer):
+            return super()._take_service(srv)
+        try:
+            with srv.handle:
+                request, header = srv.handle.service_take_request(srv.srv_type.Request)
+        except InvalidHandle:  # destroyed meanwhile
+            return None
+        if header is not None:
+            answerer.take(_Request(srv, answerer, request, header))
+        return None  # nothing for the executor to run
 
 
 class PlannerServices:
@@ -45,15 +98,58 @@ class PlannerServices:
 
     def __init__(self, planner: PlannerNode) -> None:
         self.planner = planner
-        self.companion = CompanionNode(planner, 'services', start_parameter_services=False)
+        self._queue: queue.Queue[_Request | None] = queue.Queue(BACKLOG)
+        self._worker = threading.Thread(target=self._work, name='nh_tracking_services',
+                                        daemon=True)
+        self._worker.start()
+        self.companion = CompanionNode(planner, 'services', TakingExecutor,
+                                       start_parameter_services=False)
         requests = QoSProfile(depth=SERVICE_QUEUE, reliability=ReliabilityPolicy.RELIABLE)
-        self.companion.node.create_service(GetPlan, 'plan', self.on_plan, qos_profile=requests)
-        self.companion.node.create_service(Trigger, 'replan', self.on_replan,
-                                           qos_profile=requests)
+        node = self.companion.node
+        plan: Any = Answerer(self.on_plan, self._busy_plan, self._take)
+        replan: Any = Answerer(self.on_replan, self._busy_replan, self._take)
+        node.create_service(GetPlan, 'plan', plan, qos_profile=requests)
+        node.create_service(Trigger, 'replan', replan, qos_profile=requests)
         self.companion.start()
 
     def close(self) -> None:
+        """Stop taking requests, answer the waiting ones as busy, stop the worker."""
         self.companion.close()
+        while True:
+            try:
+                waiting = self._queue.get_nowait()
+            except queue.Empty:
+                break
+            if waiting is not None:
+                waiting.respond(waiting.answerer.busy)
+        self._queue.put(None)
+        self._worker.join(timeout=10.0)
+
+    def _take(self, request: _Request) -> None:
+        try:
+            self._queue.put_nowait(request)
+        except queue.Full:
+            self.planner.reject(f'{request.service.srv_name} request',
+                                f'busy: {BACKLOG} requests are waiting')
+            request.respond(request.answerer.busy)
+
+    def _work(self) -> None:
+        while (request := self._queue.get()) is not None:
+            try:
+                request.respond(request.answerer.answer, request.request)
+            except Exception as exc:  # noqa: BLE001 - the worker must answer the next one
+                self.planner.fail(f'{request.service.srv_name} service', exc)
+                request.respond(request.answerer.busy)
+
+    def _busy_plan(self, response: GetPlan.Response) -> GetPlan.Response:
+        response.plan = Path()
+        response.plan.header.frame_id = self.planner.frame
+        return response
+
+    @staticmethod
+    def _busy_replan(response: Trigger.Response) -> Trigger.Response:
+        response.success, response.message = False, 'busy: too many requests are waiting'
+        return response
 
     def on_plan(self, request: GetPlan.Request, response: GetPlan.Response
                 ) -> GetPlan.Response:
@@ -72,7 +168,7 @@ class PlannerServices:
                 pose = cv.pose_array(request.start.pose, 'plan start')
             session = node.session
             if session is None:
-                node.get_logger().warn('plan request: the planner is not configured')
+                node.reject('plan request', 'the planner is not configured')
                 return response
             solution, reason = session.preview(pose)
         except cv.InputRejected as exc:
@@ -82,7 +178,7 @@ class PlannerServices:
             node.fail('plan service', exc)
             return response
         if solution is None:
-            node.get_logger().warn(f'plan request: {reason}')
+            node.reject('plan request', reason)
             return response
         stamps = [session.ns(t) for t in solution.t]
         response.plan = cv.path_msg(node.frame, stamps,

@@ -16,15 +16,46 @@
 from __future__ import annotations
 
 import functools
+import math
+import re
 import threading
+import time
 
 from rclpy.node import Node
 
 from nh_tracking.ros.conversions import InputRejected
 
 
+LOG_PERIOD = 5.0  # [s] a problem of a kind already said within it is counted, not said again
+_FIGURES = re.compile(r'[-+]?\d+(\.\d+)?(e[-+]?\d+)?')
+
+
+class RepeatCounter:
+    """Says a problem once per kind per period; the next line counts those held back."""
+
+    def __init__(self, period: float = LOG_PERIOD) -> None:
+        self.period = period
+        self._kinds: dict[str, tuple[float, int]] = {}  # kind -> (said at, held back since)
+
+    def __call__(self, problem: str, now: float) -> str | None:
+        """Return the line to log for ``problem`` now, or None to hold it back."""
+        kind = _FIGURES.sub('#', problem)  # the same problem with other figures is one kind
+        said, held = self._kinds.get(kind, (-math.inf, 0))
+        if now - said < self.period:
+            self._kinds[kind] = (said, held + 1)
+            return None
+        if len(self._kinds) > 100:  # kinds not said for a period are forgotten
+            self._kinds = {k: v for k, v in self._kinds.items() if now - v[0] < self.period}
+        self._kinds[kind] = (now, 0)
+        return problem + (f' ({held} more like it held back)' if held else '')
+
+
 class SafeNode(Node):
-    """A node that rejects bad input with one log line and counts what went wrong."""
+    """A node that rejects bad input with one log line and counts what went wrong.
+
+    A problem repeated is logged (and reported at once) once per :data:`LOG_PERIOD`, with a
+    count; every one is counted, and the newest is the next diagnostic's ``last_problem``.
+    """
 
     def __init__(self, name: str, **kwargs) -> None:
         super().__init__(name, **kwargs)
@@ -33,23 +64,30 @@ class SafeNode(Node):
         self.rejected_inputs = 0
         self.errors = 0
         self.last_problem = ''
+        self._repeats = RepeatCounter()
 
     def reject(self, what: str, reason: str) -> None:
         """One clear log line for a message that cannot be used; the node carries on."""
-        self.get_logger().warn(f'rejected {what}: {reason}')
         with self._problem_lock:
             self.rejected_inputs += 1
-            self.last_problem = f'rejected {what}: {reason}'
-        self._report()
+            line = self._note(f'rejected {what}: {reason}')
+        if line is not None:
+            self.get_logger().warn(line)
+            self._report()
 
     def fail(self, what: str, exc: BaseException) -> None:
         if not self.context.ok():  # shutting down: publishing fails, nothing is wrong
             return
-        self.get_logger().error(f'{what} failed: {type(exc).__name__}: {exc}')
         with self._problem_lock:
             self.errors += 1
-            self.last_problem = f'{what} failed: {type(exc).__name__}: {exc}'
-        self._report()
+            line = self._note(f'{what} failed: {type(exc).__name__}: {exc}')
+        if line is not None:
+            self.get_logger().error(line)
+            self._report()
+
+    def _note(self, problem: str) -> str | None:
+        self.last_problem = problem
+        return self._repeats(problem, time.monotonic())
 
     def _report(self) -> None:
         """``on_problem`` once: a problem met while reporting one is not reported again."""
