@@ -249,3 +249,48 @@ def test_odometry_stale_between_reports_is_reported_not_ok(graph):
           f'{sum(level == DiagnosticStatus.OK for level, _ in later)} OK; e.g. {later[-1][1]!r}')
     assert later and not any(level == DiagnosticStatus.OK for level, _ in later), later
     assert any('% of the time since the last report' in message for _, message in later), later
+
+
+def test_a_planner_started_after_latched_obstacles_and_reference_uses_both():
+    """Obstacles and reference published latched, then simulator and planner started."""
+    from visualization_msgs.msg import MarkerArray
+
+    from nh_tracking.examples.obstacles import INFLATION, line_reference, OBSTACLES, ROBOT_RADIUS
+    from nh_tracking.poses import PoseMap
+    from nh_tracking.ros.markers import obstacle_markers
+    import nh_tracking as nht
+
+    env = domain_env()
+    peer = Peer(env)
+    planner = sim = None
+    try:
+        node, odometry = peer.node, []
+        node.create_subscription(Odometry, 'odom', lambda m: odometry.append(
+            (m.pose.pose.position.x, m.pose.pose.position.y)), 100)
+        markers = node.create_publisher(MarkerArray, 'obstacles', LATCHED)
+        markers.publish(MarkerArray(markers=obstacle_markers('odom', 0, OBSTACLES[:1])))
+        reference = node.create_publisher(Path, 'reference_path', LATCHED)
+        message = cv.reference_message(line_reference(20.0), PoseMap(nht.models.unicycle()), 0.0,
+                                       'path')
+        message.header.stamp = cv.time_msg(0)  # it starts when the planner takes it
+        reference.publish(message)
+        time.sleep(0.5)
+        sim = Process('sim', ['--ros-args', '-p', 'model:=unicycle', '-p', 'rate:=50.0', '-p',
+                              'initial_state:=[0.0, 0.0, 0.0, 0.0, 0.0]', '-p',
+                              f'robot_radius:={ROBOT_RADIUS}'], env)
+        planner = Process('planner', ['--ros-args', '-p', 'model:=unicycle', '-p',
+                                      'horizon:=5.0', '-p', 'steps:=50', '-p',
+                                      f'robot_radius:={ROBOT_RADIUS + INFLATION}'], env)
+        assert planner.wait_for('new reference', 60.0), planner.output
+        assert wait_until(lambda: odometry and odometry[-1][0] > OBSTACLES[0, 0] + 1.0, 60.0), (
+            odometry[-1:], planner.output)
+        xy = np.array(odometry)
+        closest = np.hypot(*(xy - OBSTACLES[0, :2]).T).min() - OBSTACLES[0, 2]
+        print(f'\nlatched before start: past the disc, closest approach {closest:.3f} m '
+              f'(robot radius {ROBOT_RADIUS} m)')
+        assert closest >= ROBOT_RADIUS and 'collision' not in sim.output, sim.output
+    finally:
+        peer.close()
+        for process in (planner, sim):
+            if process is not None:
+                process.kill()

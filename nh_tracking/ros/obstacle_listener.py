@@ -22,6 +22,7 @@ from visualization_msgs.msg import MarkerArray
 from nh_tracking.costmap import costmap_discs
 from nh_tracking.limits import nearest_discs
 from nh_tracking.ros.obstacle_messages import MarkerObstacles, occupied_cells
+from nh_tracking.ros.planner_interface import subscribe_latched
 from nh_tracking.ros.safety import guarded, SafeNode
 
 DISC_SIZE = 0.5  # [m] the largest costmap disc; wider groups of cells are cut in pieces
@@ -37,8 +38,8 @@ class ObstacleListener(SafeNode):
         self.marker_obstacles = MarkerObstacles(self.frame)
         self.costmap: tuple[np.ndarray, float] = (np.zeros((0, 2)), 0.0)
         self._costmap_discs = np.zeros((0, 3))  # drawn once per costmap
-        return [self.create_subscription(MarkerArray, 'obstacles', self.on_obstacles, 10),
-                self.create_subscription(OccupancyGrid, 'costmap', self.on_costmap, 1)]
+        return (subscribe_latched(self, MarkerArray, 'obstacles', self.on_obstacles)
+                + subscribe_latched(self, OccupancyGrid, 'costmap', self.on_costmap))
 
     @guarded('obstacles')
     def on_obstacles(self, msg: MarkerArray) -> None:

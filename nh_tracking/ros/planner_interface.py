@@ -18,6 +18,11 @@ And its parameters (declared from the settings dataclasses, plus the ROS-only on
 """
 from __future__ import annotations
 
+from collections.abc import Callable
+from typing import Any
+
+from rclpy.event_handler import SubscriptionEventCallbacks
+from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 
 from nh_tracking.receding_horizon import PlannerSettings
@@ -26,11 +31,13 @@ from nh_tracking.session_types import SessionSettings
 
 LATCHED = QoSProfile(depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL,
                      reliability=ReliabilityPolicy.RELIABLE)
-# A reference is a latched kind of message: a transient-local subscription picks up the one a
-# publisher still offers when this node (re)starts. Such a subscription cannot match a volatile
-# publisher (DDS durability: offered must be at least requested), so a volatile one listens too;
-# a sample both deliver is recognised by its publication stamp and sequence number.
-REFERENCE_QOS = (LATCHED, QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE))
+# References, obstacles and costmaps are latched kinds of message: a transient-local
+# subscription picks up the one a publisher still offers when this node (re)starts. Such a
+# subscription cannot match a volatile publisher (DDS durability: offered must be at least
+# requested), so a volatile one listens too; a sample both deliver is recognised by its
+# publication stamp and sequence number. (BEST_AVAILABLE durability decides once, when the
+# subscription is made: with no publisher yet it is transient-local, deaf to volatile ones.)
+LATCHED_OR_VOLATILE = (LATCHED, QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE))
 
 
 class FirstDelivery:
@@ -45,6 +52,21 @@ class FirstDelivery:
         key = (info.get('source_timestamp'), info.get('publication_sequence_number'))
         duplicate, self._last = key == self._last, key
         return not duplicate
+
+
+def subscribe_latched(node: Node, msg_type: type, topic: str,
+                      callback: Callable[[object], None]) -> list:
+    """Subscribe so latched and volatile publishers are heard; ``callback(msg)`` once a sample."""
+    first = FirstDelivery()
+    # a volatile publisher cannot match the latched listener (the other one takes it): no warning
+    quiet = SubscriptionEventCallbacks(incompatible_qos=lambda info: None)
+
+    def deliver(msg: object, info: dict) -> None:
+        if first(info):
+            callback(msg)
+    handler: Any = deliver  # (rclpy's typing knows only one-argument callbacks)
+    return [node.create_subscription(msg_type, topic, handler, qos, event_callbacks=quiet)
+            for qos in LATCHED_OR_VOLATILE]
 
 
 SETTINGS = ParameterSpec.of(PlannerSettings)

@@ -27,7 +27,6 @@ from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from geometry_msgs.msg import Twist, TwistStamped
 from nav_msgs.msg import Odometry, Path
 import numpy as np
-from rclpy.event_handler import SubscriptionEventCallbacks
 from rclpy.lifecycle import LifecycleNode, LifecycleState, TransitionCallbackReturn
 from trajectory_msgs.msg import JointTrajectory, MultiDOFJointTrajectory
 from visualization_msgs.msg import MarkerArray
@@ -42,8 +41,7 @@ from nh_tracking.ros.markers import obstacle_markers, plan_markers
 from nh_tracking.ros.obstacle_listener import DISC_SIZE, ObstacleListener
 from nh_tracking.ros.odometry_receiver import OdometryReceiver
 from nh_tracking.ros.parameters import declare_all, declare_model
-from nh_tracking.ros.planner_interface import (FirstDelivery, LATCHED, PARAMETERS,
-                                               REFERENCE_QOS)
+from nh_tracking.ros.planner_interface import LATCHED, PARAMETERS, subscribe_latched
 from nh_tracking.ros.planner_parameters import RuntimeParameters
 from nh_tracking.ros.planner_services import PlannerServices
 from nh_tracking.ros.runner import autostart
@@ -71,7 +69,6 @@ class PlannerNode(RuntimeParameters, ObstacleListener, LifecycleNode):
         self._odometry: OdometryReceiver | None = None
         self._obstacles_lock = threading.Lock()
         self._planned_ns = 0  # system time the last plan made on receipt of odometry ended
-        self._first_delivery = FirstDelivery()
         self._configure_error = ''  # why the last configure failed
         self.add_on_set_parameters_callback(self._validate_parameters)
         self.add_post_set_parameters_callback(self._apply_parameters)
@@ -130,15 +127,10 @@ class PlannerNode(RuntimeParameters, ObstacleListener, LifecycleNode):
         self.pub_diag = self.create_publisher(DiagnosticArray, '/diagnostics', 10)
         self._entities = [self.pub_path, self.pub_controls, self.pub_cmd, self.pub_markers,
                           self.pub_diag, self.create_timer(1.0, self.publish_diagnostics)]
-        # a volatile publisher cannot match the latched listener (the other one takes it)
-        quiet = SubscriptionEventCallbacks(incompatible_qos=lambda info: None)
-        for qos in REFERENCE_QOS:
-            self._entities += [
-                self.create_subscription(Path, 'reference_path', self.on_reference_path, qos,
-                                         event_callbacks=quiet),
-                self.create_subscription(MultiDOFJointTrajectory, 'reference_trajectory',
-                                         self.on_reference_trajectory, qos,
-                                         event_callbacks=quiet)]
+        self._entities += subscribe_latched(self, Path, 'reference_path',
+                                            self.on_reference_path)
+        self._entities += subscribe_latched(self, MultiDOFJointTrajectory,
+                                            'reference_trajectory', self.on_reference_trajectory)
         self._entities += self.listen_for_obstacles()
         self._discs, self._discs_centre, self._displayed = np.zeros((0, 3)), np.zeros(2), None
         self._service_host = PlannerServices(self)
@@ -193,17 +185,14 @@ class PlannerNode(RuntimeParameters, ObstacleListener, LifecycleNode):
             else:
                 self.destroy_subscription(entity)
         self._entities = []
-        self._first_delivery = FirstDelivery()  # a new session takes the latched one again
 
     @guarded('reference_path')
-    def on_reference_path(self, msg: Path, info: dict) -> None:
-        if self._first_delivery(info):
-            self._set_reference(*cv.path_to_arrays(msg, self.frame, self._now_ns()), None)
+    def on_reference_path(self, msg: Path) -> None:
+        self._set_reference(*cv.path_to_arrays(msg, self.frame, self._now_ns()), None)
 
     @guarded('reference_trajectory')
-    def on_reference_trajectory(self, msg: MultiDOFJointTrajectory, info: dict) -> None:
-        if self._first_delivery(info):
-            self._set_reference(*cv.multidof_to_arrays(msg, self.frame, self._now_ns()))
+    def on_reference_trajectory(self, msg: MultiDOFJointTrajectory) -> None:
+        self._set_reference(*cv.multidof_to_arrays(msg, self.frame, self._now_ns()))
 
     def _set_reference(self, stamps: np.ndarray, poses: np.ndarray, twists) -> None:
         try:
