@@ -62,6 +62,10 @@ def session_health(session: TrackingSession, problem: str, counts: dict[str, int
         level, message = HealthLevel.STALE, (
             f'odometry {"is" if session.staleness.now else "was"} stale ({stale:.0%} of the '
             'time since the last report): not commanding')
+    elif (ahead := session.planner.reference.t[0] - session.seconds(session.clock())
+          ) > session.planner.settings.horizon:
+        level, message = HealthLevel.WARN, (f'the reference starts {ahead:.1f} s from now '
+                                            '(a clock that jumped back?)')
     elif outcome is not None and outcome.status is not PlanStatus.OPTIMAL:
         level, message = HealthLevel.WARN, f'{outcome.status}: {outcome.message}'
     if problem and level is HealthLevel.OK:

@@ -294,3 +294,78 @@ def test_a_planner_started_after_latched_obstacles_and_reference_uses_both():
         for process in (planner, sim):
             if process is not None:
                 process.kill()
+
+
+def test_a_dead_clock_stops_the_robot_and_says_so_and_a_clock_jumping_back_is_told():
+    """Sim time: /clock (with odometry) stops for 3 s, resumes, then jumps back 1000 s."""
+    from rosgraph_msgs.msg import Clock
+
+    env = domain_env()
+    planner = Process('planner', ['--ros-args', '-p', 'model:=unicycle', '-p', 'steps:=20',
+                                  '-p', 'horizon:=2.0', '-p', 'use_sim_time:=true'], env)
+    peer = Peer(env)
+    try:
+        node = peer.node
+        cmd: list[tuple[float, float]] = []
+        diagnostics: list[tuple[float, int, str]] = []
+        node.create_subscription(Twist, 'cmd_vel', lambda m: cmd.append(
+            (time.monotonic(), abs(m.linear.x) + abs(m.angular.z))), 100)
+        node.create_subscription(DiagnosticArray, '/diagnostics', lambda m: diagnostics.extend(
+            (time.monotonic(), ord(s.level), s.message) for s in m.status
+            if 'planner' in s.name), 100)
+        clock = node.create_publisher(Clock, '/clock', 10)
+        odom = node.create_publisher(Odometry, 'odom', 10)
+        reference = node.create_publisher(Path, 'reference_path', LATCHED)
+        sim_ns = 1000 * 10**9
+
+        def tick(seconds: float) -> None:  # 50 Hz of clock and odometry (the robot stays put)
+            nonlocal sim_ns
+            for _ in range(int(seconds / 0.02)):
+                sim_ns += 20_000_000
+                clock.publish(Clock(clock=cv.time_msg(sim_ns)))
+                odom.publish(cv.odometry_msg('odom', 'base_link', sim_ns, np.zeros(4),
+                                             np.zeros(4)))
+                time.sleep(0.02)
+
+        assert wait_until(lambda: odom.get_subscription_count() > 0, 60.0), planner.output
+        tick(1.0)
+        reference.publish(_line(sim_ns, 10.0, 20.0))
+        tick(3.0)
+        assert cmd and max(v for _, v in cmd[-10:]) > 0.0, planner.output
+        stopped = time.monotonic()
+        time.sleep(3.0)  # the clock and the simulator are dead
+        during = [(t, v) for t, v in cmd if t > stopped]
+        first_zero = next(t for t, v in during if v == 0.0) - stopped
+        told = [m for t, level, m in diagnostics if t > stopped and 'clock' in m]
+        print(f'\n/clock dead: zero cmd_vel {first_zero:.2f} s after it stopped, then '
+              f'{len(during)} commands, max {max(v for _, v in during):g} after it; {told[:1]}')
+        assert first_zero < 1.0
+        assert all(v == 0.0 for t, v in during if t > stopped + first_zero + 0.01)
+        assert told and any(level == 3 for t, level, m in diagnostics if t > stopped)
+        resumed = time.monotonic()
+        tick(2.0)
+        assert max(v for t, v in cmd if t > resumed) > 0.0  # commanding again
+        sim_ns -= 1000 * 10**9  # back to the start of time: the reference now lies 1000 s ahead
+        jumped = time.monotonic()
+        tick(2.5)
+        ahead = [m for t, _, m in diagnostics if t > jumped and 'reference starts' in m]
+        print(f'clock 1000 s back: {ahead[:1]}')
+        assert ahead and 'jumped back' in planner.output
+        assert max(v for t, v in cmd if t > jumped + 0.5) < 1e-9  # it holds still (at rest)
+        assert planner.proc.poll() is None and 'Traceback' not in planner.output
+    finally:
+        peer.close()
+        planner.kill()
+
+
+def test_the_clock_watch_tells_a_standing_a_resumed_and_a_backward_clock():
+    from nh_tracking.ros.clock_watch import ClockEvent, ClockWatch
+
+    watch = ClockWatch(timeout=0.5)
+    looks = [(1_000, 0.0), (2_000, 0.1), (2_000, 0.5), (2_000, 0.7), (2_000, 0.9), (3_000, 1.0),
+             (3_000, 1.2), (500, 1.3), (600, 1.4)]
+    events = [watch.look(ns, steady) for ns, steady in looks]
+    assert events == [None, None, None, ClockEvent.STOPPED, None, ClockEvent.RESUMED, None,
+                      ClockEvent.JUMPED_BACK, None]
+    assert watch.jumped_back_by == pytest.approx(2.5e-6) and not watch.stopped
+    assert watch.standing_for(1.9) == pytest.approx(0.5)

@@ -20,6 +20,7 @@ on receipt). Lifecycle as in Nav2; ``autostart`` (default true) goes to active a
 """
 from __future__ import annotations
 
+from dataclasses import replace
 import threading
 import time
 
@@ -36,6 +37,7 @@ from nh_tracking.health import HealthLevel, session_health
 from nh_tracking.receding_horizon import PlannerSettings
 from nh_tracking.reference_checks import ReferenceRejected
 from nh_tracking.ros import cdr, conversions as cv
+from nh_tracking.ros.clock_watch import ClockWatchdog
 from nh_tracking.ros.lifecycle import answer_every_transition
 from nh_tracking.ros.markers import obstacle_markers, plan_markers
 from nh_tracking.ros.obstacle_listener import DISC_SIZE, ObstacleListener
@@ -50,7 +52,7 @@ from nh_tracking.session import PlanResult, TrackingSession
 from nh_tracking.session_types import ClockSkew
 
 
-class PlannerNode(RuntimeParameters, ObstacleListener, LifecycleNode):
+class PlannerNode(RuntimeParameters, ObstacleListener, ClockWatchdog, LifecycleNode):
     """``nh_tracking_planner``: topics, services and parameters in the README's table."""
 
     _displayed: object  # the outcome last shown on planned_path
@@ -126,7 +128,9 @@ class PlannerNode(RuntimeParameters, ObstacleListener, LifecycleNode):
                                                            LATCHED)
         self.pub_diag = self.create_publisher(DiagnosticArray, '/diagnostics', 10)
         self._entities = [self.pub_path, self.pub_controls, self.pub_cmd, self.pub_markers,
-                          self.pub_diag, self.create_timer(1.0, self.publish_diagnostics)]
+                          self.pub_diag, self.watch_clock()]  # diagnostics even if it stands
+        self._entities.append(self.create_timer(1.0, self.publish_diagnostics,
+                                                clock=self.steady_clock))
         self._entities += subscribe_latched(self, Path, 'reference_path',
                                             self.on_reference_path)
         self._entities += subscribe_latched(self, MultiDOFJointTrajectory,
@@ -273,6 +277,10 @@ class PlannerNode(RuntimeParameters, ObstacleListener, LifecycleNode):
         else:
             self.pub_cmd.publish(cv.twist_msg(twist))
 
+    def on_clock_stopped(self) -> None:
+        if self.live.active:
+            self._publish_twist(np.zeros(4))
+
     # diagnostics ------------------------------------------------------------------------------
     def on_problem(self) -> None:
         self.publish_diagnostics()
@@ -284,6 +292,8 @@ class PlannerNode(RuntimeParameters, ObstacleListener, LifecycleNode):
             return
         health = session_health(session, self.take_problem(), {
             'rejected_inputs': self.rejected_inputs, 'errors': self.errors})
+        if self.clock_problem():
+            health = replace(health, level=HealthLevel.STALE, message=self.clock_problem())
         level = {HealthLevel.OK: DiagnosticStatus.OK, HealthLevel.WARN: DiagnosticStatus.WARN,
                  HealthLevel.STALE: DiagnosticStatus.STALE}[health.level]
         array = DiagnosticArray(status=[cv.diagnostic_status(
