@@ -46,13 +46,13 @@ class Health:
 
 
 def session_health(session: TrackingSession, problem: str, counts: dict[str, int]) -> Health:
-    """Return the session's state: the worst since the previous call.
+    """Return the session's state: the worst of the last second.
 
     ``problem`` is the last input or callback problem ('' if none), ``counts`` the front end's own
     counters (rejected inputs, errors).
     """
     outcome, stats = session.outcome, session.planner.stats
-    stale = session.staleness.take_fraction()
+    stale = session.staleness.fraction()
     level, message = HealthLevel.OK, 'planning'
     if not session.active:
         level, message = HealthLevel.WARN, 'inactive: not commanding'
@@ -61,7 +61,7 @@ def session_health(session: TrackingSession, problem: str, counts: dict[str, int
     elif session.staleness.now or stale > 0.0:
         level, message = HealthLevel.STALE, (
             f'odometry {"is" if session.staleness.now else "was"} stale ({stale:.0%} of the '
-            'time since the last report): not commanding')
+            'last second): not commanding')
     elif (ahead := session.planner.reference.t[0] - session.seconds(session.clock())
           ) > session.planner.settings.horizon:
         level, message = HealthLevel.WARN, (f'the reference starts {ahead:.1f} s from now '

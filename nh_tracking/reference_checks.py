@@ -12,7 +12,7 @@
 # See the License for the specific language governing permissions and
 # limitations under the License.
 
-"""Whether a timed reference asks for a motion a robot can make: implied speed and acceleration.
+"""Whether a timed reference asks for a motion a robot can make, and thinning one too dense.
 
 Finite poses and increasing stamps are not enough: two poses 100 km apart 10 s apart are both,
 and a planner tracking them commands thousands of m/s. Speeds are those of the polyline through
@@ -39,6 +39,20 @@ def _thinned(times: np.ndarray, spacing: float) -> np.ndarray:
     if keep[-1] != len(times) - 1:
         keep[-1] = len(times) - 1
     return np.array(keep)
+
+
+def thin(times: np.ndarray, spacing: float) -> np.ndarray:
+    """Return the indices of the points kept of a reference denser than ``spacing`` [s].
+
+    The first point in each ``spacing``-long interval from the first point on, and the last: a
+    planner reads the reference at its knots, so points closer than a fraction of its step
+    only cost memory and time (a 100,000-pose Path).
+    """
+    times = np.asarray(times, dtype=float)
+    bins = np.floor((times - times[0]) / spacing)
+    keep = np.r_[True, np.diff(bins) > 0]
+    keep[-1] = True
+    return np.flatnonzero(keep)
 
 
 def check_implied_motion(times: np.ndarray, positions: np.ndarray, max_speed: float,

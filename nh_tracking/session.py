@@ -33,7 +33,7 @@ from nh_tracking.limits import obstacle_discs
 from nh_tracking.poses import PoseMap
 from nh_tracking.problem import Solution
 from nh_tracking.receding_horizon import PlannerSettings, PlanOutcome, RecedingHorizonPlanner
-from nh_tracking.reference_checks import check_implied_motion
+from nh_tracking.reference_checks import check_implied_motion, thin
 from nh_tracking.session_types import (Clock, ClockSkew, PlanResult, settle_heap,
                                        Staleness, StateEstimate)
 from nh_tracking.system import NonholonomicSystem
@@ -132,13 +132,19 @@ class TrackingSession:
     # inputs -----------------------------------------------------------------------------------
     def set_reference(self, stamps_ns: np.ndarray, poses: np.ndarray,
                       twists: np.ndarray | None) -> Trajectory:
-        """Track timed poses (and twists) from the next plan on; else ReferenceRejected."""
+        """Track timed poses (and twists), thinned to 4 a plan step, from the next plan on.
+
+        ReferenceRejected if they ask too much of the robot.
+        """
         with self._lock:
             hidden = None if self._state is None else self._state.q
         times = (np.asarray(stamps_ns, dtype=np.int64) - self.epoch_ns) * 1e-9
-        check_implied_motion(times, np.asarray(poses)[:, :2], *self.reference_bounds)
+        keep = thin(times, self.planner.settings.horizon / self.planner.settings.steps / 4)
+        times, poses = times[keep], np.asarray(poses)[keep]
+        twists = None if twists is None else np.asarray(twists)[keep]
+        check_implied_motion(times, poses[:, :2], *self.reference_bounds)
+        reference = self.pose_map.reference(times, poses, twists, hidden)  # (not holding plans)
         with self._solve_lock:
-            reference = self.pose_map.reference(times, poses, twists, hidden)
             self.planner.set_reference(reference)
         return reference
 

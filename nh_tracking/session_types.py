@@ -91,32 +91,35 @@ def settle_heap(generation: int) -> None:
     gc.freeze()
 
 
-class Staleness:
-    """Whether the odometry is stale now, and for how much of the time since the last look."""
+WINDOW = 1.0  # [s] the stale fraction is over this long (the diagnostics' period)
 
-    def __init__(self) -> None:
-        self.now = False
+
+class Staleness:
+    """Whether the odometry is stale now, and for what fraction of the last :data:`WINDOW`."""
+
+    def __init__(self, clock: Callable[[], float] = time.monotonic) -> None:
+        self.now, self._clock = False, clock
         self._lock = threading.Lock()
-        self._changed = self._looked = time.monotonic()
-        self._stale_for = 0.0  # [s] since the last look, up to the last change
+        self._changes: list[tuple[float, bool]] = [(clock(), False)]  # (when, stale)
 
     def mark(self, stale: bool) -> bool:
         """Record whether it is stale now; return whether that changed."""
         with self._lock:
             if stale == self.now:
                 return False
-            now = time.monotonic()
-            if self.now:
-                self._stale_for += now - max(self._changed, self._looked)
-            self.now, self._changed = stale, now
+            now = self._clock()
+            self.now = stale
+            changes = self._changes  # kept: those in force at some time in the window
+            self._changes = [c for c, after in zip(changes, changes[1:])
+                             if after[0] > now - WINDOW] + [changes[-1], (now, stale)]
             return True
 
-    def take_fraction(self) -> float:
-        """Return the fraction of the time since the last call it was stale."""
+    def fraction(self) -> float:
+        """Return the fraction of the last :data:`WINDOW` it was stale."""
         with self._lock:
-            now = time.monotonic()
-            stale_for = self._stale_for + (now - max(self._changed, self._looked)
-                                           if self.now else 0.0)
-            fraction = stale_for / max(now - self._looked, 1e-9)
-            self._stale_for, self._looked = 0.0, now
-            return min(fraction, 1.0)
+            now = self._clock()
+            stale_for, changes = 0.0, self._changes + [(now, self.now)]
+            for (start, stale), (end, _) in zip(changes, changes[1:]):
+                if stale:
+                    stale_for += max(0.0, end - max(start, now - WINDOW))
+            return stale_for / WINDOW

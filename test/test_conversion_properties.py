@@ -33,6 +33,7 @@ from trajectory_msgs.msg import (JointTrajectory, JointTrajectoryPoint, MultiDOF
 import nh_tracking as nht
 from nh_tracking.poses import PoseMap
 from nh_tracking.ros import conversions as cv
+from nh_tracking.ros import messages as msgs
 
 SETTINGS = settings(max_examples=200, deadline=None,
                     suppress_health_check=[HealthCheck.too_slow])
@@ -51,7 +52,7 @@ durations = st.builds(Duration, sec=st.integers(0, 1000), nanosec=st.integers(0,
 def quaternions(draw):
     if draw(st.booleans()):
         yaw = draw(st.floats(-10, 10))
-        return cv.quaternion_of(yaw)
+        return msgs.quaternion_of(yaw)
     return Quaternion(x=draw(value), y=draw(value), z=draw(value), w=draw(value))
 
 
@@ -80,9 +81,9 @@ def paths(draw):
     msg = Path(header=Header(frame_id=draw(st.sampled_from(['odom', '/odom'])),
                              stamp=Time(sec=t0) if draw(st.booleans()) else Time()),
                poses=[PoseStamped(header=Header(frame_id=draw(st.sampled_from(['', 'odom'])),
-                                                stamp=cv.time_msg(int(t))),
-                                  pose=cv.pose_msg(np.array([draw(tame), draw(tame), 0.0,
-                                                             draw(tame)])))
+                                                stamp=msgs.time_msg(int(t))),
+                                  pose=msgs.pose_msg(np.array([draw(tame), draw(tame), 0.0,
+                                                               draw(tame)])))
                       for t in ns])
     for _ in range(draw(st.integers(0, 2))):
         if not msg.poses:
@@ -112,7 +113,7 @@ def multidof(draw):
     count = draw(st.integers(1, 10))
     points = [MultiDOFJointTrajectoryPoint(
         transforms=[Transform(translation=Vector3(x=draw(tame), y=draw(tame), z=0.0),
-                              rotation=cv.quaternion_of(draw(tame)))],
+                              rotation=msgs.quaternion_of(draw(tame)))],
         velocities=[Twist(linear=Vector3(x=draw(tame), y=draw(tame)),
                           angular=Vector3(z=draw(tame)))],
         time_from_start=Duration(sec=i, nanosec=draw(st.integers(0, 999_999_999))))
@@ -239,11 +240,11 @@ def test_twist_conversion_is_valid_or_rejected(twist):
 def test_outgoing_messages_round_trip(x, y, yaw):
     """What the nodes publish reads back as what they meant (within float precision)."""
     pose = np.array([x, y, 0.0, yaw])
-    back = cv.pose_array(cv.pose_msg(pose), 'pose')
+    back = cv.pose_array(msgs.pose_msg(pose), 'pose')
     assert np.allclose(back[:3], pose[:3])
     assert abs(math.remainder(back[3] - yaw, 2 * math.pi)) < 1e-9
-    seq = cv.control_sequence_msg('odom', 10**9, np.array([0.0, 0.1]), ['torque', 'force'],
-                                  np.array([[x, y], [y, x]]) * 1e-3)
+    seq = msgs.control_sequence_msg('odom', 10**9, np.array([0.0, 0.1]), ['torque', 'force'],
+                                    np.array([[x, y], [y, x]]) * 1e-3)
     start, offsets, efforts = cv.controls_to_arrays(seq, ['torque', 'force'])
     assert start == 10**9 and np.allclose(efforts, np.array([[x, y], [y, x]]) * 1e-3)
     assert offsets == pytest.approx([0.0, 0.1])

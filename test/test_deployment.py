@@ -36,6 +36,7 @@ import yaml
 
 from nh_tracking.metrics import cross_track_error
 from nh_tracking.ros import conversions as cv
+from nh_tracking.ros import messages as msgs
 from nh_tracking.ros.graph import wait_until
 from nh_tracking.ros.planner_node import LATCHED
 from processes import domain_env, Peer, Process, run, starts_and_stops
@@ -55,7 +56,7 @@ def circle(start_ns: int, duration: float = 300.0, dt: float = 0.1) -> tuple[Pat
     poses = np.stack([RADIUS * np.cos(angle), RADIUS * np.sin(angle), 0 * t,
                       angle + math.pi / 2], axis=1)
     stamps = [start_ns + int(round(s * 1e9)) for s in t]
-    return cv.path_msg('odom', stamps, poses), poses[:, :2]
+    return msgs.path_msg('odom', stamps, poses), poses[:, :2]
 
 
 class Robot:

@@ -31,6 +31,7 @@ from rclpy.qos import QoSProfile
 from trajectory_msgs.msg import JointTrajectory
 
 from nh_tracking.ros import conversions as cv
+from nh_tracking.ros import messages as msgs
 from nh_tracking.ros import SimulatorNode
 from nh_tracking.ros.graph import wait_until
 from nh_tracking.ros.planner_node import LATCHED
@@ -79,8 +80,8 @@ def test_lifecycle_transitions_through_the_standard_services(graph):
     reference = node.create_publisher(Path, 'reference_path', LATCHED)
     assert transition(Transition.TRANSITION_CONFIGURE)
     assert state() == State.PRIMARY_STATE_INACTIVE
-    msg = cv.reference_message(pair.reference, planner.pose_map, 0.0, 'path')
-    msg.header.stamp = cv.time_msg(0)
+    msg = msgs.reference_message(pair.reference, planner.pose_map, 0.0, 'path')
+    msg.header.stamp = msgs.time_msg(0)
     reference.publish(msg)  # latched: every (re)configured planner picks it up
     assert wait_until(lambda: planner.planner.reference is not None, 10.0)
     wait_until(lambda: False, 1.0)
@@ -193,8 +194,8 @@ def test_simulator_keeps_every_step_on_the_wall_clock_with_nanosecond_pieces(gra
     deadline = time.monotonic() + 2.0
     while time.monotonic() < deadline:
         last = cv.stamp_ns(odom.messages[-1].header.stamp)  # the next step starts here
-        pub.publish(cv.control_sequence_msg('odom', last + 1, np.arange(0.0, 1.0, 0.1), names,
-                                            np.full((10, 2), 0.1)))
+        pub.publish(msgs.control_sequence_msg('odom', last + 1, np.arange(0.0, 1.0, 0.1), names,
+                                              np.full((10, 2), 0.1)))
         time.sleep(0.01)
     steps = odom.count() - start
     stamps = [cv.stamp_ns(m.header.stamp) for m in odom.messages[start:]]

@@ -25,6 +25,7 @@ from trajectory_msgs.msg import JointTrajectory
 from nh_tracking.examples.demo import sleigh_reference
 from nh_tracking.poses import PoseMap
 from nh_tracking.ros import conversions as cv
+from nh_tracking.ros import messages as msgs
 from nh_tracking.ros import PlannerNode
 from nh_tracking.ros.graph import parameters, wait_until
 from nh_tracking.ros.planner_interface import LATCHED
@@ -51,8 +52,8 @@ class Replay:
         reference_pub = self.node.create_publisher(Path, 'reference_path', LATCHED)
         assert wait_until(lambda: reference_pub.get_subscription_count() > 0, 10.0)
         self.start = planner.get_clock().now().nanoseconds * 1e-9
-        reference_pub.publish(cv.reference_message(self.reference, self.pose_map, self.start,
-                                                   'path'))
+        reference_pub.publish(msgs.reference_message(self.reference, self.pose_map, self.start,
+                                                     'path'))
         assert wait_until(lambda: planner.planner.reference is not None, 10.0)
 
     def drive(self, seconds: float, rate: float) -> None:
@@ -61,8 +62,8 @@ class Replay:
         while time.monotonic() < until:
             now = self.planner.get_clock().now().nanoseconds
             q, v = self.reference.at(now * 1e-9 - self.start)
-            self.odom.publish(cv.odometry_msg('odom', 'base_link', now, self.pose_map.pose(q),
-                                              self.pose_map.body_twist(q, v)))
+            self.odom.publish(msgs.odometry_msg('odom', 'base_link', now, self.pose_map.pose(q),
+                                                self.pose_map.body_twist(q, v)))
             time.sleep(1.0 / rate)
 
     def health(self) -> dict[str, str]:

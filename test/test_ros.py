@@ -35,6 +35,7 @@ from nh_tracking.examples.experiments import SLEIGH_REFERENCE_START
 from nh_tracking.examples.obstacles import costmap_msg
 from nh_tracking.metrics import cross_track_error
 from nh_tracking.ros import conversions as cv
+from nh_tracking.ros import messages as msgs
 from nh_tracking.ros import PlannerNode, SimulatorNode
 from nh_tracking.ros.graph import parameters, wait_until
 
@@ -96,8 +97,8 @@ class WallClockPair:
 
     def send_reference(self):
         """Send the reference with a zero stamp: it starts when received."""
-        msg = cv.reference_message(self.reference, self.planner.pose_map, 0.0, 'path')
-        msg.header.stamp = cv.time_msg(0)
+        msg = msgs.reference_message(self.reference, self.planner.pose_map, 0.0, 'path')
+        msg.header.stamp = msgs.time_msg(0)
         for ps in msg.poses:
             ps.pose.position.x += float(self.offset[0])
             ps.pose.position.y += float(self.offset[1])
@@ -139,7 +140,7 @@ def test_services_answer_before_and_after_a_reference(graph):
     request = GetPlan.Request()
     request.start = PoseStamped()
     request.start.header.frame_id = 'odom'
-    request.start.pose = cv.pose_msg(np.array([1.0, 1.5, 0.0, 0.5]))
+    request.start.pose = msgs.pose_msg(np.array([1.0, 1.5, 0.0, 0.5]))
     from_start = pair.call(GetPlan, 'plan', request)
     first = from_start.plan.poses[0].pose.position
     assert (first.x, first.y) == pytest.approx((1.0, 1.5), abs=1e-9)
@@ -147,14 +148,14 @@ def test_services_answer_before_and_after_a_reference(graph):
 
 
 def _bad_messages(pair):
-    good = cv.reference_message(pair.reference, pair.planner.pose_map, 0.0, 'path')
-    good.header.stamp = cv.time_msg(0)
+    good = msgs.reference_message(pair.reference, pair.planner.pose_map, 0.0, 'path')
+    good.header.stamp = msgs.time_msg(0)
 
     def path(edit):
         """Return a fresh copy of the first 20 poses (no shared sub-messages), then ``edit``."""
-        msg = Path(header=Header(frame_id='odom', stamp=cv.time_msg(0)), poses=[
+        msg = Path(header=Header(frame_id='odom', stamp=msgs.time_msg(0)), poses=[
             PoseStamped(header=Header(frame_id=p.header.frame_id, stamp=p.header.stamp),
-                        pose=cv.pose_msg(cv.pose_array(p.pose, 'pose')))
+                        pose=msgs.pose_msg(cv.pose_array(p.pose, 'pose')))
             for p in good.poses[:20]])
         edit(msg)
         return msg
@@ -171,7 +172,7 @@ def _bad_messages(pair):
     def long_quaternion(m):
         m.poses[3].pose.orientation.w = 2.0
 
-    trajectory = cv.reference_message(pair.reference, pair.planner.pose_map, 0.0, 'trajectory')
+    trajectory = msgs.reference_message(pair.reference, pair.planner.pose_map, 0.0, 'trajectory')
     mismatched = MultiDOFJointTrajectory(header=trajectory.header,
                                          joint_names=trajectory.joint_names,
                                          points=list(trajectory.points[:10]))
@@ -310,8 +311,8 @@ def test_simulator_holds_controls_until_the_timeout_then_coasts(graph):
     pub = probe.create_publisher(JointTrajectory, 'control_sequence', 10)
     assert wait_until(lambda: pub.get_subscription_count() > 0, 10.0)
     now = sim.get_clock().now().nanoseconds
-    pub.publish(cv.control_sequence_msg('odom', now, np.arange(0.0, 10.0, 0.1),
-                                        sim.system.control_names, np.tile([1.0, 0.0], (100, 1))))
+    pub.publish(msgs.control_sequence_msg('odom', now, np.arange(0.0, 10.0, 0.1),
+                                          sim.system.control_names, np.tile([1.0, 0.0], (100, 1))))
     assert wait_until(lambda: sim.state[1][0] > 0.05, 5.0)
     wait_until(lambda: False, 1.0)
     speed = sim.state[1][0]
@@ -331,7 +332,7 @@ def test_simulator_velocity_mode_follows_cmd_vel_and_initialpose_resets(graph):
     probe.create_subscription(Odometry, 'odom', odoms.append, 100)
     pub = probe.create_publisher(Twist, 'cmd_vel', 10)
     assert wait_until(lambda: pub.get_subscription_count() > 0, 10.0)
-    pub.publish(cv.twist_msg(np.array([0.5, 0.3, 0.0, 0.4])))  # lateral slip is projected out
+    pub.publish(msgs.twist_msg(np.array([0.5, 0.3, 0.0, 0.4])))  # lateral slip is projected out
     assert wait_until(lambda: sim.state[0][0] > 0.2, 10.0)
     q, v = sim.state
     assert v == pytest.approx([0.5, 0.4], abs=1e-6)
@@ -339,10 +340,10 @@ def test_simulator_velocity_mode_follows_cmd_vel_and_initialpose_resets(graph):
     assert abs(odoms[-1].twist.twist.linear.y) < 1e-9
     reset = PoseWithCovarianceStamped()
     reset.header.frame_id = 'odom'
-    reset.pose.pose = cv.pose_msg(np.array([3.0, -2.0, 0.0, 1.0]))
+    reset.pose.pose = msgs.pose_msg(np.array([3.0, -2.0, 0.0, 1.0]))
     pose_pub = probe.create_publisher(PoseWithCovarianceStamped, 'initialpose', 10)
     assert wait_until(lambda: pose_pub.get_subscription_count() > 0, 10.0)
-    pub.publish(cv.twist_msg(np.zeros(4)))
+    pub.publish(msgs.twist_msg(np.zeros(4)))
     assert wait_until(lambda: abs(sim.state[1][0]) < 1e-9, 5.0)
     pose_pub.publish(reset)
     assert wait_until(lambda: sim.state[0][0] == pytest.approx(3.0, abs=1e-6), 5.0)
@@ -427,8 +428,8 @@ def test_a_user_model_drives_the_planner_and_simulator_by_its_module_path(graph)
     probe.create_subscription(Odometry, 'odom', odom.append, 100)
     pub = probe.create_publisher(Path, 'reference_path', 10)
     assert wait_until(lambda: pub.get_subscription_count() > 0, 10.0)
-    msg = cv.reference_message(reference, planner.pose_map, 0.0, 'path')
-    msg.header.stamp = cv.time_msg(0)  # starts on receipt, as the robot sets off
+    msg = msgs.reference_message(reference, planner.pose_map, 0.0, 'path')
+    msg.header.stamp = msgs.time_msg(0)  # starts on receipt, as the robot sets off
     pub.publish(msg)
     assert wait_until(lambda: len(sequences) > 20, 30.0)
     assert sequences[-1].joint_names == ['drive', 'steer']
@@ -468,8 +469,8 @@ def test_an_underactuated_snakeboard_runs_through_the_nodes(graph):
     probe.create_subscription(Odometry, 'odom', odom.append, 100)
     pub = probe.create_publisher(Path, 'reference_path', 10)
     assert wait_until(lambda: pub.get_subscription_count() > 0, 10.0)
-    msg = cv.reference_message(reference, planner.pose_map, 0.0, 'path')
-    msg.header.stamp = cv.time_msg(0)
+    msg = msgs.reference_message(reference, planner.pose_map, 0.0, 'path')
+    msg.header.stamp = msgs.time_msg(0)
     pub.publish(msg)
     assert wait_until(lambda: len(sequences) > 5, 60.0)
     assert sequences[-1].joint_names == ['rotor_torque', 'steering_torque']

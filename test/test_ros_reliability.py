@@ -30,7 +30,7 @@ from visualization_msgs.msg import Marker, MarkerArray
 
 from nh_tracking.examples.demo import ClosedLoop, sleigh_reference, START
 from nh_tracking.metrics import cross_track_error
-from nh_tracking.ros import conversions as cv
+from nh_tracking.ros import messages as msgs
 from nh_tracking.ros.graph import wait_until
 from test_ros import WallClockPair
 
@@ -45,9 +45,9 @@ class Fuzzer:
     def __init__(self, pair, seed=0):
         self.rng = np.random.default_rng(seed)
         self.pair = pair
-        self.path = cv.reference_message(pair.reference, pair.planner.pose_map, 0.0, 'path')
-        self.trajectory = cv.reference_message(pair.reference, pair.planner.pose_map, 0.0,
-                                               'trajectory')
+        self.path = msgs.reference_message(pair.reference, pair.planner.pose_map, 0.0, 'path')
+        self.trajectory = msgs.reference_message(pair.reference, pair.planner.pose_map, 0.0,
+                                                 'trajectory')
 
     def bad(self):
         return float(self.rng.choice(self.BAD))
@@ -56,7 +56,7 @@ class Fuzzer:
         msg = Path(header=self.path.header, poses=list(self.path.poses[:15]))
         kind = self.rng.integers(4)
         i = int(self.rng.integers(len(msg.poses)))
-        pose = cv.pose_msg(np.array([0.0, 0.0, 0.0, 0.0]))
+        pose = msgs.pose_msg(np.array([0.0, 0.0, 0.0, 0.0]))
         if kind == 0:
             pose.position.x = self.bad()
         elif kind == 1:
@@ -142,9 +142,9 @@ def test_fuzz_flood_and_concurrent_calls_leave_the_loop_tracking(graph):
     for flood in range(1000):
         if flood % 10 == 0:  # refresh the state now and then, re-stamp every time
             q, v = pair.sim.state
-            msg = cv.odometry_msg('odom', 'base_link', 0, pair.planner.pose_map.pose(q),
-                                  pair.planner.pose_map.body_twist(q, v))
-        msg.header.stamp = cv.time_msg(pair.planner.get_clock().now().nanoseconds)
+            msg = msgs.odometry_msg('odom', 'base_link', 0, pair.planner.pose_map.pose(q),
+                                    pair.planner.pose_map.body_twist(q, v))
+        msg.header.stamp = msgs.time_msg(pair.planner.get_clock().now().nanoseconds)
         pubs['odom'].publish(msg)
     flood_rate = 1000 / (time.monotonic() - flood_start)
     # 20 plan calls at once

@@ -21,15 +21,16 @@ alignment of what follows depends on them), any widths and stamps.
 """
 import re
 
+from geometry_msgs.msg import PoseStamped
 from hypothesis import given, HealthCheck, settings
 from hypothesis import strategies as st
-from nav_msgs.msg import Odometry
+from nav_msgs.msg import Odometry, Path
 import numpy as np
 import pytest
 from rclpy.serialization import deserialize_message, serialize_message
 from trajectory_msgs.msg import JointTrajectory
 
-from nh_tracking.ros import cdr, conversions as cv
+from nh_tracking.ros import cdr, conversions as cv, messages as msgs
 
 SETTINGS = settings(max_examples=300, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 names = st.text(st.characters(codec='utf-8', exclude_characters='\x00'), max_size=13)
@@ -47,7 +48,7 @@ def test_a_written_control_sequence_reads_back_through_the_middleware(
     steps = data.draw(st.lists(st.floats(1e-3, 10.0), min_size=points, max_size=points))
     offsets = np.cumsum(steps) - steps[0]
     written = cdr.control_sequence(frame, stamp, offsets, joints, efforts)
-    assert deserialize_message(written, JointTrajectory) == cv.control_sequence_msg(
+    assert deserialize_message(written, JointTrajectory) == msgs.control_sequence_msg(
         frame, stamp, offsets, joints, efforts)
 
 
@@ -55,7 +56,7 @@ def test_a_written_control_sequence_reads_back_through_the_middleware(
 @given(names, names, stamps, st.lists(numbers, min_size=4, max_size=4),
        st.lists(numbers, min_size=4, max_size=4))
 def test_serialized_odometry_reads_as_the_message_does(frame, child, stamp, pose, twist):
-    msg = cv.odometry_msg(frame, child, stamp, np.array(pose), np.array(twist))
+    msg = msgs.odometry_msg(frame, child, stamp, np.array(pose), np.array(twist))
     msg.pose.pose.orientation.x = 1e-4  # a general quaternion (within the unit tolerance)
     msg.twist.twist.angular.y = twist[0]
     for expected in ('odom', frame):
@@ -74,8 +75,8 @@ def test_serialized_odometry_reads_as_the_message_does(frame, child, stamp, pose
 @settings(max_examples=300, deadline=None)
 @given(st.binary(max_size=300), st.integers(0, 720))
 def test_damaged_odometry_bytes_are_rejected_with_a_reason(noise, cut):
-    good = serialize_message(cv.odometry_msg('odom', 'base', 5, np.array([1.0, 2.0, 0.0, 0.5]),
-                                             np.zeros(4)))
+    good = serialize_message(msgs.odometry_msg('odom', 'base', 5, np.array([1.0, 2.0, 0.0, 0.5]),
+                                               np.zeros(4)))
     for data in (good[:cut], cdr.ENCAPSULATION + noise, noise, b'\x00\x00\x00\x00' + good[4:]):
         if data == good:
             continue
@@ -95,3 +96,51 @@ def test_this_middleware_agrees_and_the_nan_in_odometry_is_still_refused():
     msg.twist.twist.linear.x = float('nan')
     with pytest.raises(cv.InputRejected, match='NaN'):
         cv.odom_to_arrays(serialize_message(msg), 'odom')
+
+
+@SETTINGS
+@given(names, stamps, st.lists(st.tuples(st.sampled_from(['', 'odom', 'odom_frame', 'map']),
+                                         stamps, st.lists(numbers, min_size=7, max_size=7)),
+                               max_size=30))
+def test_serialized_paths_read_as_the_message_does(frame, stamp, poses):
+    """The fixed-stride reading (all frame_ids as long) and the pose-by-pose one alike."""
+    msg = Path()
+    msg.header.frame_id = frame
+    msg.header.stamp = msgs.time_msg(stamp)
+    for pose_frame, pose_stamp, values in poses:
+        ps = PoseStamped()
+        ps.header.frame_id, ps.header.stamp = pose_frame, msgs.time_msg(pose_stamp)
+        p, o = ps.pose.position, ps.pose.orientation
+        p.x, p.y, p.z, o.x, o.y, o.z, o.w = values
+        msg.poses.append(ps)
+    read_stamp, read_frame, read_stamps, read_poses, frames = cdr.path_values(
+        serialize_message(msg))
+    assert (read_stamp, read_frame) == (stamp, frame)
+    assert read_stamps.tolist() == [s for _, s, _ in poses]
+    assert read_poses.tolist() == [v for _, _, v in poses]
+    assert frames == {f: next(i for i, (g, _, _) in enumerate(poses) if g == f)
+                      for f, _, _ in poses}
+    for expected in ('odom', frame):  # and it is judged as the message is
+        try:
+            from_message = cv.path_to_arrays(msg, expected, 7)
+        except cv.InputRejected as exc:
+            with pytest.raises(cv.InputRejected, match=re.escape(str(exc))):
+                cv.path_to_arrays(serialize_message(msg), expected, 7)
+            continue
+        from_bytes = cv.path_to_arrays(serialize_message(msg), expected, 7)
+        assert all(np.array_equal(a, b) for a, b in zip(from_message, from_bytes))
+
+
+@settings(max_examples=300, deadline=None)
+@given(st.binary(max_size=300), st.integers(0, 400))
+def test_damaged_path_bytes_are_rejected_with_a_reason(noise, cut):
+    good = serialize_message(msgs.path_msg('odom', [5, 6, 7], np.eye(3, 4)))
+    for data in (good[:cut], cdr.ENCAPSULATION + noise, noise):
+        if data == good:
+            continue
+        try:
+            stamps, poses = cv.path_to_arrays(data, 'odom', 0)
+        except cv.InputRejected as exc:
+            assert str(exc)
+            continue
+        assert np.all(np.isfinite(poses)) and len(stamps) == len(poses)

@@ -34,6 +34,7 @@ from nh_tracking.examples.experiments import SLEIGH_REFERENCE_START, SLEIGH_STAR
 from nh_tracking.metrics import cross_track_error, percentiles_ms
 from nh_tracking.poses import PoseMap
 from nh_tracking.ros import conversions as cv
+from nh_tracking.ros import messages as msgs
 from nh_tracking.ros.graph import InProcessGraph, parameters, wait_until
 from nh_tracking.ros.planner_node import LATCHED, PlannerNode
 from nh_tracking.ros.runner import responsive_threads
@@ -90,7 +91,7 @@ class ClosedLoop:
         if not wait_until(lambda: pub.get_subscription_count() > 0, timeout):
             raise RuntimeError(f'planner did not subscribe to {pub.topic_name} in {timeout} s')
         received = self.planner.planner.reference
-        pub.publish(cv.reference_message(reference, self.pose_map, start, kind))
+        pub.publish(msgs.reference_message(reference, self.pose_map, start, kind))
         if not wait_until(lambda: self.planner.planner.reference is not received, timeout):
             raise RuntimeError(f'planner did not take the reference in {timeout} s')
 

@@ -41,6 +41,7 @@ import numpy as np
 
 from nh_tracking.metrics import cross_track_error
 from nh_tracking.ros import conversions as cv
+from nh_tracking.ros import messages as msgs
 from nh_tracking.ros.graph import InProcessGraph, wait_until
 from nh_tracking.ros.planner_interface import LATCHED
 
@@ -101,7 +102,7 @@ def circle(start_ns: int, duration: float, dt: float = 0.1) -> tuple[PathMsg, np
     angle = SPEED / RADIUS * t
     poses = np.stack([RADIUS * np.cos(angle), RADIUS * np.sin(angle), 0 * t,
                       angle + math.pi / 2], axis=1)
-    return cv.path_msg('odom', [start_ns + int(round(s * 1e9)) for s in t], poses), poses[:, :2]
+    return msgs.path_msg('odom', [start_ns + int(round(s * 1e9)) for s in t], poses), poses[:, :2]
 
 
 def run_fleet(size: int, domain: int, duration: float, log: Callable[[str], None]) -> dict:

@@ -36,7 +36,7 @@ from nh_tracking import models
 from nh_tracking.examples.demo import ClosedLoop, sleigh_reference
 from nh_tracking.metrics import percentiles_ms
 from nh_tracking.poses import PoseMap
-from nh_tracking.ros import conversions as cv
+from nh_tracking.ros import messages as msgs
 from nh_tracking.ros.graph import InProcessGraph, wait_until
 from nh_tracking.ros.planner_interface import LATCHED
 from nh_tracking.ros.runner import responsive_threads
@@ -54,8 +54,8 @@ def _replay(node: Any, reference: Trajectory, pose_map: PoseMap, rate: float) ->
 
     def publish() -> None:
         q, v = reference.at(time.monotonic() - t0)
-        pub.publish(cv.odometry_msg('odom', 'base_link', node.get_clock().now().nanoseconds,
-                                    pose_map.pose(q), pose_map.body_twist(q, v)))
+        pub.publish(msgs.odometry_msg('odom', 'base_link', node.get_clock().now().nanoseconds,
+                                      pose_map.pose(q), pose_map.body_twist(q, v)))
 
     node.create_timer(1.0 / rate, publish)
 
@@ -90,7 +90,7 @@ def deployed_latency(log: Callable[[str], None], duration: float = 8.0, rate: fl
         reference, pose_map = sleigh_reference(duration + 30.0), PoseMap(models.create(
             'chaplygin_sleigh'))
         start = node.get_clock().now().nanoseconds * 1e-9
-        reference_pub.publish(cv.reference_message(reference, pose_map, start, 'path'))
+        reference_pub.publish(msgs.reference_message(reference, pose_map, start, 'path'))
         _replay(node, reference, pose_map, rate)
         time.sleep(3.0)  # the planner's recent plans all made on this odometry
         del health[:]

@@ -38,6 +38,7 @@ from nh_tracking import models
 from nh_tracking.metrics import cross_track_error
 from nh_tracking.poses import PoseMap
 from nh_tracking.ros import conversions as cv
+from nh_tracking.ros import messages as msgs
 from nh_tracking.ros.graph import InProcessGraph, parameters, wait_until
 from nh_tracking.ros.markers import obstacle_markers
 from nh_tracking.ros.planner_node import LATCHED, PlannerNode
@@ -128,7 +129,7 @@ class ObstacleLoop:
         pub.publish(message)
         if not wait_until(lambda: len(self.planner.live.obstacles) > 0, 10.0):
             raise RuntimeError('the planner did not take the obstacles')
-        self.reference_pub.publish(cv.reference_message(reference, self.pose_map, START, 'path'))
+        self.reference_pub.publish(msgs.reference_message(reference, self.pose_map, START, 'path'))
         if not wait_until(lambda: self.planner.planner.reference is not None, 10.0):
             raise RuntimeError('the planner did not take the reference')
         self.sim = self.graph.add(SimulatorNode, namespace=self.namespace,

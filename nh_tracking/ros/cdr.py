@@ -12,7 +12,7 @@
 # See the License for the specific language governing permissions and
 # limitations under the License.
 
-"""The wire bytes (CDR) of the two messages on the replanning path, read and written directly.
+"""The wire bytes (CDR) of the messages on the replanning path, read and written directly.
 
 rclpy turns a received Odometry into ~10 Python objects before the callback runs, and a
 published JointTrajectory of 30 points is built from ~100 objects (~170 us) that rclpy then
@@ -33,6 +33,8 @@ import struct
 import numpy as np
 from rclpy.serialization import deserialize_message, serialize_message
 from trajectory_msgs.msg import JointTrajectory
+
+from nh_tracking.ros import messages as msgs
 
 ENCAPSULATION = b'\x00\x01\x00\x00'  # plain CDR, little-endian
 _HEAD = len(ENCAPSULATION)
@@ -69,6 +71,67 @@ def odometry_values(data: bytes) -> tuple[int, str, tuple[float, ...]]:
     except struct.error:
         raise Unreadable('odometry message is truncated') from None
     return sec * 1_000_000_000 + nanosec, frame, values[:7] + values[43:49]
+
+
+_POSE_DOUBLES = struct.Struct('<7d')  # position, orientation
+
+
+def path_values(data: bytes) -> tuple[int, str, np.ndarray, np.ndarray, dict[str, int]]:
+    """(stamp [ns], frame_id, pose stamps [ns] (N,), poses (N, 7), pose frame -> first index).
+
+    A pose (x, y, z, qx, qy, qz, qw) of a nav_msgs/Path. Every pose after the first starts at a
+    multiple of 8, so when all frame_ids are as long as the first, the rest is one numpy record
+    array of a fixed stride (100,000 poses in milliseconds); otherwise pose by pose.
+    """
+    if data[:_HEAD] != ENCAPSULATION:
+        raise Unreadable(f'path is not little-endian CDR (header {data[:_HEAD].hex()})')
+    try:
+        sec, nanosec = struct.unpack_from('<iI', data, _HEAD)
+        frame, position = _string(data, _HEAD + 8)
+        position = _aligned(position, 4)
+        (count,) = struct.unpack_from('<I', data, position)
+        if count * 64 > len(data):
+            raise Unreadable(f'path says {count} poses, more than its bytes hold')
+        stamps, poses = np.empty(count, np.int64), np.empty((count, 7))
+        frames: dict[str, int] = {}
+        position, i = position + 4, 0
+        while i < count:
+            if i == 1 and (rest := _fixed_stride(data, position, count, stamps, poses)
+                           ) is not None:
+                frames.setdefault(rest, 1)
+                break
+            pose_sec, pose_nanosec = struct.unpack_from('<iI', data, _aligned(position, 4))
+            pose_frame, position = _string(data, _aligned(position, 4) + 8)
+            frames.setdefault(pose_frame, i)
+            position = _aligned(position, 8)
+            stamps[i] = pose_sec * 1_000_000_000 + pose_nanosec
+            poses[i] = _POSE_DOUBLES.unpack_from(data, position)
+            position, i = position + _POSE_DOUBLES.size, i + 1
+    except struct.error:
+        raise Unreadable('path message is truncated') from None
+    return sec * 1_000_000_000 + nanosec, frame, stamps, poses, frames
+
+
+def _fixed_stride(data: bytes, start: int, count: int, stamps: np.ndarray,
+                  poses: np.ndarray) -> str | None:
+    """Read poses 1.. as records of pose 1's layout and return their frame, if all have it."""
+    frame, _ = _string(data, start + 8)
+    (length,) = struct.unpack_from('<I', data, start + 8)
+    pose_at = 12 + length + (-(12 + length) % 8)
+    stride, rest = pose_at + _POSE_DOUBLES.size, count - 1
+    if start + rest * stride > len(data):
+        return None
+    layout = np.dtype({'names': ['sec', 'nanosec', 'length', 'pose'],
+                       'formats': ['<i4', '<u4', '<u4', ('<f8', 7)],
+                       'offsets': [0, 4, 8, pose_at], 'itemsize': stride})
+    records = np.frombuffer(data, layout, rest, offset=start)
+    raw = np.frombuffer(data, np.uint8, rest * stride, offset=start).reshape(rest, stride)
+    first = np.frombuffer(data, np.uint8, length, offset=start + 12)
+    if not (np.all(records['length'] == length) and np.all(raw[:, 12:12 + length] == first)):
+        return None
+    stamps[1:] = records['sec'].astype(np.int64) * 1_000_000_000 + records['nanosec']
+    poses[1:] = records['pose']
+    return frame
 
 
 class _Writer:
@@ -148,15 +211,24 @@ def _trajectory_head(frame: str, names: tuple[str, ...]) -> tuple[bytes, int]:
 @functools.cache
 def agrees_with_rmw() -> bool:
     """Whether the middleware's serializer writes and reads these bytes (checked once)."""
-    from nh_tracking.ros import conversions as cv  # (conversions uses this module)
-    odometry = cv.odometry_msg('odom_x', 'base', 1_700_000_000_123_456_789,
-                               np.array([1.5, -2.25, 0.125, 0.75]),
-                               np.array([0.5, -0.25, 0.0, 0.125]))
-    (stamp, pose, twist), (stamp_b, pose_b, twist_b) = (
-        cv.odom_to_arrays(odometry, 'odom_x'),
-        cv.odom_to_arrays(serialize_message(odometry), 'odom_x'))
+    odometry = msgs.odometry_msg('odom_x', 'base', 1_700_000_000_123_456_789,
+                                 np.array([1.5, -2.25, 0.125, 0.75]),
+                                 np.array([0.5, -0.25, 0.0, 0.125]))
+    p, o = odometry.pose.pose.position, odometry.pose.pose.orientation
+    linear, angular = odometry.twist.twist.linear, odometry.twist.twist.angular
+    expected = (1_700_000_000_123_456_789, 'odom_x', (
+        p.x, p.y, p.z, o.x, o.y, o.z, o.w, linear.x, linear.y, linear.z, angular.x, angular.y,
+        angular.z))
+    path = msgs.path_msg('odom_x', [5, 1_700_000_000_000_000_007], np.array(
+        [[1.0, 2.0, 0.0, 0.5], [-3.0, 0.25, 1.0, -2.0]]))
+    stamp, frame, stamps, poses, frames = path_values(serialize_message(path))
+    read_path = (stamp == 5 and frame == 'odom_x' and frames == {'odom_x': 0}
+                 and stamps.tolist() == [5, 1_700_000_000_000_000_007] and poses.tolist() == [
+                     [ps.pose.position.x, ps.pose.position.y, ps.pose.position.z,
+                      ps.pose.orientation.x, ps.pose.orientation.y, ps.pose.orientation.z,
+                      ps.pose.orientation.w] for ps in path.poses])
     offsets, efforts = np.array([0.0, 0.1, 0.25]), np.array([[1.0, -2.0], [3.5, 0.0], [-1e-3, 7]])
     sequence = ('odom', 1_700_000_000_987_654_321, offsets, ['u_a', 'torque'], efforts)
     written = deserialize_message(control_sequence(*sequence), JointTrajectory)
-    return (stamp == stamp_b and np.array_equal(pose, pose_b) and np.array_equal(twist, twist_b)
-            and written == cv.control_sequence_msg(*sequence))
+    return (odometry_values(serialize_message(odometry)) == expected and read_path
+            and written == msgs.control_sequence_msg(*sequence))

@@ -21,17 +21,24 @@ server, which spins a dedicated executor on its own thread.
 from __future__ import annotations
 
 import threading
+from typing import Any
 
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
+from rclpy.parameter import Parameter
 
 POLL = 0.1  # [s] how long a wait may last before the thread looks whether it is to stop
+# a receiver's node: no arguments of its own (its owner resolves the topic names), no rosout,
+# no parameter or type description services
+LEAN: dict[str, Any] = {
+    'use_global_arguments': False, 'enable_rosout': False, 'start_parameter_services': False,
+    'parameter_overrides': [Parameter('start_type_description_service', value=False)]}
 
 
 class CompanionNode:
     """``<owner>_<suffix>``: create its entities on :attr:`node`, then :meth:`start`."""
 
-    def __init__(self, owner: Node, suffix: str,
+    def __init__(self, owner: Node, suffix: str, *,
                  executor: type[SingleThreadedExecutor] = SingleThreadedExecutor,
                  **node_options: object) -> None:
         self.node = Node(f'{owner.get_name()}_{suffix}', namespace=owner.get_namespace(),

@@ -12,7 +12,7 @@
 # See the License for the specific language governing permissions and
 # limitations under the License.
 
-"""ROS messages to and from plain arrays, with validation; unit conversion only, no numerics.
+"""ROS messages read into plain arrays, with validation; unit conversion only, no numerics.
 
 Every ``*_to_arrays`` function either returns clean numbers or raises :class:`InputRejected`
 with a reason a user can act on — the nodes log that reason once and keep their last good
@@ -24,18 +24,12 @@ from collections.abc import Sequence
 import math
 
 from builtin_interfaces.msg import Duration, Time
-from diagnostic_msgs.msg import DiagnosticStatus, KeyValue
-from geometry_msgs.msg import (Pose, PoseStamped, Quaternion, Transform, Twist, TwistStamped,
-                               Vector3)
+from geometry_msgs.msg import Pose, Twist
 from nav_msgs.msg import Odometry, Path
 import numpy as np
-from std_msgs.msg import Header
-from trajectory_msgs.msg import (JointTrajectory, JointTrajectoryPoint, MultiDOFJointTrajectory,
-                                 MultiDOFJointTrajectoryPoint)
+from trajectory_msgs.msg import JointTrajectory, MultiDOFJointTrajectory
 
-from nh_tracking.poses import PoseMap
 from nh_tracking.ros import cdr
-from nh_tracking.trajectory import Trajectory
 
 QUATERNION_TOLERANCE = 1e-3  # |q| may differ from 1 by this much (float32 round trips)
 MAX_POSITION = 1e6  # m: finite but absurd values would overflow the numerics downstream
@@ -51,17 +45,8 @@ def stamp_ns(stamp: Time) -> int:
     return int(stamp.sec) * 1_000_000_000 + int(stamp.nanosec)
 
 
-def time_msg(ns: int) -> Time:
-    return Time(sec=int(ns // 1_000_000_000), nanosec=int(ns % 1_000_000_000))
-
-
 def duration_seconds(d: Duration) -> float:
     return d.sec + d.nanosec * 1e-9
-
-
-def duration_msg(seconds: float) -> Duration:
-    ns = int(round(seconds * 1e9))
-    return Duration(sec=ns // 1_000_000_000, nanosec=ns % 1_000_000_000)
 
 
 # orientation ----------------------------------------------------------------------------------
@@ -75,10 +60,6 @@ def _yaw(x: float, y: float, z: float, w: float) -> float:
     return math.atan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
 
 
-def quaternion_of(yaw: float) -> Quaternion:
-    return Quaternion(x=0.0, y=0.0, z=math.sin(yaw / 2), w=math.cos(yaw / 2))
-
-
 def _finite(values: Sequence[float], what: str, bound: float = MAX_POSITION) -> None:
     if not all(math.isfinite(v) for v in values):
         raise InputRejected(f'{what} has NaN or Inf values')
@@ -90,6 +71,17 @@ def pose_array(pose: Pose, what: str) -> np.ndarray:
     """(x, y, z, yaw) of a pose, validated."""
     p, o = pose.position, pose.orientation
     return _pose((p.x, p.y, p.z, o.x, o.y, o.z, o.w), what)
+
+
+def _poses(values: np.ndarray, what: str) -> np.ndarray:
+    """(x, y, z, yaw) rows of (x, y, z, qx, qy, qz, qw) rows, validated; errors name the row."""
+    bad = ~np.isfinite(values).all(axis=1) | (np.abs(values[:, :3]) > MAX_POSITION).any(axis=1)
+    bad |= np.abs(np.linalg.norm(values[:, 3:], axis=1) - 1.0) > QUATERNION_TOLERANCE
+    if bad.any():
+        i = int(np.argmax(bad))
+        _pose(values[i], f'{what} {i}')  # raises, saying what is wrong
+    x, y, z, w = values[:, 3:].T
+    return np.c_[values[:, :3], np.arctan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))]
 
 
 def _pose(values: Sequence[float], what: str) -> np.ndarray:
@@ -125,24 +117,38 @@ def _increasing(times: np.ndarray, what: str) -> None:
 
 
 # inputs ---------------------------------------------------------------------------------------
-def path_to_arrays(msg: Path, frame: str, receipt_ns: int) -> tuple[np.ndarray, np.ndarray]:
-    """Return (times [ns, absolute], poses (N, 4)) of a timed Path.
+def path_to_arrays(msg: Path | bytes, frame: str, receipt_ns: int
+                   ) -> tuple[np.ndarray, np.ndarray]:
+    """Return (times [ns, absolute], poses (N, 4)) of a timed Path (or of its CDR bytes).
 
     Timing comes from each pose's stamp. A path whose header stamp is zero starts on receipt:
     its pose stamps are then offsets from the first pose's stamp.
     """
-    if not msg.poses:
+    if isinstance(msg, bytes):  # from a raw subscription: read without building the message
+        try:
+            header_ns, frame_id, stamps, values, frames = cdr.path_values(msg)
+        except cdr.Unreadable as exc:
+            raise InputRejected(str(exc)) from None
+    else:
+        header_ns, frame_id = stamp_ns(msg.header.stamp), msg.header.frame_id
+        stamps = np.array([stamp_ns(ps.header.stamp) for ps in msg.poses], dtype=np.int64)
+        values = np.array([(ps.pose.position.x, ps.pose.position.y, ps.pose.position.z,
+                            ps.pose.orientation.x, ps.pose.orientation.y,
+                            ps.pose.orientation.z, ps.pose.orientation.w)
+                           for ps in msg.poses]).reshape(-1, 7)
+        frames = {}
+        for i, ps in enumerate(msg.poses):
+            frames.setdefault(ps.header.frame_id, i)
+    if not len(stamps):
         raise InputRejected('path is empty')
-    check_frame(msg.header.frame_id, frame, 'path')
-    for i, ps in enumerate(msg.poses):
-        if ps.header.frame_id:
-            check_frame(ps.header.frame_id, frame, f'path pose {i}')
-    stamps = np.array([stamp_ns(ps.header.stamp) for ps in msg.poses], dtype=np.int64)
-    if stamp_ns(msg.header.stamp) == 0:
+    check_frame(frame_id, frame, 'path')
+    for pose_frame, i in frames.items():
+        if pose_frame:
+            check_frame(pose_frame, frame, f'path pose {i}')
+    if header_ns == 0:
         stamps = stamps - stamps[0] + receipt_ns
     _increasing(stamps.astype(float), 'path')
-    poses = np.array([pose_array(ps.pose, f'path pose {i}') for i, ps in enumerate(msg.poses)])
-    return stamps, poses
+    return stamps, _poses(values, 'path pose')
 
 
 def multidof_to_arrays(msg: MultiDOFJointTrajectory, frame: str, receipt_ns: int
@@ -208,104 +214,3 @@ def controls_to_arrays(msg: JointTrajectory, names: Sequence[str]
     if len(times_arr) > 1:
         _increasing(times_arr, 'control sequence')
     return stamp_ns(msg.header.stamp), times_arr, np.array(efforts)
-
-
-# outputs --------------------------------------------------------------------------------------
-def pose_msg(pose: np.ndarray, into: Pose | None = None) -> Pose:
-    """(x, y, z, yaw) as a Pose, filled ``into`` an existing one if given."""
-    msg = Pose() if into is None else into
-    x, y, z, yaw = (float(c) for c in pose)
-    msg.position.x, msg.position.y, msg.position.z = x, y, z
-    msg.orientation.z, msg.orientation.w = math.sin(yaw / 2), math.cos(yaw / 2)
-    return msg
-
-
-def _stamp(header: Header, frame: str, ns: int) -> Header:
-    """Fill ``header`` in place: several times cheaper than keyword construction (replans)."""
-    header.frame_id = frame
-    header.stamp.sec, header.stamp.nanosec = divmod(int(ns), 1_000_000_000)
-    return header
-
-
-def path_msg(frame: str, stamps_ns: Sequence[int], poses: np.ndarray) -> Path:
-    msg = Path()
-    _stamp(msg.header, frame, stamps_ns[0])
-    stamped = []
-    for ns, pose in zip(stamps_ns, np.asarray(poses, dtype=float)):
-        ps = PoseStamped()
-        _stamp(ps.header, frame, ns)
-        pose_msg(pose, ps.pose)
-        stamped.append(ps)
-    msg.poses = stamped
-    return msg
-
-
-def multidof_msg(frame: str, start_ns: int, offsets: np.ndarray, poses: np.ndarray,
-                 body_twists: np.ndarray, joint: str = 'base_link') -> MultiDOFJointTrajectory:
-    """Return a one-joint trajectory: pose and body twist per point, timed from ``start_ns``."""
-    points = []
-    for dt, pose, twist in zip(offsets, poses, body_twists):
-        point = MultiDOFJointTrajectoryPoint(time_from_start=duration_msg(float(dt)))
-        point.transforms = [Transform(
-            translation=Vector3(x=float(pose[0]), y=float(pose[1]), z=float(pose[2])),
-            rotation=quaternion_of(float(pose[3])))]
-        point.velocities = [twist_msg(twist)]
-        points.append(point)
-    return MultiDOFJointTrajectory(header=Header(frame_id=frame, stamp=time_msg(start_ns)),
-                                   joint_names=[joint], points=points)
-
-
-def control_sequence_msg(frame: str, start_ns: int, offsets: np.ndarray, names: Sequence[str],
-                         efforts: np.ndarray) -> JointTrajectory:
-    """One point per control interval: ``effort`` held from ``time_from_start`` on."""
-    msg = JointTrajectory()
-    _stamp(msg.header, frame, start_ns)
-    msg.joint_names = list(names)
-    points = []
-    offsets_ns = np.round(np.asarray(offsets, dtype=float) * 1e9).astype(np.int64).tolist()
-    for ns, effort in zip(offsets_ns, np.asarray(efforts, dtype=float).tolist()):
-        point = JointTrajectoryPoint()
-        point.effort = effort
-        since = point.time_from_start
-        since.sec, since.nanosec = divmod(ns, 1_000_000_000)
-        points.append(point)
-    msg.points = points
-    return msg
-
-
-def twist_msg(body_twist: np.ndarray) -> Twist:
-    vx, vy, vz, wz = (float(x) for x in body_twist)
-    return Twist(linear=Vector3(x=vx, y=vy, z=vz), angular=Vector3(z=wz))
-
-
-def twist_stamped_msg(frame: str, stamp: int, body_twist: np.ndarray) -> TwistStamped:
-    return TwistStamped(header=Header(frame_id=frame, stamp=time_msg(stamp)),
-                        twist=twist_msg(body_twist))
-
-
-def odometry_msg(frame: str, child: str, stamp: int, pose: np.ndarray,
-                 body_twist: np.ndarray) -> Odometry:
-    msg = Odometry(child_frame_id=child)
-    _stamp(msg.header, frame, stamp)
-    pose_msg(pose, msg.pose.pose)
-    msg.twist.twist = twist_msg(body_twist)
-    return msg
-
-
-def reference_message(reference: Trajectory, pose_map: PoseMap, start: float, kind: str,
-                      frame: str = 'odom'):
-    """Return the reference as a Path or MultiDOFJointTrajectory, from ``start`` s on."""
-    start_ns = int(round(start * 1e9))
-    poses = np.array([pose_map.pose(q) for q in reference.q])
-    if kind == 'path':
-        return path_msg(frame, [start_ns + int(round(t * 1e9)) for t in reference.t], poses)
-    twists = np.array([pose_map.body_twist(q, v) for q, v in zip(reference.q, reference.v)])
-    return multidof_msg(frame, start_ns, reference.t, poses, twists)
-
-
-def diagnostic_status(name: str, hardware_id: str, level: bytes, message: str,
-                      values: dict[str, object]) -> DiagnosticStatus:
-    """``level`` is one of DiagnosticStatus.OK, WARN, ERROR, STALE."""
-    return DiagnosticStatus(
-        level=level, name=name, message=message, hardware_id=hardware_id,
-        values=[KeyValue(key=k, value=str(v)) for k, v in values.items()])

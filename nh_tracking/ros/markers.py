@@ -20,7 +20,7 @@ import numpy as np
 from std_msgs.msg import ColorRGBA, Header
 from visualization_msgs.msg import Marker, MarkerArray
 
-from nh_tracking.ros.conversions import time_msg
+from nh_tracking.ros.messages import time_msg
 
 
 def line_strip(frame: str, stamp: int, ns: str, points: np.ndarray, rgba: tuple,

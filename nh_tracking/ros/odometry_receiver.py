@@ -29,11 +29,10 @@ from collections.abc import Callable
 
 from nav_msgs.msg import Odometry
 from rclpy.node import Node
-from rclpy.parameter import Parameter
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 
 from nh_tracking.ros import cdr
-from nh_tracking.ros.companion import CompanionNode
+from nh_tracking.ros.companion import CompanionNode, LEAN
 
 # every message is looked at (a bad one is reported); the callback coalesces plans itself
 ODOM_QOS = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
@@ -49,9 +48,7 @@ class OdometryReceiver(CompanionNode):
     """
 
     def __init__(self, owner: Node, topic: str, callback: Callable[..., None]) -> None:
-        super().__init__(owner, 'odometry', use_global_arguments=False, enable_rosout=False,
-                         start_parameter_services=False, parameter_overrides=[
-                             Parameter('start_type_description_service', value=False)])
+        super().__init__(owner, 'odometry', **LEAN)
         self.subscription = self.node.create_subscription(
             Odometry, owner.resolve_topic_name(topic), callback, ODOM_QOS,
             raw=cdr.agrees_with_rmw())

@@ -55,8 +55,11 @@ class FirstDelivery:
 
 
 def subscribe_latched(node: Node, msg_type: type, topic: str,
-                      callback: Callable[[object], None]) -> list:
-    """Subscribe so latched and volatile publishers are heard; ``callback(msg)`` once a sample."""
+                      callback: Callable[[object], None], raw: bool = False) -> list:
+    """Subscribe so latched and volatile publishers are heard; ``callback(msg)`` once a sample.
+
+    ``raw``: ``msg`` is the CDR bytes, and the second copy is dropped before anything reads it.
+    """
     first = FirstDelivery()
     # a volatile publisher cannot match the latched listener (the other one takes it): no warning
     quiet = SubscriptionEventCallbacks(incompatible_qos=lambda info: None)
@@ -65,8 +68,8 @@ def subscribe_latched(node: Node, msg_type: type, topic: str,
         if first(info):
             callback(msg)
     handler: Any = deliver  # (rclpy's typing knows only one-argument callbacks)
-    return [node.create_subscription(msg_type, topic, handler, qos, event_callbacks=quiet)
-            for qos in LATCHED_OR_VOLATILE]
+    return [node.create_subscription(msg_type, topic, handler, qos, event_callbacks=quiet,
+                                     raw=raw) for qos in LATCHED_OR_VOLATILE]
 
 
 SETTINGS = ParameterSpec.of(PlannerSettings)

@@ -36,16 +36,17 @@ from nh_tracking.avoidance import MAX_OBSTACLES
 from nh_tracking.health import HealthLevel, session_health
 from nh_tracking.receding_horizon import PlannerSettings
 from nh_tracking.reference_checks import ReferenceRejected
-from nh_tracking.ros import cdr, conversions as cv
+from nh_tracking.ros import cdr, conversions as cv, messages as msgs
 from nh_tracking.ros.clock_watch import ClockWatchdog
 from nh_tracking.ros.lifecycle import answer_every_transition
 from nh_tracking.ros.markers import obstacle_markers, plan_markers
 from nh_tracking.ros.obstacle_listener import DISC_SIZE, ObstacleListener
 from nh_tracking.ros.odometry_receiver import OdometryReceiver
 from nh_tracking.ros.parameters import declare_all, declare_model
-from nh_tracking.ros.planner_interface import LATCHED, PARAMETERS, subscribe_latched
+from nh_tracking.ros.planner_interface import LATCHED, PARAMETERS
 from nh_tracking.ros.planner_parameters import RuntimeParameters
 from nh_tracking.ros.planner_services import PlannerServices
+from nh_tracking.ros.reference_receiver import ReferenceReceiver
 from nh_tracking.ros.runner import autostart
 from nh_tracking.ros.safety import guarded
 from nh_tracking.session import PlanResult, TrackingSession
@@ -69,6 +70,7 @@ class PlannerNode(RuntimeParameters, ObstacleListener, ClockWatchdog, LifecycleN
         self._entities: list = []
         self._service_host: PlannerServices | None = None
         self._odometry: OdometryReceiver | None = None
+        self._references: ReferenceReceiver | None = None
         self._obstacles_lock = threading.Lock()
         self._planned_ns = 0  # system time the last plan made on receipt of odometry ended
         self._configure_error = ''  # why the last configure failed
@@ -131,10 +133,8 @@ class PlannerNode(RuntimeParameters, ObstacleListener, ClockWatchdog, LifecycleN
                           self.pub_diag, self.watch_clock()]  # diagnostics even if it stands
         self._entities.append(self.create_timer(1.0, self.publish_diagnostics,
                                                 clock=self.steady_clock))
-        self._entities += subscribe_latched(self, Path, 'reference_path',
-                                            self.on_reference_path)
-        self._entities += subscribe_latched(self, MultiDOFJointTrajectory,
-                                            'reference_trajectory', self.on_reference_trajectory)
+        self._references = ReferenceReceiver(self, self.on_reference_path,
+                                             self.on_reference_trajectory)
         self._entities += self.listen_for_obstacles()
         self._discs, self._discs_centre, self._displayed = np.zeros((0, 3)), np.zeros(2), None
         self._service_host = PlannerServices(self)
@@ -172,9 +172,10 @@ class PlannerNode(RuntimeParameters, ObstacleListener, ClockWatchdog, LifecycleN
         return self.on_cleanup(state)
 
     def _release(self) -> None:
-        if self._odometry is not None:
-            self._odometry.close()
-            self._odometry = None
+        for receiver in (self._odometry, self._references):
+            if receiver is not None:
+                receiver.close()
+        self._odometry = self._references = None
         if self._service_host is not None:
             self._service_host.close()
             self._service_host = None
@@ -191,7 +192,7 @@ class PlannerNode(RuntimeParameters, ObstacleListener, ClockWatchdog, LifecycleN
         self._entities = []
 
     @guarded('reference_path')
-    def on_reference_path(self, msg: Path) -> None:
+    def on_reference_path(self, msg: Path | bytes) -> None:
         self._set_reference(*cv.path_to_arrays(msg, self.frame, self._now_ns()), None)
 
     @guarded('reference_trajectory')
@@ -234,7 +235,7 @@ class PlannerNode(RuntimeParameters, ObstacleListener, ClockWatchdog, LifecycleN
             fields = (self.frame, session.ns(plan.t[0]), plan.t[:-1] - plan.t[0],
                       session.system.control_names, plan.u)
             self.pub_controls.publish(cdr.control_sequence(*fields) if cdr.agrees_with_rmw()
-                                      else cv.control_sequence_msg(*fields))
+                                      else msgs.control_sequence_msg(*fields))
 
     @guarded('publishing the plan display')
     def publish_display(self) -> None:
@@ -247,7 +248,7 @@ class PlannerNode(RuntimeParameters, ObstacleListener, ClockWatchdog, LifecycleN
         plan, pose = outcome.plan, session.pose_map.pose
         stamps = [session.ns(t) for t in plan.t]
         poses = np.array([pose(q) for q in plan.q])
-        self.pub_path.publish(cv.path_msg(self.frame, stamps, poses))
+        self.pub_path.publish(msgs.path_msg(self.frame, stamps, poses))
         if self.pub_markers.get_subscription_count() > 0:
             reference = np.array([pose(q) for q in outcome.reference])
             markers = plan_markers(self.frame, stamps[0], poses[:, :3], reference[:, :3])
@@ -273,9 +274,9 @@ class PlannerNode(RuntimeParameters, ObstacleListener, ClockWatchdog, LifecycleN
 
     def _publish_twist(self, twist: np.ndarray) -> None:
         if self.pub_cmd.msg_type is TwistStamped:
-            self.pub_cmd.publish(cv.twist_stamped_msg(self.frame, self._now_ns(), twist))
+            self.pub_cmd.publish(msgs.twist_stamped_msg(self.frame, self._now_ns(), twist))
         else:
-            self.pub_cmd.publish(cv.twist_msg(twist))
+            self.pub_cmd.publish(msgs.twist_msg(twist))
 
     def on_clock_stopped(self) -> None:
         if self.live.active:
@@ -296,10 +297,10 @@ class PlannerNode(RuntimeParameters, ObstacleListener, ClockWatchdog, LifecycleN
             health = replace(health, level=HealthLevel.STALE, message=self.clock_problem())
         level = {HealthLevel.OK: DiagnosticStatus.OK, HealthLevel.WARN: DiagnosticStatus.WARN,
                  HealthLevel.STALE: DiagnosticStatus.STALE}[health.level]
-        array = DiagnosticArray(status=[cv.diagnostic_status(
+        array = DiagnosticArray(status=[msgs.diagnostic_status(
             f'{self.get_name()}: planning', self.get_fully_qualified_name(), level,
             health.message, health.values)])
-        array.header.stamp = cv.time_msg(self._now_ns())
+        array.header.stamp = msgs.time_msg(self._now_ns())
         self.pub_diag.publish(array)
 
     def destroy_node(self) -> None:

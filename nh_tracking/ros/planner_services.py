@@ -38,6 +38,7 @@ from rclpy.qos import QoSProfile, ReliabilityPolicy
 from std_srvs.srv import Trigger
 
 from nh_tracking.ros import conversions as cv
+from nh_tracking.ros import messages as msgs
 from nh_tracking.ros.companion import CompanionNode
 
 if TYPE_CHECKING:
@@ -102,7 +103,7 @@ class PlannerServices:
         self._worker = threading.Thread(target=self._work, name='nh_tracking_services',
                                         daemon=True)
         self._worker.start()
-        self.companion = CompanionNode(planner, 'services', TakingExecutor,
+        self.companion = CompanionNode(planner, 'services', executor=TakingExecutor,
                                        start_parameter_services=False)
         requests = QoSProfile(depth=SERVICE_QUEUE, reliability=ReliabilityPolicy.RELIABLE)
         node = self.companion.node
@@ -181,8 +182,8 @@ class PlannerServices:
             node.reject('plan request', reason)
             return response
         stamps = [session.ns(t) for t in solution.t]
-        response.plan = cv.path_msg(node.frame, stamps,
-                                    np.array([session.pose_map.pose(q) for q in solution.q]))
+        response.plan = msgs.path_msg(node.frame, stamps,
+                                      np.array([session.pose_map.pose(q) for q in solution.q]))
         return response
 
     def on_replan(self, request: Trigger.Request, response: Trigger.Response

@@ -36,6 +36,7 @@ from nh_tracking.costmap import gap
 from nh_tracking.limits import bounds_from_lists
 from nh_tracking.poses import PoseMap
 from nh_tracking.ros import conversions as cv
+from nh_tracking.ros import messages as msgs
 from nh_tracking.ros.obstacle_listener import ObstacleListener
 from nh_tracking.ros.parameters import declare, declare_all, declare_model, plain
 from nh_tracking.ros.safety import guarded
@@ -214,10 +215,10 @@ class SimulatorNode(ObstacleListener):
             self._q, self._v = q, v
         if self.pub_clock is not None:
             self._sim_ns = t1
-            self.pub_clock.publish(ClockMsg(clock=cv.time_msg(t1)))
+            self.pub_clock.publish(ClockMsg(clock=msgs.time_msg(t1)))
         pose = self.pose_map.pose(q)
-        self.pub_odom.publish(cv.odometry_msg(self.frame, self.child_frame, t1, pose,
-                                              self.pose_map.body_twist(q, v)))
+        self.pub_odom.publish(msgs.odometry_msg(self.frame, self.child_frame, t1, pose,
+                                                self.pose_map.body_twist(q, v)))
         self._check_clearance(pose, t1)
 
     def _check_clearance(self, pose: np.ndarray, stamp: int) -> None:
@@ -231,8 +232,8 @@ class SimulatorNode(ObstacleListener):
                f'{pose[1]:.2f})'
         if self.collisions == 1 or self.collisions % 50 == 0:
             self.get_logger().warn(f'{text} ({self.collisions} steps so far)')
-        array = DiagnosticArray(status=[cv.diagnostic_status(
+        array = DiagnosticArray(status=[msgs.diagnostic_status(
             f'{self.get_name()}: clearance', self.get_fully_qualified_name(),
             DiagnosticStatus.WARN, text, {'collisions': self.collisions})])
-        array.header.stamp = cv.time_msg(stamp)
+        array.header.stamp = msgs.time_msg(stamp)
         self.pub_diag.publish(array)
