@@ -21,9 +21,12 @@ the positions; accelerations those of the same polyline thinned to points at lea
 """
 from __future__ import annotations
 
+from collections.abc import Sequence
+
 import numpy as np
 
 ACCEL_WINDOW = 0.2  # [s] accelerations are measured over at least this long
+BOUND_TOLERANCE = 0.01  # a reference may exceed a velocity bound by 1 % of it (and 1e-5)
 
 
 class ReferenceRejected(ValueError):
@@ -81,3 +84,19 @@ def check_implied_motion(times: np.ndarray, positions: np.ndarray, max_speed: fl
         raise ReferenceRejected(
             f'it asks for {accel[i]:.4g} m/s^2 near point {keep[i + 1]} '
             f'(reference_max_accel is {max_accel:g} m/s^2)')
+
+
+def check_velocity_bounds(v: np.ndarray, bounds: tuple | None, names: Sequence[str]) -> None:
+    """Raise :class:`ReferenceRejected` where velocities ``v`` (N, k) leave ``bounds`` (lo, hi).
+
+    By more than :data:`BOUND_TOLERANCE` of them: a reference the robot may not follow.
+    """
+    if bounds is None:
+        return
+    for side, bound, sign in (('v_min', bounds[0], -1.0), ('v_max', bounds[1], 1.0)):
+        bound = np.broadcast_to(np.asarray(bound, dtype=float), v.shape[1])
+        excess = sign * (v - bound) - BOUND_TOLERANCE * (np.abs(bound) + 1e-3)
+        if np.any(excess > 0):
+            i, j = (int(a) for a in np.unravel_index(int(np.argmax(excess)), excess.shape))
+            raise ReferenceRejected(f'it asks for {names[j]} = {v[i, j]:.4g} at point {i} '
+                                    f'({side} is {bound[j]:g})')

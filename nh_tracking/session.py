@@ -33,9 +33,10 @@ from nh_tracking.limits import obstacle_discs
 from nh_tracking.poses import PoseMap
 from nh_tracking.problem import Solution
 from nh_tracking.receding_horizon import PlannerSettings, PlanOutcome, RecedingHorizonPlanner
-from nh_tracking.reference_checks import check_implied_motion, thin
+from nh_tracking.reference_checks import check_implied_motion, check_velocity_bounds, thin
 from nh_tracking.session_types import (Clock, ClockSkew, PlanResult, settle_heap,
                                        Staleness, StateEstimate)
+from nh_tracking.solvers.compiled import cancel_builds
 from nh_tracking.system import NonholonomicSystem
 from nh_tracking.trajectory import Trajectory
 
@@ -132,10 +133,7 @@ class TrackingSession:
     # inputs -----------------------------------------------------------------------------------
     def set_reference(self, stamps_ns: np.ndarray, poses: np.ndarray,
                       twists: np.ndarray | None) -> Trajectory:
-        """Track timed poses (and twists), thinned to 4 a plan step, from the next plan on.
-
-        ReferenceRejected if they ask too much of the robot.
-        """
+        """Track timed poses (and twists), thinned to 4 a plan step; else ReferenceRejected."""
         with self._lock:
             hidden = None if self._state is None else self._state.q
         times = (np.asarray(stamps_ns, dtype=np.int64) - self.epoch_ns) * 1e-9
@@ -144,6 +142,8 @@ class TrackingSession:
         twists = None if twists is None else np.asarray(twists)[keep]
         check_implied_motion(times, poses[:, :2], *self.reference_bounds)
         reference = self.pose_map.reference(times, poses, twists, hidden)  # (not holding plans)
+        check_velocity_bounds(reference.v, self.planner.limits['velocity_bounds'],
+                              self.system.velocity_names)
         with self._solve_lock:
             self.planner.set_reference(reference)
         return reference
@@ -208,6 +208,8 @@ class TrackingSession:
         current = self.planner
         same_model = build.physical == current.system.parameters
         system = current.system if same_model else models.create(self.model, **build.physical)
+        if current.settings.compiled and not build.settings.compiled:
+            cancel_builds()  # the C code it was building is not wanted any more
         planner = RecedingHorizonPlanner(system, build.settings)
         started = time.perf_counter()
         planner.prepare()  # the slow part: NLP construction, C compilation

@@ -424,3 +424,41 @@ def test_the_stale_fraction_is_over_the_last_second():
     assert staleness.fraction() == pytest.approx(0.5)
     now[0] = 103.0
     assert staleness.fraction() == 0.0 and not staleness.now
+
+
+def test_turning_compiled_off_stops_its_background_build(graph, tmp_path, monkeypatch):
+    from rclpy.parameter import Parameter
+
+    from nh_tracking.solvers import compiled
+
+    if compiled.compiler() is None:
+        pytest.skip('no C compiler here')
+    monkeypatch.setenv('NH_TRACKING_CACHE', str(tmp_path))  # nothing built before
+    probe = Probe(graph, compiled=True)
+    planner = probe.planner
+
+    def running() -> list:
+        return [job for job in list(compiled._BUILDS.values())
+                if job.child is not None and job.child.poll() is None]
+    assert wait_until(lambda: running(), 30.0), 'no build started'
+    children = running()
+    planner.set_parameters([Parameter('compiled', value=False)])
+    assert wait_until(lambda: not planner.planner.settings.compiled
+                      and not planner.live.reconfiguring, 60.0)
+    assert wait_until(lambda: all(job.child.poll() is not None for job in children), 10.0)
+    assert not running() and not list(tmp_path.glob('*.so'))
+    print(f'\ncompiled:=false stopped {len(children)} running build(s)')
+
+
+def test_a_reference_beyond_the_velocity_bounds_is_refused(graph):
+    from rcl_interfaces.msg import Log
+
+    probe, logs = Probe(graph, v_min=[-0.3], v_max=[0.3]), []
+    probe.node.create_subscription(Log, '/rosout', lambda m: logs.append(m.msg), 100)
+    probe.send_odom()
+    probe.reference.publish(_line(probe.now_ns(), 5.0, 10.0))  # 0.5 m/s
+    assert wait_until(lambda: any('v_max is 0.3' in line for line in logs), 10.0), logs
+    assert probe.planner.planner.reference is None
+    probe.reference.publish(_line(probe.now_ns(), 2.0, 10.0))  # 0.2 m/s: taken
+    assert wait_until(lambda: probe.planner.planner.reference is not None, 10.0)
+    print(f"\n{next(line for line in logs if 'v_max' in line)}")

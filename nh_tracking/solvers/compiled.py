@@ -63,6 +63,7 @@ class _Job:
         self.done = threading.Event()  # ... and after them
         self.error = ''
         self.child: subprocess.Popen | None = None
+        self.cancelled = False  # (under _LOCK)
 
 
 _BUILDS: dict[Path, _Job] = {}  # library -> its build, in this process
@@ -165,11 +166,16 @@ def _work() -> None:
     while True:
         job = _QUEUE.get()
         command = [sys.executable, '-m', 'nh_tracking.solvers.compiled', str(job.directory)]
-        job.child = subprocess.Popen([nice, '-n', '19', *command] if nice else command,
-                                     stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
-                                     start_new_session=True)
-        _, error = job.child.communicate()
-        job.error = error.decode()[-500:] if job.child.returncode else ''
+        with _LOCK:
+            if not job.cancelled:
+                job.child = subprocess.Popen(
+                    [nice, '-n', '19', *command] if nice else command,
+                    stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, start_new_session=True)
+        if job.child is not None:
+            _, error = job.child.communicate()
+            job.error = error.decode()[-500:] if job.child.returncode else ''
+        if job.cancelled:
+            job.error = 'cancelled'
         shutil.rmtree(job.directory, ignore_errors=True)
         with _LOCK:
             job.finished = True
@@ -182,6 +188,29 @@ def _work() -> None:
                 LOG.warning('loading the compiled %s failed, staying interpreted: %s',
                             job.library, exc)
         job.done.set()
+
+
+def cancel_builds() -> int:
+    """Stop every build not finished, its compiler too; return how many (asked again: anew)."""
+    with _LOCK:
+        jobs = [job for job in _BUILDS.values() if not job.finished]
+        for job in jobs:
+            job.cancelled = True
+            job.ready.clear()
+            del _BUILDS[job.library]
+    for job in jobs:
+        _stop(job)
+    if jobs:
+        LOG.info('cancelled %d background builds', len(jobs))
+    return len(jobs)
+
+
+def _stop(job: _Job) -> None:
+    if job.child is not None and job.child.poll() is None:
+        try:
+            os.killpg(job.child.pid, signal.SIGTERM)
+        except ProcessLookupError:
+            pass
 
 
 def wait_for_builds(timeout: float = 600.0) -> None:
@@ -199,11 +228,7 @@ def _stop_builds() -> None:
     that never gets there (a stopped planner had left one directory per queued build).
     """
     for job in _BUILDS.values():
-        if job.child is not None and job.child.poll() is None:
-            try:
-                os.killpg(job.child.pid, signal.SIGTERM)
-            except ProcessLookupError:
-                pass
+        _stop(job)
         if not job.finished:
             shutil.rmtree(job.directory, ignore_errors=True)
 
