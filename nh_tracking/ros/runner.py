@@ -15,7 +15,8 @@
 """``main()`` plumbing shared by the executables: ``--help``.
 
 Start-up errors as one line and exit code 2, spin, and a clean exit (code 0) on Ctrl-C or SIGTERM
-at any moment, start-up included.
+at any moment, start-up included; the node is destroyed while its context is still up, so a
+planner that was commanding sends its zero ``cmd_vel``.
 """
 from __future__ import annotations
 
@@ -28,13 +29,14 @@ from rclpy.exceptions import ParameterException
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.lifecycle import LifecycleNode, TransitionCallbackReturn
 from rclpy.node import Node
-from rclpy.signals import uninstall_signal_handlers
+from rclpy.signals import SignalHandlerOptions
 
 from nh_tracking.session import settle_heap
 
 HELP = ('-h', '--help')
 SWITCH_INTERVAL = 5e-4  # s
 STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
+STOP_POLL = 0.1  # [s] the longest an executor wait lasts before a stop request is looked at
 
 
 def responsive_threads() -> None:
@@ -55,9 +57,9 @@ def _wants_help(args: Sequence[str]) -> bool:
 def autostart(node: LifecycleNode, why_not: Callable[[], str]) -> None:
     """Configure and activate ``node``; ValueError saying why configuring failed.
 
-    A stop during start-up shuts the context down under the transitions. What they built
-    (companion nodes' and solver threads) must not outlive the interpreter: a thread left in an
-    rclpy wait aborts the process at exit. So a failure destroys the node before it goes on.
+    What the transitions built (companion nodes' and solver threads) must not outlive the
+    interpreter: a thread left in an rclpy wait aborts the process at exit. So a failure
+    destroys the node before it goes on.
     """
     try:
         if node.trigger_configure() != TransitionCallbackReturn.SUCCESS:
@@ -74,11 +76,12 @@ class StopRequest:
     Python's own SIGINT handler raises KeyboardInterrupt at whatever line the main thread is on:
     inside a ``with lock`` before its ``try`` (the lock stays held and every thread that needs it
     hangs), inside rclpy's ``Task.__init__`` (a traceback from its ``__del__``), or during
-    start-up, where it aborted the process (``terminate called``) or left it running. Installed
-    before ``rclpy.init``, these handlers are the ones rclpy's own chain to: rclpy shuts the
-    contexts down (which wakes every executor) and this records why. A second request is the
-    user insisting and is not absorbed: it raises KeyboardInterrupt or, once the interpreter is
-    exiting (it restores the default handlers), ends the process by the signal itself.
+    start-up, where it aborted the process (``terminate called``) or left it running. rclpy's
+    own handlers are not installed: they shut the context down at once, before the node could
+    send a last command. The main loop looks at the request between waits of at most
+    :data:`STOP_POLL`. A second request is the user insisting and is not absorbed: it raises
+    KeyboardInterrupt or, once the interpreter is exiting (it restores the default handlers),
+    ends the process by the signal itself.
     """
 
     def __init__(self) -> None:
@@ -93,17 +96,12 @@ class StopRequest:
 
 
 def _shut_down() -> None:
-    """Shut the default context down if still up, and join rclpy's signal-handling thread.
-
-    The signal handler may shut the context down between ``try_shutdown``'s check and its call
-    (an RCLError); left installed, rclpy's handler thread outlives the interpreter.
-    """
+    """Shut the default context down if still up."""
     try:
         rclpy.try_shutdown()
     except RuntimeError:
         if rclpy.ok():
             raise
-    uninstall_signal_handlers()
 
 
 def run(make_node: Callable[[], Node], usage: Callable[[], str],
@@ -118,26 +116,19 @@ def run(make_node: Callable[[], Node], usage: Callable[[], str],
         return 0
     stop = StopRequest()
     try:
-        rclpy.init(args=argv)
+        rclpy.init(args=argv, signal_handler_options=SignalHandlerOptions.NO)
     except Exception as exc:  # noqa: BLE001 - malformed --ros-args: say so, in one line
         print(f'cannot start: bad command line: {str(exc).splitlines()[0]}', file=sys.stderr)
         return 2
     node = executor = None
     try:
-        if stop.requested:  # before rclpy's handlers were there to shut the context down
-            return 0
         # Single-threaded on purpose: the solver runs in the planner's own worker thread, and
         # rclpy's MultiThreadedExecutor (7.1, Jazzy) starves timers when another node
-        # subscribes to what they publish (ros2/rclpy#1223, #1452). Made before the node:
-        # one made on a context a stop has shut down is left half-built (a traceback from
-        # its __del__).
+        # subscribes to what they publish (ros2/rclpy#1223, #1452).
         executor = SingleThreadedExecutor()
         try:
-            node = make_node()  # a stop while it builds (maybe compiles) its solver shuts
-            # the context down: creating the next entity fails, or spin returns at once
+            node = make_node()  # a stop meanwhile is looked at once it is built
         except Exception as exc:  # noqa: BLE001 - start-up problems are one line
-            if stop.requested or not rclpy.ok():  # stopped while starting
-                return 0
             if not isinstance(exc, (ValueError, TypeError, ParameterException)):
                 raise
             print(f'cannot start: {str(exc).splitlines()[0]}', file=sys.stderr)
@@ -145,7 +136,8 @@ def run(make_node: Callable[[], Node], usage: Callable[[], str],
         responsive_threads()
         executor.add_node(node)
         settle_heap(2)  # the node as built lives as long as the process
-        executor.spin()
+        while not stop.requested and rclpy.ok():
+            executor.spin_once(timeout_sec=STOP_POLL)
     except ExternalShutdownException:
         pass
     except RuntimeError:  # (RCLError) the context shut down while a wait set was made
@@ -155,6 +147,6 @@ def run(make_node: Callable[[], Node], usage: Callable[[], str],
         if executor is not None:
             executor.shutdown(timeout_sec=5.0)
         if node is not None:
-            node.destroy_node()
+            node.destroy_node()  # (the context is up: a commanding planner says stop)
         _shut_down()
     return 0
