@@ -96,6 +96,26 @@ def separate_planner(*params: str) -> Iterator[tuple[Process, Peer]]:
         planner.kill()  # (if it is still running)
 
 
+@contextmanager
+def odometry_stream(odom) -> Iterator[None]:
+    """Publish the robot at rest at the origin, at 50 Hz on the wall clock, while in the block."""
+    import threading
+
+    stop = threading.Event()
+
+    def send() -> None:
+        while not stop.wait(0.02):
+            odom.publish(msgs.odometry_msg('odom', 'base_link', time.time_ns(), np.zeros(4),
+                                           np.zeros(4)))
+    thread = threading.Thread(target=send, daemon=True)
+    thread.start()
+    try:
+        yield
+    finally:
+        stop.set()
+        thread.join(timeout=1.0)
+
+
 def _line(start_ns: int, length: float, duration: float, points: int = 11) -> Path:
     t = np.linspace(0.0, duration, points)
     poses = np.stack([t / duration * length, 0 * t, 0 * t, 0 * t], axis=1)
@@ -369,29 +389,20 @@ def test_the_clock_watch_tells_a_standing_a_resumed_and_a_backward_clock():
 
 def test_a_100000_pose_path_never_pauses_control():
     """The path's bytes are made beforehand: this process must not stall while it listens."""
-    import threading
-
     from rclpy.serialization import serialize_message
     from trajectory_msgs.msg import JointTrajectory
 
-    stop = threading.Event()
     with separate_planner('model:=unicycle', 'steps:=20', 'horizon:=2.0') as (planner, peer):
-        try:
-            node = peer.node
-            arrivals: dict[str, list[float]] = {'cmd_vel': [], 'control_sequence': []}
-            node.create_subscription(Twist, 'cmd_vel', lambda m: arrivals['cmd_vel'].append(
-                time.monotonic()), 100)
-            node.create_subscription(JointTrajectory, 'control_sequence', lambda m: arrivals[
-                'control_sequence'].append(time.monotonic()), 100)
-            odom = node.create_publisher(Odometry, 'odom', 10)
-            reference = node.create_publisher(Path, 'reference_path', 10)
-            assert wait_until(lambda: reference.get_subscription_count() > 0, 60.0), planner.output
-
-            def send_odometry() -> None:
-                while not stop.wait(0.02):
-                    odom.publish(msgs.odometry_msg('odom', 'base_link', time.time_ns(),
-                                                   np.zeros(4), np.zeros(4)))
-            threading.Thread(target=send_odometry, daemon=True).start()
+        node = peer.node
+        arrivals: dict[str, list[float]] = {'cmd_vel': [], 'control_sequence': []}
+        node.create_subscription(Twist, 'cmd_vel', lambda m: arrivals['cmd_vel'].append(
+            time.monotonic()), 100)
+        node.create_subscription(JointTrajectory, 'control_sequence', lambda m: arrivals[
+            'control_sequence'].append(time.monotonic()), 100)
+        odom = node.create_publisher(Odometry, 'odom', 10)
+        reference = node.create_publisher(Path, 'reference_path', 10)
+        assert wait_until(lambda: reference.get_subscription_count() > 0, 60.0), planner.output
+        with odometry_stream(odom):
             reference.publish(_line(time.time_ns(), 2.0, 10.0))
             assert planner.wait_for('new reference: ', 30.0)
             t = np.linspace(0.0, 100.0, 100_000)
@@ -409,8 +420,6 @@ def test_a_100000_pose_path_never_pauses_control():
                 f'{topic} {gap * 1e3:.0f} ms' for topic, gap in gaps.items()))
             assert gaps['cmd_vel'] <= 1 / 20 + 0.1 and gaps['control_sequence'] <= 0.1 + 0.1
             assert 'Traceback' not in planner.output
-        finally:
-            stop.set()
 
 
 def test_the_stale_fraction_is_over_the_last_second():
@@ -466,23 +475,14 @@ def test_a_reference_beyond_the_velocity_bounds_is_refused(graph):
 
 
 def test_ctrl_c_stops_a_commanding_planner_with_a_zero_command():
-    import threading
-
-    stop = threading.Event()
     with separate_planner('model:=unicycle', 'steps:=20', 'horizon:=2.0') as (planner, peer):
-        try:
-            node, cmd = peer.node, []
-            node.create_subscription(Twist, 'cmd_vel', lambda m: cmd.append(
-                abs(m.linear.x) + abs(m.angular.z)), 100)
-            odom = node.create_publisher(Odometry, 'odom', 10)
-            reference = node.create_publisher(Path, 'reference_path', LATCHED)
-            assert wait_until(lambda: odom.get_subscription_count() > 0, 60.0), planner.output
-
-            def send_odometry() -> None:
-                while not stop.wait(0.02):
-                    odom.publish(msgs.odometry_msg('odom', 'base_link', time.time_ns(),
-                                                   np.zeros(4), np.zeros(4)))
-            threading.Thread(target=send_odometry, daemon=True).start()
+        node, cmd = peer.node, []
+        node.create_subscription(Twist, 'cmd_vel', lambda m: cmd.append(
+            abs(m.linear.x) + abs(m.angular.z)), 100)
+        odom = node.create_publisher(Odometry, 'odom', 10)
+        reference = node.create_publisher(Path, 'reference_path', LATCHED)
+        assert wait_until(lambda: odom.get_subscription_count() > 0, 60.0), planner.output
+        with odometry_stream(odom):
             reference.publish(_line(time.time_ns(), 2.0, 10.0))
             assert wait_until(lambda: cmd and cmd[-1] > 0.0, 30.0), planner.output
             code = planner.interrupt()
@@ -490,5 +490,3 @@ def test_ctrl_c_stops_a_commanding_planner_with_a_zero_command():
             print(f'\nCtrl-C while commanding {max(cmd):.3f}: exit code {code}, last cmd_vel '
                   f'{cmd[-1]:g}')
             assert code == 0 and 'Traceback' not in planner.output, planner.output
-        finally:
-            stop.set()

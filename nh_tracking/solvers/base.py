@@ -57,8 +57,8 @@ def clear_of_every_disc(solve: Callable[[Guess | None, bool], Solution], guess: 
     guess that is a plan (:data:`.inequalities.POINT_SLOTS`); a plan that went far from its
     guess (round an obstacle, into a crowd of them) may meet another. Solved again from that
     plan, its points get the discs nearest them there; if it still meets one (a point among
-    more discs), a last solve from ``guess`` gives every point every disc (``every``): the NLP
-    of 0.4.10 (started from the plan that ran into the crowd, it often ended infeasible). A
+    more discs), a last solve from ``guess`` gives every point every disc (``every``; started
+    from the plan that ran into the crowd, it often ended infeasible). A
     cold solve (no guess: the reference, which runs through the obstacles and tells little of
     where the plan will pass) has every disc at once. A plan that went through a disc between
     its points (fast: from the reference, a jump over an obstacle lying on it can look cheaper
