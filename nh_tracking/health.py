@@ -31,7 +31,7 @@ RECENT = 200  # solves the solve-time percentiles are taken over
 
 
 class HealthLevel(enum.IntEnum):
-    """Worse is larger (a report gives the worst since the previous one)."""
+    """Worse is larger (a report gives the worst of the last second)."""
 
     OK = 0
     WARN = 1

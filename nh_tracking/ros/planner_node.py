@@ -293,8 +293,8 @@ class PlannerNode(RuntimeParameters, ObstacleListener, ClockWatchdog, LifecycleN
             return
         health = session_health(session, self.take_problem(), {
             'rejected_inputs': self.rejected_inputs, 'errors': self.errors})
-        if self.clock_problem():
-            health = replace(health, level=HealthLevel.STALE, message=self.clock_problem())
+        if clock := self.clock_problem():
+            health = replace(health, level=HealthLevel.STALE, message=clock)
         level = {HealthLevel.OK: DiagnosticStatus.OK, HealthLevel.WARN: DiagnosticStatus.WARN,
                  HealthLevel.STALE: DiagnosticStatus.STALE}[health.level]
         array = DiagnosticArray(status=[msgs.diagnostic_status(
@@ -307,7 +307,7 @@ class PlannerNode(RuntimeParameters, ObstacleListener, ClockWatchdog, LifecycleN
         """Free everything; a robot still commanded gets a zero ``cmd_vel`` first."""
         if self.session is not None and self.live.active:
             self.live.active = False
-            if self.context.ok():  # (after Ctrl-C it is down already)
+            if self.context.ok():  # (an external shutdown may have taken it down)
                 self._publish_twist(np.zeros(4))
         self._release()
         super().destroy_node()
