@@ -17,6 +17,8 @@ if [ "$(cat "$stamp" 2>/dev/null)" != "$want" ]; then
   "$venv/bin/python" -m pip install -q --disable-pip-version-check --no-build-isolation --no-deps -e "$root"
   echo "$want" > "$stamp"
 fi
+# nav2_msgs and tf2_msgs have no wheels: built from interfaces/ into the venv (stamp-guarded)
+bash "$root/scripts/interfaces.sh" "$venv"
 # shellcheck disable=SC1091
 source "$venv/bin/activate"
 # Keep ROS traffic on this machine: tests and demos must not talk to other hosts' nodes.
