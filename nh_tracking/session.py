@@ -29,11 +29,11 @@ import time
 import numpy as np
 
 from nh_tracking import models
+from nh_tracking.following import checked_reference, Following
 from nh_tracking.limits import obstacle_discs
 from nh_tracking.poses import PoseMap
 from nh_tracking.problem import Solution
 from nh_tracking.receding_horizon import PlannerSettings, PlanOutcome, RecedingHorizonPlanner
-from nh_tracking.reference_checks import check_implied_motion, check_velocity_bounds, thin
 from nh_tracking.session_types import (Clock, ClockSkew, PlanResult, settle_heap,
                                        Staleness, StateEstimate)
 from nh_tracking.solvers.compiled import cancel_builds
@@ -63,6 +63,7 @@ class TrackingSession:
         self.epoch_ns = clock()
         system = models.create(model, **physical)
         self.pose_map = PoseMap(system)
+        self.following = Following(self)  # references in; the path in force as a goal
         self.planner = RecedingHorizonPlanner(system, settings)
         self.active = False  # plans are made only while active (the lifecycle's "active")
         self.staleness = Staleness()
@@ -92,6 +93,9 @@ class TrackingSession:
 
     def ns(self, seconds: float) -> int:
         return self.epoch_ns + int(round(seconds * 1e9))
+
+    def now(self) -> float:
+        return self.seconds(self.clock())
 
     # threads ----------------------------------------------------------------------------------
     def start(self, on_plan: Callable[[PlanResult], None]) -> None:
@@ -131,19 +135,13 @@ class TrackingSession:
                                           f'{type(exc).__name__}: {exc}')
 
     # inputs -----------------------------------------------------------------------------------
-    def set_reference(self, stamps_ns: np.ndarray, poses: np.ndarray,
-                      twists: np.ndarray | None) -> Trajectory:
-        """Track timed poses (and twists), thinned to 4 a plan step; else ReferenceRejected."""
+    def track(self, times: np.ndarray, poses: np.ndarray,
+              twists: np.ndarray | None) -> Trajectory:
+        """Track poses at ``times`` [s], thinned; ReferenceRejected if the robot may not."""
         with self._lock:
             hidden = None if self._state is None else self._state.q
-        times = (np.asarray(stamps_ns, dtype=np.int64) - self.epoch_ns) * 1e-9
-        keep = thin(times, self.planner.settings.horizon / self.planner.settings.steps / 4)
-        times, poses = times[keep], np.asarray(poses)[keep]
-        twists = None if twists is None else np.asarray(twists)[keep]
-        check_implied_motion(times, poses[:, :2], *self.reference_bounds)
-        reference = self.pose_map.reference(times, poses, twists, hidden)  # (not holding plans)
-        check_velocity_bounds(reference.v, self.planner.limits['velocity_bounds'],
-                              self.system.velocity_names)
+        reference = checked_reference(times, poses, twists, hidden, self.pose_map,
+                                      self.planner, self.reference_bounds)
         with self._solve_lock:
             self.planner.set_reference(reference)
         return reference
@@ -170,6 +168,7 @@ class TrackingSession:
         q = pose_map.dead_reckon(pose, v, q_prev, None if prev is None else prev.v, dt)
         with self._lock:
             self._state = StateEstimate(ns, q, v, received)
+        self.following.update(pose, twist, self.seconds(ns))
 
     @property
     def state(self) -> StateEstimate | None:
@@ -306,7 +305,8 @@ class TrackingSession:
                 self._commanded = commanded
         trajectory = commanded[1]
         t = self.seconds(now_ns)
-        if stale or not self.active or not trajectory.t[0] <= t <= trajectory.t[-1]:
+        if stale or not self.active or self.following.halted or \
+                not trajectory.t[0] <= t <= trajectory.t[-1]:
             return np.zeros(4)
         q, v = trajectory.sample(t)
         return self.pose_map.body_twist(q[0], v[0])

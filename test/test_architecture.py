@@ -27,9 +27,11 @@ ROOT = Path(__file__).resolve().parents[1]
 PACKAGE = ROOT / 'nh_tracking'
 LAYERS = [  # lowest first; a module may import from its own layer and the ones below
     {'geometry', 'system', 'models', 'simulate', 'trajectory', 'problem', 'numeric', 'metrics',
-     'settings', 'regularity', 'limits', 'costmap', 'lean', 'reference_checks'},
+     'settings', 'regularity', 'limits', 'costmap', 'lean', 'reference_checks', 'route',
+     'goal_checking'},
     {'solvers'},
-    {'receding_horizon', 'avoidance', 'fallback', 'poses', 'session', 'session_types', 'health'},
+    {'receding_horizon', 'avoidance', 'fallback', 'poses', 'session', 'session_types', 'health',
+     'following'},
     {'ros'},
     {'examples'},
 ]

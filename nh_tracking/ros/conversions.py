@@ -118,11 +118,12 @@ def _increasing(times: np.ndarray, what: str) -> None:
 
 # inputs ---------------------------------------------------------------------------------------
 def path_to_arrays(msg: Path | bytes, frame: str, receipt_ns: int
-                   ) -> tuple[np.ndarray, np.ndarray]:
-    """Return (times [ns, absolute], poses (N, 4)) of a timed Path (or of its CDR bytes).
+                   ) -> tuple[np.ndarray | None, np.ndarray]:
+    """Return (times [ns, absolute], poses (N, 4)) of a Path (or of its CDR bytes).
 
-    Timing comes from each pose's stamp. A path whose header stamp is zero starts on receipt:
-    its pose stamps are then offsets from the first pose's stamp.
+    Timing comes from each pose's stamp; a path whose header stamp is zero starts on receipt,
+    its pose stamps then offsets from the first pose's stamp. A path whose poses all carry one
+    stamp (what Nav2's planners publish) is an untimed route: times None.
     """
     if isinstance(msg, bytes):  # from a raw subscription: read without building the message
         try:
@@ -145,10 +146,13 @@ def path_to_arrays(msg: Path | bytes, frame: str, receipt_ns: int
     for pose_frame, i in frames.items():
         if pose_frame:
             check_frame(pose_frame, frame, f'path pose {i}')
+    poses = _poses(values, 'path pose')
+    if (stamps == stamps[0]).all():
+        return None, poses
     if header_ns == 0:
         stamps = stamps - stamps[0] + receipt_ns
     _increasing(stamps.astype(float), 'path')
-    return stamps, _poses(values, 'path pose')
+    return stamps, poses
 
 
 def multidof_to_arrays(msg: MultiDOFJointTrajectory, frame: str, receipt_ns: int

@@ -1,0 +1,213 @@
+# Copyright 2026 nh_tracking maintainers
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+
+"""The path in force as a goal: routes timed from the robot's motion, arrival and progress.
+
+A route re-sent unchanged (Nav2 re-sends its path at its replanning rate) changes nothing; a
+new one is timed from where the robot is and how fast it goes, so re-sending never slows it.
+"""
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+import threading
+from typing import Protocol
+
+import numpy as np
+
+from nh_tracking.goal_checking import GoalSettings, GoalState, GoalStatus, GoalTracker
+from nh_tracking.poses import PoseMap
+from nh_tracking.receding_horizon import RecedingHorizonPlanner
+from nh_tracking.reference_checks import (bound_ratio, check_implied_motion,
+                                          check_velocity_bounds, ReferenceRejected, thin)
+from nh_tracking.route import RouteSettings, time_route, TimedRoute
+from nh_tracking.session_types import StateEstimate
+from nh_tracking.trajectory import Trajectory
+
+SAME_ROUTE = 1e-3  # [m, rad] a route whose poses all lie this close to those in force is it
+PAST, FUTURE = 1.0, 60.0  # [s] a timed reference starting further off is taken with a warning
+
+
+@dataclass(frozen=True)
+class TimedPoses:
+    """A reference to track: times [s] on the session's axis, poses (N, 4), body twists."""
+
+    times: np.ndarray
+    poses: np.ndarray
+    twists: np.ndarray
+    route: TimedRoute
+
+
+class Session(Protocol):
+    """What :class:`Following` takes from its tracking session."""
+
+    pose_map: PoseMap
+    planner: RecedingHorizonPlanner
+    log: Callable[[str, str], None]
+
+    @property
+    def state(self) -> StateEstimate | None: ...
+
+    def now(self) -> float: ...
+
+    def track(self, times: np.ndarray, poses: np.ndarray,
+              twists: np.ndarray | None) -> Trajectory: ...
+
+
+class Following:
+    """References in (timed ones, routes, a stop), the path in force judged; thread-safe."""
+
+    def __init__(self, session: Session) -> None:
+        self.session = session
+        self.route_settings = RouteSettings()
+        self.goal_settings = GoalSettings()
+        self.halted = False  # cancelled: brought to rest, cmd_vel zero until a new path
+        self._lock = threading.Lock()
+        self._route: tuple[np.ndarray, RouteSettings] | None = None  # poses as sent, settings
+        self._tracker: GoalTracker | None = None
+
+    def set_reference(self, stamps: np.ndarray, poses: np.ndarray, twists: np.ndarray | None,
+                      check_progress: bool = False) -> Trajectory:
+        """Track poses at ``stamps`` [s], thinned to 4 a plan step; else ReferenceRejected.
+
+        One that has ended already is refused; one that starts far off, taken with a warning.
+        """
+        session = self.session
+        warning = timing_problem(stamps, session.now())
+        reference = session.track(stamps, poses, twists)
+        if warning:
+            session.log('warn', warning)
+        self._follow(poses[:, :2], poses[-1], check_progress)
+        return reference
+
+    def set_route(self, poses: np.ndarray, check_progress: bool = True) -> TimedPoses | None:
+        """Track an untimed route from the robot's place and speed; None: it is the one in force.
+
+        ReferenceRejected when untimed routes are refused (``reference_speed`` 0).
+        """
+        if self.route_settings.reference_speed == 0:
+            raise ReferenceRejected('its poses all carry one stamp (an untimed route) and '
+                                    'reference_speed is 0: stamp each pose with its time, or '
+                                    'set reference_speed')
+        if self._same_route(poses):
+            return None
+        session = self.session
+        state, pose_map = session.state, session.pose_map
+        if state is None:
+            start, speed = poses[0, :2], 0.0
+        else:
+            start = pose_map.pose(state.q)[:2]
+            speed = float(pose_map.body_twist(state.q, state.v)[0])
+        route = time_route(poses, start, speed, self.route_settings)
+        timed = slowed(TimedPoses(session.now() + route.times, route.poses, route.twists, route),
+                       pose_map, session.planner.limits['velocity_bounds'])
+        session.track(timed.times, timed.poses, timed.twists)
+        self._follow(timed.poses[:, :2], timed.poses[-1], check_progress, poses)
+        return timed
+
+    def halt(self) -> None:
+        """Drop the path in force: brought to rest, straight ahead; ``cmd_vel`` zero."""
+        session = self.session
+        state = session.state
+        if state is not None:
+            pose = session.pose_map.pose(state.q)
+            speed = float(session.pose_map.body_twist(state.q, state.v)[0])
+            distance = speed * abs(speed) / (2 * self.route_settings.max_accel)
+            ahead = pose + distance * np.array([np.cos(pose[3]), np.sin(pose[3]), 0.0, 0.0])
+            stop = time_route(np.vstack([pose, ahead]), pose[:2], speed, RouteSettings(
+                max(abs(speed), 1e-3), self.route_settings.max_accel,
+                self.route_settings.max_lateral_accel, 'poses'))
+            session.track(session.now() + stop.times, stop.poses, stop.twists)
+        with self._lock:
+            self._tracker, self._route, self.halted = None, None, True
+
+    def _same_route(self, poses: np.ndarray) -> bool:
+        """Whether ``poses`` is the route in force, re-sent (same poses, same settings)."""
+        with self._lock:
+            route = self._route
+        if route is None or route[1] != self.route_settings or route[0].shape != poses.shape:
+            return False
+        gap = np.abs(route[0] - poses)
+        gap[:, 3] = np.abs(np.remainder(gap[:, 3] + np.pi, 2 * np.pi) - np.pi)
+        return bool(gap.max() <= SAME_ROUTE)
+
+    def _follow(self, positions: np.ndarray, goal: np.ndarray, check_progress: bool,
+                route: np.ndarray | None = None) -> None:
+        """Judge arrival at ``goal`` along ``positions``; ``route``: the route's poses as sent."""
+        tracker = GoalTracker(positions, goal, self.goal_settings,
+                              self.session.pose_map.has_yaw, check_progress)
+        with self._lock:
+            self._tracker, self.halted = tracker, False
+            self._route = None if route is None else (route, self.route_settings)
+
+    def update(self, pose: np.ndarray, twist: np.ndarray, now: float) -> None:
+        """Judge the robot at ``pose`` moving with body ``twist`` at ``now`` [s]."""
+        with self._lock:
+            tracker = self._tracker
+        if tracker is not None:
+            tracker.update(pose, twist, now)
+
+    @property
+    def status(self) -> GoalStatus:
+        with self._lock:
+            tracker = self._tracker
+        return GoalStatus(GoalState.NONE) if tracker is None else tracker.status
+
+
+def timing_problem(times: np.ndarray, now: float) -> str:
+    """A warning for a timed reference starting far from ``now`` [s] ('' if none).
+
+    ReferenceRejected if it has ended already: its header stamps were misread, most likely.
+    """
+    if times[-1] < now:
+        raise ReferenceRejected(
+            f'it ended {now - times[-1]:.3g} s ago (its last pose is stamped before now); '
+            'a header stamp of 0 has the pose stamps read as times from receipt')
+    offset = times[0] - now
+    if -PAST <= offset <= FUTURE:
+        return ''
+    return (f'the reference starts {abs(offset):.3g} s {"before" if offset < 0 else "after"} '
+            'now: taken as stamped')
+
+
+def slowed(timed: TimedPoses, pose_map: PoseMap, bounds: tuple | None) -> TimedPoses:
+    """``timed`` slowed as a whole where it asks for more than the velocity ``bounds``."""
+    if bounds is None:
+        return timed
+    reference = pose_map.reference(timed.times, timed.poses, timed.twists)
+    ratio = bound_ratio(reference.v, bounds) * (1 + 1e-3)
+    if not 1 < ratio < np.inf:
+        return timed
+    t0 = timed.times[0]
+    return TimedPoses(t0 + (timed.times - t0) * ratio, timed.poses, timed.twists / ratio,
+                      timed.route)
+
+
+def checked_reference(times: np.ndarray, poses: np.ndarray, twists: np.ndarray | None,
+                      hidden: np.ndarray | None, pose_map: PoseMap,
+                      planner: RecedingHorizonPlanner,
+                      reference_bounds: tuple[float, float]) -> Trajectory:
+    """The reference of poses at ``times`` [s], thinned to 4 a plan step.
+
+    ReferenceRejected where it asks for more than ``reference_bounds`` (speed, acceleration)
+    or the planner's velocity bounds.
+    """
+    keep = thin(times, planner.settings.horizon / planner.settings.steps / 4)
+    times, poses = times[keep], np.asarray(poses)[keep]
+    twists = None if twists is None else np.asarray(twists)[keep]
+    check_implied_motion(times, poses[:, :2], *reference_bounds)
+    reference = pose_map.reference(times, poses, twists, hidden)
+    check_velocity_bounds(reference.v, planner.limits['velocity_bounds'],
+                          pose_map.system.velocity_names)
+    return reference
