@@ -73,6 +73,7 @@ class Following:
         self.route_settings = RouteSettings()
         self.goal_settings = GoalSettings()
         self.halted = False  # cancelled: brought to rest, cmd_vel zero until a new path
+        self.generation = 0  # counts the paths taken (and dropped): whose is in force
         self._lock = threading.Lock()
         self._route: tuple[np.ndarray, RouteSettings] | None = None  # poses as sent, settings
         self._tracker: GoalTracker | None = None
@@ -131,6 +132,7 @@ class Following:
             session.track(session.now() + stop.times, stop.poses, stop.twists)
         with self._lock:
             self._tracker, self._route, self.halted = None, None, True
+            self.generation += 1
 
     def _same_route(self, poses: np.ndarray) -> bool:
         """Whether ``poses`` is the route in force, re-sent (same poses, same settings)."""
@@ -149,6 +151,7 @@ class Following:
                               self.session.pose_map.has_yaw, check_progress)
         with self._lock:
             self._tracker, self.halted = tracker, False
+            self.generation += 1
             self._route = None if route is None else (route, self.route_settings)
 
     def update(self, pose: np.ndarray, twist: np.ndarray, now: float) -> None:
@@ -166,7 +169,7 @@ class Following:
 
 
 def timing_problem(times: np.ndarray, now: float) -> str:
-    """A warning for a timed reference starting far from ``now`` [s] ('' if none).
+    """Return a warning for a timed reference starting far from ``now`` [s] ('' if none).
 
     ReferenceRejected if it has ended already: its header stamps were misread, most likely.
     """
@@ -182,7 +185,7 @@ def timing_problem(times: np.ndarray, now: float) -> str:
 
 
 def slowed(timed: TimedPoses, pose_map: PoseMap, bounds: tuple | None) -> TimedPoses:
-    """``timed`` slowed as a whole where it asks for more than the velocity ``bounds``."""
+    """Return ``timed`` slowed as a whole where it asks for more than the velocity ``bounds``."""
     if bounds is None:
         return timed
     reference = pose_map.reference(timed.times, timed.poses, timed.twists)
@@ -198,7 +201,7 @@ def checked_reference(times: np.ndarray, poses: np.ndarray, twists: np.ndarray |
                       hidden: np.ndarray | None, pose_map: PoseMap,
                       planner: RecedingHorizonPlanner,
                       reference_bounds: tuple[float, float]) -> Trajectory:
-    """The reference of poses at ``times`` [s], thinned to 4 a plan step.
+    """Return the reference of poses at ``times`` [s], thinned to 4 a plan step.
 
     ReferenceRejected where it asks for more than ``reference_bounds`` (speed, acceleration)
     or the planner's velocity bounds.

@@ -24,6 +24,7 @@ import enum
 
 import numpy as np
 
+from nh_tracking.goal_checking import GoalState
 from nh_tracking.receding_horizon import PlanStatus
 from nh_tracking.session import TrackingSession
 
@@ -53,11 +54,15 @@ def session_health(session: TrackingSession, problem: str, counts: dict[str, int
     """
     outcome, stats = session.outcome, session.planner.stats
     stale = session.staleness.fraction()
+    goal = session.following.status
     level, message = HealthLevel.OK, 'planning'
     if not session.active:
         level, message = HealthLevel.WARN, 'inactive: not commanding'
     elif session.planner.reference is None or session.state is None:
-        level, message = HealthLevel.WARN, 'waiting for reference and odometry'
+        missing = [what for what, absent in (
+            ('a reference (reference_path, reference_trajectory or a follow_path goal)',
+             session.planner.reference is None), ('odometry', session.state is None)) if absent]
+        level, message = HealthLevel.WARN, f"waiting for {' and '.join(missing)}"
     elif session.staleness.now or stale > 0.0:
         level, message = HealthLevel.STALE, (
             f'odometry {"is" if session.staleness.now else "was"} stale ({stale:.0%} of the '
@@ -66,6 +71,11 @@ def session_health(session: TrackingSession, problem: str, counts: dict[str, int
           ) > session.planner.settings.horizon:
         level, message = HealthLevel.WARN, (f'the reference starts {ahead:.1f} s from now '
                                             '(a clock that jumped back?)')
+    elif goal.state is GoalState.BLOCKED:
+        s = session.following.goal_settings
+        level, message = HealthLevel.WARN, (
+            f'blocked: moved less than {s.required_movement_radius:g} m in '
+            f'{s.movement_time_allowance:g} s, {goal.remaining:.2f} m before the goal')
     elif outcome is not None and outcome.status is not PlanStatus.OPTIMAL:
         level, message = HealthLevel.WARN, f'{outcome.status}: {outcome.message}'
     if problem and level is HealthLevel.OK:
@@ -78,6 +88,7 @@ def session_health(session: TrackingSession, problem: str, counts: dict[str, int
         'optimal': stats.optimal, 'shifted': stats.shifted, 'fallbacks': stats.fallbacks,
         'deadline_misses': stats.deadline_misses, **counts, 'last_problem': problem,
         'reconfiguring': session.reconfiguring, 'stale_fraction': f'{stale:.2f}',
+        'goal': str(goal.state), 'distance_to_goal_m': f'{goal.remaining:.2f}',
         'solve_time_last_ms': f'{(outcome.solve_time if outcome else 0.0) * 1e3:.2f}',
         'solve_time_p50_ms': f'{np.percentile(times, 50) * 1e3:.2f}',
         'solve_time_p99_ms': f'{np.percentile(times, 99) * 1e3:.2f}',

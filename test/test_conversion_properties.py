@@ -308,7 +308,7 @@ def test_costmaps_give_finite_cells_or_a_rejection(resolution, width, height, da
     except cv.InputRejected:
         return
     assert np.all(np.isfinite(cells)) and size > 0
-    assert len(cells) == sum(d >= 65 for d in data)
+    assert len(cells) == sum(d >= 100 for d in data)
     discs = nearest_discs(costmap_discs(cells, size, 0.5), np.zeros(2), 8, 1e9)
     assert len(discs) <= 8 and np.all(np.isfinite(discs))
     for cell in cells[:20]:  # every cell is inside some disc, or left for lack of discs

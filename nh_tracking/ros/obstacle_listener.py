@@ -32,6 +32,7 @@ class ObstacleListener(SafeNode):
     """Subscribes to both topics; bad messages are rejected and the set in force stays."""
 
     frame: str
+    costmap_threshold: int
 
     def listen_for_obstacles(self) -> list:
         """Create the subscriptions (returned, for the node to release)."""
@@ -48,7 +49,7 @@ class ObstacleListener(SafeNode):
 
     @guarded('costmap')
     def on_costmap(self, msg: OccupancyGrid) -> None:
-        cells, size = occupied_cells(msg, self.frame)
+        cells, size = occupied_cells(msg, self.frame, self.costmap_threshold)
         self.costmap, self._costmap_discs = (cells, size), costmap_discs(cells, size, DISC_SIZE)
         self.obstacles_changed()
 

@@ -17,9 +17,11 @@
 ``obstacles`` (visualization_msgs/MarkerArray): CYLINDER and SPHERE markers are discs of radius
 scale.x / 2 at their pose; ADD/MODIFY replace the marker of the same (ns, id), DELETE removes
 it, DELETEALL clears the set; other marker types (labels, arrows) are ignored. ``costmap``
-(nav_msgs/OccupancyGrid): cells at or above :data:`OCCUPIED` (map_server's 0.65 threshold;
-Nav2's lethal cost is 100) are occupied. A message with a wrong frame or non-finite or
-negative numbers is refused whole: the set in force stays.
+(nav_msgs/OccupancyGrid): cells at or above a threshold are occupied — by default Nav2's
+lethal cost, 100, so the inflation a Nav2 costmap carries (99 inscribed, 1-98 inflated) is not
+taken for obstacle and then inflated again by the robot's radius; -1 (unknown) is free. A
+message with a wrong frame or non-finite or negative numbers is refused whole: the set in force
+stays.
 """
 from __future__ import annotations
 
@@ -29,7 +31,7 @@ from visualization_msgs.msg import Marker, MarkerArray
 
 from nh_tracking.ros import conversions as cv
 
-OCCUPIED = 65
+LETHAL = 100  # Nav2's lethal cost, and map_server's occupied cells
 DISCS = (Marker.CYLINDER, Marker.SPHERE)
 
 
@@ -65,8 +67,9 @@ class MarkerObstacles:
         self._discs = discs
 
 
-def occupied_cells(msg: OccupancyGrid, frame: str) -> tuple[np.ndarray, float]:
-    """Centres (K, 2) of the occupied cells in ``frame``, and the cell size."""
+def occupied_cells(msg: OccupancyGrid, frame: str, threshold: int = LETHAL
+                   ) -> tuple[np.ndarray, float]:
+    """Centres (K, 2) of the cells at or above ``threshold`` in ``frame``, and the cell size."""
     cv.check_frame(msg.header.frame_id, frame, 'costmap')
     info = msg.info
     size, width, height = info.resolution, info.width, info.height
@@ -76,7 +79,7 @@ def occupied_cells(msg: OccupancyGrid, frame: str) -> tuple[np.ndarray, float]:
                                f'got {size}, {width} x {height} != {len(msg.data)}')
     origin = cv.pose_array(info.origin, 'costmap origin')
     grid = np.asarray(msg.data, dtype=np.int16).reshape(height, width)
-    rows, cols = np.nonzero(grid >= OCCUPIED)
+    rows, cols = np.nonzero(grid >= threshold)
     local = np.c_[(cols + 0.5) * size, (rows + 0.5) * size]
     c, s = np.cos(origin[3]), np.sin(origin[3])
     world = local @ np.array([[c, s], [-s, c]]) + origin[:2]

@@ -25,8 +25,10 @@ from rclpy.event_handler import SubscriptionEventCallbacks
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 
+from nh_tracking.goal_checking import GoalSettings
 from nh_tracking.receding_horizon import PlannerSettings
 from nh_tracking.ros.parameters import ParameterSpec, plain
+from nh_tracking.route import RouteSettings
 from nh_tracking.session_types import SessionSettings
 
 LATCHED = QoSProfile(depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL,
@@ -74,6 +76,12 @@ def subscribe_latched(node: Node, msg_type: type, topic: str,
 
 SETTINGS = ParameterSpec.of(PlannerSettings)
 SESSION = ParameterSpec.of(SessionSettings)
+ROUTE = ParameterSpec.of(RouteSettings)
+GOAL = ParameterSpec.of(GoalSettings)
+COSTMAP_THRESHOLD = plain(
+    'costmap_threshold', 100, 'costmap cells of this cost and more are obstacles (100: '
+    "Nav2's lethal cells only; its inflation is not taken for obstacle, the robot's radius is "
+    'added once)', '', (1, 100), read_only=True)
 NODE = (
     plain('frame_id', 'odom', 'fixed frame of references and odometry', read_only=True),
     plain('cmd_vel_stamped', False, 'publish TwistStamped on cmd_vel', read_only=True),
@@ -81,5 +89,6 @@ NODE = (
           'lifecycle manager)', read_only=True),
     plain('costmap_reach', 5.0, 'occupied costmap cells farther from the robot are ignored',
           'm', (0.1, 1000.0)),
+    COSTMAP_THRESHOLD,
 )
-PARAMETERS = SETTINGS + SESSION + NODE
+PARAMETERS = SETTINGS + SESSION + ROUTE + GOAL + NODE

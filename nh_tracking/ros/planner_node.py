@@ -35,14 +35,15 @@ from visualization_msgs.msg import MarkerArray
 from nh_tracking.avoidance import MAX_OBSTACLES
 from nh_tracking.health import HealthLevel, session_health
 from nh_tracking.receding_horizon import PlannerSettings
-from nh_tracking.reference_checks import ReferenceRejected
 from nh_tracking.ros import cdr, conversions as cv, messages as msgs
 from nh_tracking.ros.clock_watch import ClockWatchdog
+from nh_tracking.ros.follow_path import FollowPathServer
 from nh_tracking.ros.lifecycle import answer_every_transition
 from nh_tracking.ros.markers import obstacle_markers, plan_markers
 from nh_tracking.ros.obstacle_listener import DISC_SIZE, ObstacleListener
 from nh_tracking.ros.odometry_receiver import OdometryReceiver
 from nh_tracking.ros.parameters import declare_all, declare_model
+from nh_tracking.ros.path_input import take_path, take_trajectory
 from nh_tracking.ros.planner_interface import LATCHED, PARAMETERS
 from nh_tracking.ros.planner_parameters import RuntimeParameters
 from nh_tracking.ros.planner_services import PlannerServices
@@ -64,11 +65,13 @@ class PlannerNode(RuntimeParameters, ObstacleListener, ClockWatchdog, LifecycleN
         self.model, self.physical = declare_model(self)
         self.params = declare_all(self, PARAMETERS)
         self.frame = self.params['frame_id']
+        self.costmap_threshold = self.params['costmap_threshold']
         PlannerSettings(**self._settings_values())  # consistent at start-up, or ValueError
         self.session: TrackingSession | None = None
         self._command_timers: list = []
         self._entities: list = []
         self._service_host: PlannerServices | None = None
+        self._follow_path: FollowPathServer | None = None
         self._odometry: OdometryReceiver | None = None
         self._references: ReferenceReceiver | None = None
         self._obstacles_lock = threading.Lock()
@@ -94,7 +97,7 @@ class PlannerNode(RuntimeParameters, ObstacleListener, ClockWatchdog, LifecycleN
     def pose_map(self):
         return self.live.pose_map
 
-    def _now_ns(self) -> int:
+    def now_ns(self) -> int:
         return self.get_clock().now().nanoseconds
 
     def _log(self, level: str, text: str) -> None:
@@ -111,7 +114,7 @@ class PlannerNode(RuntimeParameters, ObstacleListener, ClockWatchdog, LifecycleN
         self.get_logger().info(f'configuring: building the solver for {self.model}')
         try:
             session = TrackingSession(self.model, self.physical,
-                                      PlannerSettings(**self._settings_values()), self._now_ns,
+                                      PlannerSettings(**self._settings_values()), self.now_ns,
                                       self.params['odom_timeout'], self._log)
             session.planner.prepare()  # blocking: the first plan must not be late
         except Exception as exc:  # noqa: BLE001 - a user's model may raise anything
@@ -138,6 +141,7 @@ class PlannerNode(RuntimeParameters, ObstacleListener, ClockWatchdog, LifecycleN
         self._entities += self.listen_for_obstacles()
         self._discs, self._discs_centre, self._displayed = np.zeros((0, 3)), np.zeros(2), None
         self._service_host = PlannerServices(self)
+        self._follow_path = FollowPathServer.serve(self)
         session.start(self._publish_plan)
         # last: its callbacks start at once, on their own thread, and need all of the above
         self._odometry = OdometryReceiver(self, 'odom', self.on_odom)
@@ -179,6 +183,9 @@ class PlannerNode(RuntimeParameters, ObstacleListener, ClockWatchdog, LifecycleN
         if self._service_host is not None:
             self._service_host.close()
             self._service_host = None
+        if self._follow_path is not None:
+            self._follow_path.close()
+            self._follow_path = None
         if self.session is not None:
             self.live.stop()
             self.session = None
@@ -193,20 +200,11 @@ class PlannerNode(RuntimeParameters, ObstacleListener, ClockWatchdog, LifecycleN
 
     @guarded('reference_path')
     def on_reference_path(self, msg: Path | bytes) -> None:
-        self._set_reference(*cv.path_to_arrays(msg, self.frame, self._now_ns()), None)
+        take_path(self, msg)
 
     @guarded('reference_trajectory')
     def on_reference_trajectory(self, msg: MultiDOFJointTrajectory) -> None:
-        self._set_reference(*cv.multidof_to_arrays(msg, self.frame, self._now_ns()))
-
-    def _set_reference(self, stamps: np.ndarray, poses: np.ndarray, twists) -> None:
-        try:
-            reference = self.live.set_reference(stamps, poses, twists)
-        except ReferenceRejected as exc:
-            raise cv.InputRejected(str(exc)) from None
-        self.get_logger().info(f'new reference: {len(reference.t)} points over '
-                               f'{reference.t[-1] - reference.t[0]:.2f} s')
-        self.live.wake()
+        take_trajectory(self, msg)
 
     @guarded('odom')
     def on_odom(self, msg: Odometry | bytes, info: dict) -> None:
@@ -268,13 +266,13 @@ class PlannerNode(RuntimeParameters, ObstacleListener, ClockWatchdog, LifecycleN
     @guarded('cmd_vel')
     def publish_cmd_vel(self) -> None:
         """Publish the plan's velocity now, as a body twist; zero when odometry is stale."""
-        twist = self.live.command(self._now_ns())
+        twist = self.live.command(self.now_ns())
         if twist is not None:
             self._publish_twist(twist)
 
     def _publish_twist(self, twist: np.ndarray) -> None:
         if self.pub_cmd.msg_type is TwistStamped:
-            self.pub_cmd.publish(msgs.twist_stamped_msg(self.frame, self._now_ns(), twist))
+            self.pub_cmd.publish(msgs.twist_stamped_msg(self.frame, self.now_ns(), twist))
         else:
             self.pub_cmd.publish(msgs.twist_msg(twist))
 
@@ -291,7 +289,7 @@ class PlannerNode(RuntimeParameters, ObstacleListener, ClockWatchdog, LifecycleN
         session = self.session
         if session is None:
             return
-        health = session_health(session, self.take_problem(), {
+        health = session_health(session, self.recent_problem(), {
             'rejected_inputs': self.rejected_inputs, 'errors': self.errors})
         if clock := self.clock_problem():
             health = replace(health, level=HealthLevel.STALE, message=clock)
@@ -300,7 +298,7 @@ class PlannerNode(RuntimeParameters, ObstacleListener, ClockWatchdog, LifecycleN
         array = DiagnosticArray(status=[msgs.diagnostic_status(
             f'{self.get_name()}: planning', self.get_fully_qualified_name(), level,
             health.message, health.values)])
-        array.header.stamp = msgs.time_msg(self._now_ns())
+        array.header.stamp = msgs.time_msg(self.now_ns())
         self.pub_diag.publish(array)
 
     def destroy_node(self) -> None:

@@ -19,9 +19,11 @@ from typing import Any
 
 from rcl_interfaces.msg import SetParametersResult
 
+from nh_tracking.goal_checking import GoalSettings
 from nh_tracking.receding_horizon import PlannerSettings
-from nh_tracking.ros.planner_interface import SETTINGS
+from nh_tracking.ros.planner_interface import GOAL, ROUTE, SETTINGS
 from nh_tracking.ros.safety import guarded, SafeNode
+from nh_tracking.route import RouteSettings
 from nh_tracking.session import TrackingSession
 
 _SETTING_NAMES = {s.name for s in SETTINGS}
@@ -41,6 +43,11 @@ class RuntimeParameters(SafeNode):
         session.max_clock_skew = self.params['max_clock_skew']
         session.reference_bounds = (self.params['reference_max_speed'],
                                     self.params['reference_max_accel'])
+        session.following.route_settings = RouteSettings(**self._values(ROUTE))
+        session.following.goal_settings = GoalSettings(**self._values(GOAL))
+
+    def _values(self, specs, changes: dict | None = None) -> dict:
+        return {s.name: (changes or {}).get(s.name, self.params[s.name]) for s in specs}
 
     def _settings_values(self) -> dict:
         return {s.name: self.get_parameter(s.name).value for s in SETTINGS}
@@ -52,6 +59,8 @@ class RuntimeParameters(SafeNode):
                 k: v for k, v in changes.items() if k in _SETTING_NAMES}})
             if self.session is not None:
                 settings.limits(self.session.system)  # bounds sized for the model
+            RouteSettings(**self._values(ROUTE, changes))
+            GoalSettings(**self._values(GOAL, changes))
         except (ValueError, TypeError) as exc:
             return SetParametersResult(successful=False, reason=str(exc))
         return SetParametersResult(successful=True)

@@ -27,6 +27,7 @@ from nh_tracking.ros.conversions import InputRejected
 
 
 LOG_PERIOD = 5.0  # [s] a problem of a kind already said within it is counted, not said again
+SHOWN_FOR = 10.0  # [s] how long diagnostics go on showing the last problem
 _FIGURES = re.compile(r'[-+]?\d+(\.\d+)?(e[-+]?\d+)?')
 
 
@@ -54,7 +55,8 @@ class SafeNode(Node):
     """A node that rejects bad input with one log line and counts what went wrong.
 
     A problem repeated is logged (and reported at once) once per :data:`LOG_PERIOD`, with a
-    count; every one is counted, and the newest is the next diagnostic's ``last_problem``.
+    count; every one is counted, and the newest is the diagnostics' ``last_problem`` for
+    :data:`SHOWN_FOR` seconds.
     """
 
     def __init__(self, name: str, **kwargs) -> None:
@@ -64,6 +66,7 @@ class SafeNode(Node):
         self.rejected_inputs = 0
         self.errors = 0
         self.last_problem = ''
+        self._noted_at = -math.inf  # (monotonic) when last_problem was noted
         self._repeats = RepeatCounter()
 
     def reject(self, what: str, reason: str) -> None:
@@ -86,8 +89,8 @@ class SafeNode(Node):
             self._report()
 
     def _note(self, problem: str) -> str | None:
-        self.last_problem = problem
-        return self._repeats(problem, time.monotonic())
+        self.last_problem, self._noted_at = problem, time.monotonic()
+        return self._repeats(problem, self._noted_at)
 
     def _report(self) -> None:
         """``on_problem`` once: a problem met while reporting one is not reported again."""
@@ -99,11 +102,11 @@ class SafeNode(Node):
         finally:
             self._reporting.active = False
 
-    def take_problem(self) -> str:
-        """Return the last problem since the previous call (for diagnostics)."""
+    def recent_problem(self) -> str:
+        """Return the last problem if noted within :data:`SHOWN_FOR` s ('' if none)."""
         with self._problem_lock:
-            problem, self.last_problem = self.last_problem, ''
-        return problem
+            recent = time.monotonic() - self._noted_at <= SHOWN_FOR
+            return self.last_problem if recent else ''
 
     def on_problem(self) -> None:
         """Report a problem at once (the planner publishes a diagnostic)."""

@@ -39,6 +39,7 @@ from nh_tracking.ros import conversions as cv
 from nh_tracking.ros import messages as msgs
 from nh_tracking.ros.obstacle_listener import ObstacleListener
 from nh_tracking.ros.parameters import declare, declare_all, declare_model, plain
+from nh_tracking.ros.planner_interface import COSTMAP_THRESHOLD
 from nh_tracking.ros.safety import guarded
 from nh_tracking.simulate import drive, simulate
 
@@ -63,6 +64,7 @@ PARAMETERS = (
           read_only=True),
     plain('robot_radius', 0.0, "the robot's radius: closer to an obstacle is a collision "
           '(a diagnostic)', 'm', (0.0, 100.0), read_only=True),
+    COSTMAP_THRESHOLD,
 )
 
 
@@ -90,6 +92,7 @@ class SimulatorNode(ObstacleListener):
         self.saturation = None if bounds is None else np.vstack(
             [np.broadcast_to(b, self.system.r) for b in bounds])
         self.robot_radius = p['robot_radius']
+        self.costmap_threshold = p['costmap_threshold']
         self.collisions = 0  # steps ended closer than robot_radius to an obstacle
 
         self._lock = threading.Lock()

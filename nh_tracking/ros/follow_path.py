@@ -1,0 +1,155 @@
+# Copyright 2026 nh_tracking maintainers
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+
+"""The ``follow_path`` action (nav2_msgs/action/FollowPath): what Nav2's BT navigator drives.
+
+Served as Nav2's controller_server serves it: a goal's path becomes the reference; a new goal
+preempts the running one without stopping the robot; feedback (distance along the path to its
+end, speed) at :data:`FEEDBACK_RATE`; the result says arrived (NONE), blocked
+(FAILED_TO_MAKE_PROGRESS), a path the input checks refuse (INVALID_PATH, with the reason) or
+an unknown plugin id (INVALID_CONTROLLER). Cancel brings the robot to rest. The execute
+callback is a coroutine that waits on a timer's futures, so the node's single-threaded
+executor is never held.
+"""
+from __future__ import annotations
+
+from typing import Any, TYPE_CHECKING
+
+from rclpy.action import ActionServer, CancelResponse, GoalResponse
+from rclpy.task import Future
+
+from nh_tracking.goal_checking import GoalState
+from nh_tracking.ros import conversions as cv
+from nh_tracking.ros.path_input import take_path
+
+if TYPE_CHECKING:
+    from nh_tracking.ros.planner_node import PlannerNode
+
+try:
+    from nav2_msgs.action import FollowPath
+except ImportError:  # no nav2_msgs: the planner runs without the action (and says so)
+    FollowPath = None
+
+FEEDBACK_RATE = 10.0  # [Hz]
+# the ids a goal may name (besides ''), as the plugins of a Nav2 controller_server are named
+CONTROLLER_ID, GOAL_CHECKER_ID, PROGRESS_CHECKER_ID = 'FollowPath', 'goal_checker', \
+    'progress_checker'
+
+
+def plugin_problem(goal: Any) -> str:
+    """Why a goal's plugin ids are not this planner's ('' if they are)."""
+    for field, own in (('controller_id', CONTROLLER_ID), ('goal_checker_id', GOAL_CHECKER_ID),
+                       ('progress_checker_id', PROGRESS_CHECKER_ID)):
+        value = getattr(goal, field)
+        if value not in ('', own):
+            return f"{field} '{value}' is not this planner's (give '' or '{own}')"
+    return ''
+
+
+class FollowPathServer:
+    """The action on ``node``, while it is configured; :meth:`close` ends every goal."""
+
+    def __init__(self, node: PlannerNode) -> None:
+        self.node = node
+        self._current: Any = None  # the goal handle in force; older ones are preempted
+        self._ticks: list[Future] = []
+        self._timer = node.create_timer(1.0 / FEEDBACK_RATE, self._tick)
+        self.server = ActionServer(node, FollowPath, 'follow_path', self._execute,
+                                   goal_callback=self._on_goal,
+                                   handle_accepted_callback=self._on_accepted,
+                                   cancel_callback=lambda handle: CancelResponse.ACCEPT)
+
+    @classmethod
+    def serve(cls, node: PlannerNode) -> FollowPathServer | None:
+        """Serve the action on ``node``; None (and one warning) without nav2_msgs."""
+        if FollowPath is None:
+            node.get_logger().warn('nav2_msgs is not installed: no follow_path action')
+            return None
+        return cls(node)
+
+    def close(self) -> None:
+        self._current = None
+        self._tick()
+        self.server.destroy()
+        self.node.destroy_timer(self._timer)
+
+    def _tick(self) -> None:
+        ticks, self._ticks = self._ticks, []
+        for future in ticks:
+            future.set_result(None)
+
+    def _next_tick(self) -> Future:
+        future = Future()
+        self._ticks.append(future)
+        return future
+
+    def _on_goal(self, request: Any) -> GoalResponse:
+        session = self.node.session
+        if session is None or not session.active:
+            self.node.get_logger().warn('follow_path goal rejected: the planner is not active')
+            return GoalResponse.REJECT
+        return GoalResponse.ACCEPT
+
+    def _on_accepted(self, handle: Any) -> None:
+        self._current = handle  # the goal before it sees that it was preempted
+        handle.execute()
+
+    async def _execute(self, handle: Any) -> Any:
+        node, result = self.node, FollowPath.Result()
+        problem = plugin_problem(handle.request)
+        if problem:
+            return self._end(handle, FollowPath.Result.INVALID_CONTROLLER, problem)
+        try:
+            take_path(node, handle.request.path, goal=True)
+        except cv.InputRejected as exc:
+            node.reject('follow_path goal', str(exc))
+            return self._end(handle, FollowPath.Result.INVALID_PATH, str(exc))
+        following = node.live.following
+        generation = following.generation
+        while True:
+            await self._next_tick()
+            session = node.session
+            if self._current is not handle:
+                return self._end(handle, FollowPath.Result.NONE, 'preempted by a newer goal')
+            if session is None or not session.active:
+                return self._end(handle, FollowPath.Result.UNKNOWN, 'the planner was '
+                                 'deactivated')
+            if handle.is_cancel_requested:
+                following.halt()
+                handle.canceled()
+                return result
+            if following.generation != generation:
+                return self._end(handle, FollowPath.Result.NONE, 'replaced by a reference '
+                                 'on reference_path or reference_trajectory')
+            status = session.following.status
+            handle.publish_feedback(FollowPath.Feedback(distance_to_goal=status.remaining,
+                                                        speed=status.speed))
+            if status.state is GoalState.ARRIVED:
+                handle.succeed()
+                self._current = None
+                return result
+            if status.state is GoalState.BLOCKED:
+                following.halt()
+                s = following.goal_settings
+                return self._end(handle, FollowPath.Result.FAILED_TO_MAKE_PROGRESS,
+                                 f'no progress: moved less than {s.required_movement_radius:g} '
+                                 f'm in {s.movement_time_allowance:g} s')
+
+    def _end(self, handle: Any, code: int, why: str) -> Any:
+        """Abort ``handle`` with ``code`` and ``why``."""
+        if self._current is handle:
+            self._current = None
+        handle.abort()
+        self.node.get_logger().info(f'follow_path goal aborted: {why}')
+        return FollowPath.Result(error_code=code, error_msg=why)
