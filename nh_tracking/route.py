@@ -220,26 +220,26 @@ def _tangent(positions: np.ndarray, piece: np.ndarray) -> np.ndarray:
 
 
 def _curvature(lengths: np.ndarray, direction: np.ndarray, piece: np.ndarray) -> np.ndarray:
-    """|curvature| at each point: the tangent's turn over :data:`CURVATURE_WINDOW` of route."""
+    """|curvature| at each point: the turn between the segments :data:`CURVATURE_WINDOW` / 2
+    behind and ahead of it, over the route between their middles (exact on a regular polygon).
+    """
     arc = np.r_[0.0, np.cumsum(lengths)]
+    middle = arc[:-1] + lengths / 2
     heading = np.unwrap(direction)
-    segment_piece = piece[:-1]
     out = np.zeros(len(arc))
     half = CURVATURE_WINDOW / 2
-    for p in np.unique(segment_piece):
-        segments = np.flatnonzero(segment_piece == p)
-        start, end = arc[segments[0]], arc[segments[-1] + 1]
+    for p in np.unique(piece[:-1]):
+        segments = np.flatnonzero(piece[:-1] == p)
         points = np.arange(segments[0], segments[-1] + 2)
-        lo = np.maximum(arc[points] - half, start)
-        hi = np.minimum(arc[points] + half, end)
         ends = arc[segments + 1]
 
-        def at(s: np.ndarray) -> np.ndarray:
-            return heading[segments[np.minimum(np.searchsorted(ends, s - 1e-12),
-                                               len(segments) - 1)]]
-        span = np.maximum(hi - lo, 1e-9)
-        out[points] = np.abs(at(hi) - at(lo)) / np.maximum(span, min(CURVATURE_WINDOW,
-                                                                     end - start))
+        def segment_at(s: np.ndarray) -> np.ndarray:
+            return segments[np.minimum(np.searchsorted(ends, s), len(segments) - 1)]
+        behind, ahead = segment_at(arc[points] - half), segment_at(arc[points] + half)
+        span = middle[ahead] - middle[behind]
+        with np.errstate(divide='ignore', invalid='ignore'):
+            out[points] = np.where(ahead > behind, np.abs(heading[ahead] - heading[behind])
+                                   / np.where(span > 0, span, 1.0), 0.0)
     return out
 
 
@@ -251,11 +251,14 @@ def _speed_profile(lengths: np.ndarray, direction: np.ndarray, piece: np.ndarray
     with np.errstate(divide='ignore'):
         cap = np.minimum(settings.reference_speed,
                          np.sqrt(settings.max_lateral_accel / curvature))
+    a = settings.max_accel
+    arc = np.r_[0.0, np.cumsum(lengths)]
+    # a robot faster than the limits slows down from its speed at max_accel, not at once
+    cap = np.maximum(cap, np.sqrt(np.maximum(start_speed ** 2 - 2 * a * arc, 0.0)))
+    cap[0] = max(start_speed, 0.0)
     cap[-1] = 0.0
     cap[cusp_at] = 0.0
-    cap[0] = min(cap[0], max(start_speed, 0.0))
     speed = cap.copy()
-    a = settings.max_accel
     for j in range(len(lengths)):
         speed[j + 1] = min(speed[j + 1], np.sqrt(speed[j] ** 2 + 2 * a * lengths[j]))
     for j in range(len(lengths) - 1, -1, -1):

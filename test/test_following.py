@@ -1,0 +1,178 @@
+# Copyright 2026 nh_tracking maintainers
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+
+"""Goals, progress, and the path in force of a session, without ROS: closed loops included."""
+import time
+
+import numpy as np
+import pytest
+
+import nh_tracking as nht
+from nh_tracking.goal_checking import (GoalChecker, GoalSettings, GoalState, PathProgress,
+                                       ProgressChecker)
+from nh_tracking.receding_horizon import PlannerSettings
+from nh_tracking.reference_checks import ReferenceRejected
+from nh_tracking.route import closest_point
+from nh_tracking.session import TrackingSession
+from test_route import arc, polyline
+
+
+def test_the_goal_checker_wants_the_pose_the_heading_the_rest_and_the_whole_path():
+    checker = GoalChecker(GoalSettings())
+    goal = np.array([1.0, 1.0, 0.0, 0.5])
+    near = np.array([1.1, 0.9, 0.0, 0.6])
+    assert checker.reached(near, goal, np.zeros(4), 0.1)
+    assert not checker.reached(near, goal, np.array([0.3, 0, 0, 0]), 0.1)  # still moving
+    assert not checker.reached(near, goal, np.array([0, 0, 0, 0.3]), 0.1)  # still turning
+    assert not checker.reached(near + [0, 0, 0, 0.3], goal, np.zeros(4), 0.1)
+    assert not checker.reached(near + [0.3, 0, 0, 0], goal, np.zeros(4), 0.1)
+    assert not checker.reached(near, goal, np.zeros(4), 3.0)  # a loop: the end is ahead
+    assert GoalChecker(GoalSettings(), has_yaw=False).reached(near + [0, 0, 0, 2], goal,
+                                                             np.zeros(4), 0.1)
+
+
+def test_progress_is_movement_of_a_radius_within_the_allowance():
+    checker = ProgressChecker(GoalSettings(required_movement_radius=0.5,
+                                           movement_time_allowance=10.0))
+    assert all(checker.moving(np.array([0.06 * t, 0.0]), t) for t in np.arange(0, 20, 0.5))
+    stuck = [checker.moving(np.array([5.0 + 0.01 * t, 0.0]), 20 + t) for t in range(15)]
+    assert stuck[:11] == [True] * 11 and not any(stuck[11:])
+    assert checker.moving(np.array([2.0, 0.0]), 36.0)  # it got going again
+
+
+def test_the_place_on_a_loop_goes_round_it():
+    loop = polyline((0, 0), (2, 0), (2, 2), (0, 2), (0, 0))[:, :2]
+    progress = PathProgress(loop)
+    remaining = [progress.remaining(p + [0.02, -0.03]) for p in loop[::4]]
+    assert remaining[0] == pytest.approx(8.0, abs=0.05)
+    assert np.all(np.diff(remaining) < 0) and remaining[-1] < 0.05
+
+
+class Loop:
+    """A session on a clock of its own, its robot integrated on the model's dynamics."""
+
+    def __init__(self, model='unicycle', dt=0.1, **settings):
+        self.ns, self.dt = 0, dt
+        self.logs: list[tuple[str, str]] = []
+        self.session = TrackingSession(model, {}, PlannerSettings(**settings), lambda: self.ns,
+                                       log=lambda level, text: self.logs.append((level, text)))
+        self.session.planner.prepare()
+        self.session.active = True
+        system = self.session.system
+        self.q, self.v = np.zeros(system.n), np.zeros(system.k)
+        self.odometry()
+
+    def odometry(self) -> None:
+        pose_map = self.session.pose_map
+        self.session.set_odometry(self.ns, pose_map.pose(self.q),
+                                  pose_map.body_twist(self.q, self.v), time.perf_counter())
+
+    def run(self, seconds: float) -> np.ndarray:
+        """Close the loop; rows (t, x, y, yaw, forward speed)."""
+        rows, pose_map = [], self.session.pose_map
+        for _ in range(int(round(seconds / self.dt))):
+            plan = self.session.replan().outcome.plan
+            motion = nht.simulate(self.session.system, self.q, self.v, [0, self.dt], plan.u[:1])
+            self.q, self.v = motion.q[-1], motion.v[-1]
+            self.ns += int(self.dt * 1e9)
+            self.odometry()
+            pose = pose_map.pose(self.q)
+            rows.append((self.ns * 1e-9, pose[0], pose[1], pose[3],
+                         pose_map.body_twist(self.q, self.v)[0]))
+        return np.array(rows)
+
+
+def cross_track(rows: np.ndarray, route: np.ndarray) -> np.ndarray:
+    return np.array([np.hypot(*(closest_point(route[:, :2], p)[1] - p)) for p in rows[:, 1:3]])
+
+
+@pytest.mark.parametrize('model, route', [
+    ('unicycle', polyline((0, 0), (2, 0), (2, 2))),  # a sharp 90-degree corner
+    ('unicycle', np.vstack([polyline((0, 0), (1.5, 0)), arc(0.5, np.pi / 2)[1:] + [1.5, 0, 0, 0],
+                            polyline((2, 0.5), (2, 2))[1:]])),
+    ('rolling_disk', polyline((0, 0), (1.5, 0.5), (3, 0))),  # a model no issue names
+])
+def test_a_route_is_tracked_to_rest_at_its_end(model, route):
+    loop = Loop(model, epsilon=0.05)
+    loop.session.following.set_route(route)
+    rows = loop.run(14.0)
+    error = cross_track(rows, route)
+    status = loop.session.following.status
+    cruise = rows[(rows[:, 0] > 2.0) & (rows[:, 0] < 3.0), 4]
+    print(f'\n{model}: cross-track after 2 s {error[rows[:, 0] > 2].max():.3f} m, speed '
+          f'{cruise.min():.3f}-{cruise.max():.3f} m/s, {status.state} at '
+          f'{np.hypot(*(rows[-1, 1:3] - route[-1, :2])):.4f} m from the end')
+    assert error[rows[:, 0] > 2].max() <= 0.05
+    assert np.all(np.abs(cruise - 0.5) <= 0.05)
+    assert status.state is GoalState.ARRIVED
+    assert np.hypot(*(rows[-1, 1:3] - route[-1, :2])) < 0.02 and abs(rows[-1, 4]) < 0.01
+
+
+def test_a_route_sent_again_changes_nothing_and_a_new_one_keeps_the_speed():
+    loop = Loop()
+    following = loop.session.following
+    route = polyline((0, 0), (6, 0))
+    assert following.set_route(route) is not None
+    reference = loop.session.planner.reference
+    loop.run(3.0)
+    assert following.set_route(route.copy()) is None  # Nav2 re-sending its path
+    assert loop.session.planner.reference is reference
+    speed = loop.run(0.1)[-1, 4]
+    x = loop.q[0]
+    again = polyline((x, 0.01), (6, 0))  # a new path from near the robot to the same goal
+    timed = following.set_route(again)
+    assert timed is not None and timed.route.speeds[0] == pytest.approx(speed, abs=0.02)
+    rows = loop.run(3.0)
+    assert rows[:, 4].min() > 0.45  # it never slowed down for it
+
+
+def test_timed_references_that_cannot_be_meant_are_refused_or_warned():
+    loop = Loop()
+    loop.ns = 100 * 10**9  # the clock at 100 s
+    following, t = loop.session.following, np.linspace(0, 2, 11)
+    poses = np.c_[0.25 * t, 0 * t, 0 * t, 0 * t]
+    with pytest.raises(ReferenceRejected, match=r'ended 98 s ago.*header stamp of 0'):
+        following.set_reference(t, poses, None)  # pose stamps read as absolute: 1970
+    following.set_reference(t + 98.5, poses, None)
+    assert loop.logs[-1][0] == 'warn' and 'starts 1.5 s before now' in loop.logs[-1][1]
+    following.set_reference(t + 161.0, poses, None)
+    assert 'starts 61 s after now' in loop.logs[-1][1]
+    count = len(loop.logs)
+    following.set_reference(t + 100.5, poses, None)  # on time: no word
+    assert len(loop.logs) == count
+    loop.session.following.route_settings = nht.route.RouteSettings(reference_speed=0.0)
+    with pytest.raises(ReferenceRejected, match='reference_speed is 0'):
+        following.set_route(poses)
+
+
+def test_a_route_is_slowed_into_the_velocity_bounds_and_a_cancel_brings_it_to_rest():
+    loop = Loop(v_max=[0.3, 1.0])
+    following = loop.session.following
+    timed = following.set_route(polyline((0, 0), (4, 0)))
+    assert 0.29 < np.abs(timed.twists[:, 0]).max() <= 0.3
+    loop.run(4.0)
+    assert loop.v[0] > 0.25
+    following.halt()
+    assert loop.session.command(loop.ns).tolist() == [0, 0, 0, 0]  # cmd_vel: zero at once
+    rows = loop.run(3.0)
+    assert abs(rows[-1, 4]) < 0.05 and following.status.state is GoalState.NONE
+
+
+def test_a_robot_that_cannot_get_on_is_blocked():
+    loop = Loop(v_max=[0.3, 1.0], u_max=[0.0, 1.0], u_min=[-1.0, -1.0])  # no push forward
+    following = loop.session.following
+    following.goal_settings = GoalSettings(movement_time_allowance=2.0)
+    following.set_route(polyline((0, 0), (4, 0)))
+    loop.run(3.0)
+    assert following.status.state is GoalState.BLOCKED

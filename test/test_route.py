@@ -1,0 +1,129 @@
+# Copyright 2026 nh_tracking maintainers
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+
+"""Untimed routes timed: against closed forms, their own limits, and the pose maps of models."""
+import numpy as np
+import pytest
+
+from nh_tracking import models
+from nh_tracking.poses import PoseMap
+from nh_tracking.route import closest_point, RouteHeadings, RouteSettings, time_route
+
+
+def polyline(*corners, spacing=0.05) -> np.ndarray:
+    """Poses (N, 4) every ``spacing`` along straight legs between ``corners``, heading 0."""
+    points = [np.asarray(corners[0], dtype=float)]
+    for a, b in zip(corners, corners[1:]):
+        a, b = np.asarray(a, dtype=float), np.asarray(b, dtype=float)
+        count = max(1, int(np.ceil(np.hypot(*(b - a)) / spacing)))
+        points += [a + (b - a) * f for f in np.arange(1, count + 1) / count]
+    xy = np.array(points)
+    return np.c_[xy, np.zeros(len(xy)), np.zeros(len(xy))]
+
+
+def arc(radius: float, sweep: float, spacing=0.05) -> np.ndarray:
+    """Poses along a circle about (0, radius) from the origin, heading 0 (unset)."""
+    a = np.linspace(0.0, sweep, int(np.ceil(radius * sweep / spacing)) + 1)
+    return np.c_[radius * np.sin(a), radius * (1 - np.cos(a)), 0 * a, 0 * a]
+
+
+def test_a_straight_route_from_rest_takes_the_trapezoid_time():
+    s = RouteSettings(reference_speed=0.5, max_accel=0.25)
+    route = time_route(polyline((0, 0), (4, 0)), np.zeros(2), 0.0, s)
+    # accelerate for v/a, cruise, decelerate for v/a: T = L/v + v/a
+    assert route.times[-1] == pytest.approx(4 / 0.5 + 0.5 / 0.25, rel=1e-3)
+    assert route.speeds[0] == 0 and route.speeds[-1] == 0 and route.speeds.max() == 0.5
+    np.testing.assert_allclose(route.poses[-1, :2], [4, 0])
+
+
+def test_on_an_arc_the_speed_keeps_the_lateral_acceleration():
+    for radius, expected in ((0.4, np.sqrt(0.5 * 0.4)), (3.0, 0.5)):
+        route = time_route(arc(radius, np.pi), np.zeros(2), 0.0, RouteSettings())
+        middle = np.argmin(np.abs(route.times - route.times[-1] / 2))
+        assert route.speeds[middle] == pytest.approx(expected, rel=0.02)
+        assert route.headings is RouteHeadings.TANGENT  # unset headings on a turning route
+        # the tangent's heading on a circle is the angle swept, a closed form
+        swept = np.arctan2(route.poses[middle, 0], radius - route.poses[middle, 1])
+        assert route.poses[middle, 3] == pytest.approx(swept, abs=0.01)
+
+
+def test_speeds_keep_every_limit_on_random_routes():
+    rng = np.random.default_rng(4)
+    for _ in range(20):
+        corners = np.cumsum(rng.uniform(-1.5, 1.5, (int(rng.integers(2, 7)), 2)), axis=0)
+        s = RouteSettings(reference_speed=float(rng.uniform(0.1, 2.0)),
+                          max_accel=float(rng.uniform(0.1, 2.0)),
+                          max_lateral_accel=float(rng.uniform(0.1, 2.0)))
+        start_speed = float(rng.uniform(0.0, 1.0))
+        route = time_route(polyline(*corners), corners[0], start_speed, s)
+        v = np.abs(route.speeds)
+        gaps = np.hypot(*np.diff(route.poses[:, :2], axis=0).T)
+        assert np.all(np.diff(route.times) > 0) and v[-1] == 0
+        assert v.max() <= max(s.reference_speed, start_speed) + 1e-9
+        # speed changes within max_accel: v1^2 - v0^2 = 2 a ds
+        assert np.all(np.abs(np.diff(v ** 2)) <= 2 * s.max_accel * gaps + 1e-9)
+        # each segment is covered at the mean of its end speeds, in the time given
+        covered = 0.5 * (v[1:] + v[:-1]) * np.diff(route.times)
+        moving = v[1:] + v[:-1] > 1e-9
+        np.testing.assert_allclose(covered[moving], gaps[moving], rtol=1e-9)
+
+
+def test_a_start_speed_is_kept_and_a_robot_beside_the_route_starts_at_its_closest_point():
+    s = RouteSettings()
+    route = time_route(polyline((0, 0), (6, 0)), np.array([2.0, 0.3]), 0.5, s)
+    np.testing.assert_allclose(route.poses[0, :2], [2.0, 0.0], atol=1e-12)
+    assert route.speeds[0] == pytest.approx(0.5) and route.length == pytest.approx(4.0)
+    # a loop ending where it starts is not finished before it begins
+    loop = polyline((0, 0), (2, 0), (2, 2), (0, 2), (0, 0))
+    assert time_route(loop, np.zeros(2), 0.0, s).length == pytest.approx(8.0)
+    assert closest_point(loop[:, :2], np.zeros(2))[0] in (0, len(loop) - 2)
+
+
+def test_a_cusp_is_a_stop_and_a_reverse_with_the_heading_kept():
+    poses = polyline((0, 0), (2, 0), (0.5, 0))  # out and back: a car's three-point turn
+    route = time_route(poses, np.zeros(2), 0.0, RouteSettings(route_headings='tangent'))
+    assert route.cusps == 1
+    cusp = int(np.argmin(np.abs(route.poses[:, 0] - 2.0)))
+    assert route.speeds[cusp] == 0
+    assert np.all(route.speeds[:cusp] >= 0) and np.all(route.speeds[cusp + 1:] <= 0)
+    assert np.abs(route.poses[:, 3]).max() < 1e-9  # facing +x throughout: backing up
+    assert np.all(route.twists[cusp + 1:-1, 0] < 0)
+
+
+def test_headings_come_from_the_poses_when_they_carry_some():
+    turning = arc(1.0, np.pi / 2)
+    own = turning.copy()
+    own[:, 3] = np.linspace(0.3, 0.9, len(own))
+    assert time_route(own, np.zeros(2), 0.0, RouteSettings()).headings is RouteHeadings.POSES
+    along_x = polyline((0, 0), (3, 0))  # identity orientations on a route along them
+    assert time_route(along_x, np.zeros(2), 0.0, RouteSettings()).headings is \
+        RouteHeadings.POSES
+    along_y = polyline((0, 0), (0, 3))
+    route = time_route(along_y, np.zeros(2), 0.0, RouteSettings())
+    assert route.headings is RouteHeadings.TANGENT
+    np.testing.assert_allclose(route.poses[:, 3], np.pi / 2)
+    forced = time_route(turning, np.zeros(2), 0.0, RouteSettings(route_headings='poses'))
+    assert np.abs(forced.poses[:, 3]).max() == 0
+
+
+def test_a_route_reaches_the_pose_map_of_models_it_was_not_written_for():
+    """The derived twists, projected onto D, agree with each model's own velocities."""
+    route = time_route(arc(1.0, np.pi / 2), np.zeros(2), 0.3, RouteSettings())
+    for name in ('unicycle', 'chaplygin_sleigh', 'rolling_disk'):
+        pose_map = PoseMap(models.create(name))
+        reference = pose_map.reference(route.times, route.poses, route.twists)
+        assert np.all(np.isfinite(reference.v))
+        # the body twist of each reference state is the route's own (no slip asked for)
+        twists = np.array([pose_map.body_twist(q, v) for q, v in zip(reference.q, reference.v)])
+        np.testing.assert_allclose(twists[:, [0, 3]], route.twists[:, [0, 3]], atol=1e-6)
