@@ -22,6 +22,7 @@ from pathlib import Path
 import sys
 import types
 
+import pytest
 import yaml
 
 from nh_tracking.ros import planner_node, simulator_node
@@ -38,13 +39,19 @@ def _console_scripts() -> set[str]:
             if '= nh_tracking' in line}
 
 
-def test_parameter_file_lists_every_parameter_with_its_default():
-    params = yaml.safe_load((ROOT / 'config' / 'sleigh.yaml').read_text())
+# what config/diff_drive.yaml (a Nav2 diff-drive robot) sets otherwise than the defaults
+DIFF_DRIVE = {'model': 'unicycle', 'epsilon': 0.05, 'robot_radius': 0.2}
+
+
+@pytest.mark.parametrize('name, changed', [('sleigh.yaml', {}), ('diff_drive.yaml', DIFF_DRIVE)])
+def test_parameter_files_list_every_parameter_with_its_default(name, changed):
+    params = yaml.safe_load((ROOT / 'config' / name).read_text())
     assert set(params) == set(SECTIONS)
     for section, specs in SECTIONS.items():
         values = params[section]['ros__parameters']
         expected = {s.name: list(s.default) if isinstance(s.default, tuple) else s.default
                     for s in (MODEL, *specs, *model_specs(values['model']))}
+        expected.update({k: v for k, v in changed.items() if k in expected})
         if section.endswith('sim'):
             expected['initial_state'] = [0.0] * 5
         assert values == expected, section
