@@ -31,6 +31,7 @@ import numpy as np
 from nh_tracking.settings import check_fields, setting
 
 SPACING = 0.05  # [m] longer segments are cut: speeds change along a route, not between poses
+MAX_POINTS = 20_000  # a longer route is cut more coarsely (a 100 km route: every 5 m)
 CURVATURE_WINDOW = 0.2  # [m] curvature is the tangent's turn over this much of the route
 CUSP_TURN = np.deg2rad(135.0)  # a turn sharper than this between two segments is a cusp
 SEARCH_MARGIN = 1.0  # [m] the closest point is looked for this far past the robot's distance
@@ -165,19 +166,21 @@ def _wrap(angle: np.ndarray) -> np.ndarray:
 
 
 def _resampled(poses: np.ndarray) -> np.ndarray:
-    """``poses`` with every segment longer than :data:`SPACING` cut into equal parts."""
+    """``poses`` with every segment longer than :data:`SPACING` cut into equal parts.
+
+    Or longer than a :data:`MAX_POINTS`-th of the route: the work stays bounded.
+    """
     lengths = np.hypot(*np.diff(poses[:, :2], axis=0).T)
-    parts = np.maximum(1, np.ceil(lengths / SPACING - 1e-9).astype(int))
+    spacing = max(SPACING, lengths.sum() / MAX_POINTS)
+    parts = np.maximum(1, np.ceil(lengths / spacing - 1e-9).astype(int))
     if (parts == 1).all():
         return poses
-    yaw = np.unwrap(poses[:, 3])
-    rows = [poses[:1]]
-    for j, count in enumerate(parts):
-        f = (np.arange(1, count + 1) / count)[:, None]
-        row = poses[j] + f * (poses[j + 1] - poses[j])
-        row[:, 3] = yaw[j] + f[:, 0] * (yaw[j + 1] - yaw[j])
-        rows.append(row)
-    return np.vstack(rows)
+    poses = np.c_[poses[:, :3], np.unwrap(poses[:, 3])]
+    segment = np.repeat(np.arange(len(parts)), parts)
+    fraction = (np.arange(parts.sum()) - np.repeat(np.cumsum(parts) - parts, parts) + 1) \
+        / np.repeat(parts, parts)
+    cut = poses[segment] + fraction[:, None] * (poses[segment + 1] - poses[segment])
+    return np.vstack([poses[:1], cut])
 
 
 def _choose_headings(poses: np.ndarray, positions: np.ndarray, direction: np.ndarray,
@@ -220,8 +223,10 @@ def _tangent(positions: np.ndarray, piece: np.ndarray) -> np.ndarray:
 
 
 def _curvature(lengths: np.ndarray, direction: np.ndarray, piece: np.ndarray) -> np.ndarray:
-    """|curvature| at each point: the turn between the segments :data:`CURVATURE_WINDOW` / 2
-    behind and ahead of it, over the route between their middles (exact on a regular polygon).
+    """|curvature| at each point, over :data:`CURVATURE_WINDOW` of route.
+
+    The turn between the segments half the window behind and ahead of the point, over the route
+    between their middles: exact on a regular polygon.
     """
     arc = np.r_[0.0, np.cumsum(lengths)]
     middle = arc[:-1] + lengths / 2

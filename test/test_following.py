@@ -38,8 +38,8 @@ def test_the_goal_checker_wants_the_pose_the_heading_the_rest_and_the_whole_path
     assert not checker.reached(near + [0, 0, 0, 0.3], goal, np.zeros(4), 0.1)
     assert not checker.reached(near + [0.3, 0, 0, 0], goal, np.zeros(4), 0.1)
     assert not checker.reached(near, goal, np.zeros(4), 3.0)  # a loop: the end is ahead
-    assert GoalChecker(GoalSettings(), has_yaw=False).reached(near + [0, 0, 0, 2], goal,
-                                                             np.zeros(4), 0.1)
+    blind = GoalChecker(GoalSettings(), has_yaw=False)  # a model without a heading
+    assert blind.reached(near + [0, 0, 0, 2], goal, np.zeros(4), 0.1)
 
 
 def test_progress_is_movement_of_a_radius_within_the_allowance():

@@ -12,8 +12,9 @@
 # See the License for the specific language governing permissions and
 # limitations under the License.
 
-"""Driven as Nav2 drives a controller: planner and simulator as separate processes, with
-config/diff_drive.yaml, untimed routes on ``reference_path`` and as ``follow_path`` goals,
+"""Driven as Nav2 drives a controller: planner and simulator as separate processes.
+
+With config/diff_drive.yaml, untimed routes on ``reference_path`` and as ``follow_path`` goals,
 Nav2-style costmaps.
 """
 from collections.abc import Iterator
@@ -30,10 +31,10 @@ import numpy as np
 import pytest
 from rclpy.action import ActionClient
 
-from nh_tracking.route import closest_point
 from nh_tracking.ros import messages as msgs
 from nh_tracking.ros.graph import wait_until
 from nh_tracking.ros.planner_interface import LATCHED
+from nh_tracking.route import closest_point
 from processes import domain_env, Peer, Process
 from test_route import arc, polyline
 
@@ -44,7 +45,7 @@ L_TURN = polyline((0, 0), (2, 0), (2, 2))  # a pose every 5 cm, a sharp 90-degre
 
 
 def route_msg(poses: np.ndarray, stamp_ns: int = 0) -> Path:
-    """A Path as Nav2's planners publish it: every pose with the header's stamp."""
+    """Return a Path as Nav2's planners publish it: every pose with the header's stamp."""
     msg = msgs.path_msg('odom', [stamp_ns] * len(poses), poses)
     msg.header.stamp = msgs.time_msg(stamp_ns)
     return msg
@@ -102,9 +103,9 @@ def result_of(handle, timeout: float):
 
 
 @contextmanager
-def nav2_pair(*planner: str, sim: tuple[str, ...] = ()) -> Iterator[tuple[Robot, Process,
-                                                                           Process]]:
-    """Planner and simulator from config/diff_drive.yaml (``planner``/``sim``: name:=value)."""
+def nav2_pair(*planner: str, sim: tuple[str, ...] = ()
+              ) -> Iterator[tuple[Robot, Process, Process]]:
+    """Run planner and simulator from config/diff_drive.yaml (``planner``/``sim``: name:=value)."""
     env = domain_env()
     peer = Peer(env)
     processes = []
@@ -165,7 +166,7 @@ def test_an_untimed_route_is_driven_at_its_speed_and_ends_at_rest_in_the_goal(mo
               f'{straights.max():.3f} m/s, cross-track after 2 s {error.max():.3f} m, arrived '
               f'after {arrived:.1f} s, at rest {end:.3f} m from the goal, overshoot '
               f'{max(overshoot, 0):.3f} m, heading {track[-1, 3]:.3f} rad')
-        assert 'headings from the route\'s tangent' in planner.output
+        assert "headings from the route's tangent" in planner.output
         assert len(straights) > 40 and np.all(np.abs(straights - SPEED) <= 0.1 * SPEED)
         assert error.max() <= 0.05
         assert end <= TOLERANCE and overshoot <= TOLERANCE / 2
@@ -237,9 +238,11 @@ def test_cancel_brings_the_robot_to_rest_and_bad_goals_are_refused_with_the_reas
 
 def nav2_costmap(blocks: list[tuple[float, float, float, float]], inflation: float = 0.55,
                  scaling: float = 3.0, resolution: float = 0.05) -> OccupancyGrid:
-    """A Nav2 costmap as published: rectangles (x0, y0, x1, y1) lethal (100), cells within the
-    robot's radius inscribed (99), inflated 98..1 out to ``inflation``, as the inflation layer
-    grades them (exp(-scaling (d - radius)) scaled onto 1..98)."""
+    """Return a Nav2 costmap as published around rectangles (x0, y0, x1, y1).
+
+    Lethal (100) inside, inscribed (99) within the robot's radius, inflated 98..1 out to
+    ``inflation``, as the inflation layer grades them (exp(-scaling (d - radius)) onto 1..98).
+    """
     grid = OccupancyGrid()
     grid.header.frame_id = 'odom'
     grid.info.resolution, grid.info.width, grid.info.height = resolution, 140, 80
@@ -307,3 +310,76 @@ def test_a_wall_across_the_route_fails_to_make_progress_in_time_without_collisio
         assert wait_until(lambda: robot.blocked and robot.blocked[-1] > sent, 6.0 + 4.0)
         print(f'reference_path route into it: blocked {robot.blocked[-1] - sent:.1f} s after '
               'it was sent')
+
+
+def fuzzed_goal(rng: np.random.Generator) -> FollowPath.Goal:
+    """Return a goal from a route or timed path with 0-2 of the faults a client may send."""
+    poses = polyline((0, 0), tuple(rng.uniform(-3, 3, 2)), tuple(rng.uniform(-3, 3, 2)))
+    poses[:, 3] = rng.uniform(-np.pi, np.pi) if rng.integers(2) else 0.0
+    now = time.time_ns()
+    stamps = [now] * len(poses) if rng.integers(2) else [
+        now + int(i * 1e8) for i in range(len(poses))]
+    msg = msgs.path_msg('odom', stamps, poses)
+    ids = {}
+    for _ in range(int(rng.integers(3))):
+        if not msg.poses:
+            break
+        fault = int(rng.integers(8))
+        pose = msg.poses[int(rng.integers(len(msg.poses)))]
+        if fault == 0:
+            pose.pose.position.y = float(rng.choice([np.nan, np.inf, 1e300]))
+        elif fault == 1:
+            pose.pose.orientation.w = 2.0
+        elif fault == 2:
+            msg.header.frame_id = 'map'
+        elif fault == 3:
+            msg.poses = msg.poses[:int(rng.integers(2))]  # empty, or one pose
+        elif fault == 4:
+            pose.header.stamp = msgs.time_msg(0)  # out of order, or in 1970
+        elif fault == 5:
+            msg.header.stamp = msgs.time_msg(now)
+            for j, p in enumerate(msg.poses):  # relative stamps under a header of now
+                p.header.stamp = msgs.time_msg(int(j * 1e8))
+        elif fault == 6:
+            ids[str(rng.choice(['controller_id', 'goal_checker_id', 'progress_checker_id']))] = \
+                str(rng.choice(['', 'FollowPath', 'DWB', 'goal_checker', 'x' * 300]))
+        else:
+            pose.pose.position.x += 1e5  # far, but finite: a route 100 km long
+    return FollowPath.Goal(path=msg, **ids)
+
+
+def test_fuzzed_follow_path_goals_each_get_a_result_and_the_planner_carries_on(graph):
+    from nh_tracking.ros.graph import parameters
+    from nh_tracking.ros.planner_node import PlannerNode
+    from nh_tracking.ros.simulator_node import SimulatorNode
+    from test_ros import unique_namespace
+    from test_ros_reliability import _finite_message, _record_outputs
+
+    ns = unique_namespace()
+    sim = graph.add(SimulatorNode, namespace=ns, parameter_overrides=parameters(model='unicycle'))
+    planner = graph.add(PlannerNode, namespace=ns, parameter_overrides=parameters(
+        model='unicycle', steps=20, horizon=2.0))
+    published = _record_outputs(planner)
+    client = ActionClient(graph.plain_node('fuzzer', ns), FollowPath, 'follow_path')
+    assert client.wait_for_server(30.0)
+    rng, results = np.random.default_rng(7), []
+    for _ in range(60):
+        sent = client.send_goal_async(fuzzed_goal(rng))
+        assert wait_until(sent.done, 30.0)
+        handle = sent.result()
+        assert handle.accepted
+        results.append(handle.get_result_async())
+        time.sleep(float(rng.uniform(0.0, 0.3)))  # preempted by the next, or ended
+    assert wait_until(handle.cancel_goal_async().done, 10.0)  # (the last one may still run)
+    assert wait_until(lambda: all(r.done() for r in results), 60.0)
+    codes = [(r.result().status, r.result().result.error_code) for r in results]
+    known = {FollowPath.Result.NONE, FollowPath.Result.INVALID_CONTROLLER,
+             FollowPath.Result.INVALID_PATH, FollowPath.Result.FAILED_TO_MAKE_PROGRESS}
+    print(f'\n60 fuzzed goals: {sorted((s, c) for s, c in set(codes))} (status, error code); '
+          f'planner rejected {planner.rejected_inputs} inputs, {planner.errors} errors')
+    assert all(c in known for _, c in codes)
+    assert {c for _, c in codes} >= {FollowPath.Result.INVALID_PATH, FollowPath.Result.NONE}
+    assert planner.errors == 0 and sim.errors == 0
+    assert all(_finite_message(m) for msgs_ in published.values() for m in msgs_)
+    plans = planner.planner.stats.plans
+    assert wait_until(lambda: planner.planner.stats.plans > plans, 10.0)  # still planning

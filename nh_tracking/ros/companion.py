@@ -45,6 +45,7 @@ class CompanionNode:
                          context=owner.context, **node_options)  # type: ignore[arg-type]
         self._executor = executor(context=owner.context)
         self._executor.add_node(self.node)
+        self.owned: list[Any] = []  # entities destroyed with the node, before it
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._spin, name=f'nh_tracking_{suffix}',
                                         daemon=True)
@@ -73,4 +74,6 @@ class CompanionNode:
         if self._thread.is_alive() and self._thread is not threading.current_thread():
             self._thread.join(timeout=5.0)
         self._executor.shutdown(timeout_sec=0.0)
+        for entity in self.owned:  # (an action server: destroy_node leaves it)
+            entity.destroy()
         self.node.destroy_node()

@@ -19,8 +19,9 @@ preempts the running one without stopping the robot; feedback (distance along th
 end, speed) at :data:`FEEDBACK_RATE`; the result says arrived (NONE), blocked
 (FAILED_TO_MAKE_PROGRESS), a path the input checks refuse (INVALID_PATH, with the reason) or
 an unknown plugin id (INVALID_CONTROLLER). Cancel brings the robot to rest. The execute
-callback is a coroutine that waits on a timer's futures, so the node's single-threaded
-executor is never held.
+callback is a coroutine that waits on a timer's futures; the server lives on a companion node
+with an executor of its own, so a goal's path is read and timed off the thread that sends
+``cmd_vel``.
 """
 from __future__ import annotations
 
@@ -31,6 +32,7 @@ from rclpy.task import Future
 
 from nh_tracking.goal_checking import GoalState
 from nh_tracking.ros import conversions as cv
+from nh_tracking.ros.companion import CompanionNode, LEAN
 from nh_tracking.ros.path_input import take_path
 
 if TYPE_CHECKING:
@@ -64,11 +66,15 @@ class FollowPathServer:
         self.node = node
         self._current: Any = None  # the goal handle in force; older ones are preempted
         self._ticks: list[Future] = []
-        self._timer = node.create_timer(1.0 / FEEDBACK_RATE, self._tick)
-        self.server = ActionServer(node, FollowPath, 'follow_path', self._execute,
-                                   goal_callback=self._on_goal,
-                                   handle_accepted_callback=self._on_accepted,
-                                   cancel_callback=lambda handle: CancelResponse.ACCEPT)
+        self.companion = CompanionNode(node, 'follow_path', **LEAN)
+        self.companion.node.create_timer(1.0 / FEEDBACK_RATE, self._tick)
+        server = ActionServer(self.companion.node, FollowPath,
+                              node.resolve_topic_name('follow_path'), self._execute,
+                              goal_callback=self._on_goal,
+                              handle_accepted_callback=self._on_accepted,
+                              cancel_callback=lambda handle: CancelResponse.ACCEPT)
+        self.companion.owned.append(server)
+        self.companion.start()
 
     @classmethod
     def serve(cls, node: PlannerNode) -> FollowPathServer | None:
@@ -79,10 +85,10 @@ class FollowPathServer:
         return cls(node)
 
     def close(self) -> None:
+        """End every goal (aborted) and free the server."""
         self._current = None
         self._tick()
-        self.server.destroy()
-        self.node.destroy_timer(self._timer)
+        self.companion.close()
 
     def _tick(self) -> None:
         ticks, self._ticks = self._ticks, []
