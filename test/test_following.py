@@ -102,6 +102,8 @@ def cross_track(rows: np.ndarray, route: np.ndarray) -> np.ndarray:
     ('unicycle', np.vstack([polyline((0, 0), (1.5, 0)), arc(0.5, np.pi / 2)[1:] + [1.5, 0, 0, 0],
                             polyline((2, 0.5), (2, 2))[1:]])),
     ('rolling_disk', polyline((0, 0), (1.5, 0.5), (3, 0))),  # a model no issue names
+    ('user_robots:CAR', np.vstack([polyline((0, 0), (2, 0)),  # a car's cusp: stop, reverse
+                                   polyline((2, 0), (0.8, 0))[1:]])),
 ])
 def test_a_route_is_tracked_to_rest_at_its_end(model, route):
     loop = Loop(model, epsilon=0.05)
@@ -110,6 +112,8 @@ def test_a_route_is_tracked_to_rest_at_its_end(model, route):
     error = cross_track(rows, route)
     status = loop.session.following.status
     cruise = rows[(rows[:, 0] > 2.0) & (rows[:, 0] < 3.0), 4]
+    if model.endswith('CAR'):  # it backed up after the cusp
+        assert rows[:, 4].min() < -0.4 and np.abs(rows[:, 3]).max() < 0.01
     print(f'\n{model}: cross-track after 2 s {error[rows[:, 0] > 2].max():.3f} m, speed '
           f'{cruise.min():.3f}-{cruise.max():.3f} m/s, {status.state} at '
           f'{np.hypot(*(rows[-1, 1:3] - route[-1, :2])):.4f} m from the end')
