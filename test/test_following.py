@@ -19,13 +19,14 @@ import numpy as np
 import pytest
 
 import nh_tracking as nht
+from nh_tracking.examples.nav2 import polyline
 from nh_tracking.goal_checking import (GoalChecker, GoalSettings, GoalState, PathProgress,
                                        ProgressChecker)
+from nh_tracking.metrics import cross_track_error
 from nh_tracking.receding_horizon import PlannerSettings
 from nh_tracking.reference_checks import ReferenceRejected
-from nh_tracking.route import closest_point
 from nh_tracking.session import TrackingSession
-from test_route import arc, polyline
+from test_route import arc
 
 
 def test_the_goal_checker_wants_the_pose_the_heading_the_rest_and_the_whole_path():
@@ -93,10 +94,6 @@ class Loop:
         return np.array(rows)
 
 
-def cross_track(rows: np.ndarray, route: np.ndarray) -> np.ndarray:
-    return np.array([np.hypot(*(closest_point(route[:, :2], p)[1] - p)) for p in rows[:, 1:3]])
-
-
 @pytest.mark.parametrize('model, route', [
     ('unicycle', polyline((0, 0), (2, 0), (2, 2))),  # a sharp 90-degree corner
     ('unicycle', np.vstack([polyline((0, 0), (1.5, 0)), arc(0.5, np.pi / 2)[1:] + [1.5, 0, 0, 0],
@@ -109,7 +106,7 @@ def test_a_route_is_tracked_to_rest_at_its_end(model, route):
     loop = Loop(model, epsilon=0.05)
     loop.session.following.set_route(route)
     rows = loop.run(14.0)
-    error = cross_track(rows, route)
+    error = cross_track_error(rows[:, 1:3], route[:, :2])
     status = loop.session.following.status
     cruise = rows[(rows[:, 0] > 2.0) & (rows[:, 0] < 3.0), 4]
     if model.endswith('CAR'):  # it backed up after the cusp

@@ -31,24 +31,19 @@ import numpy as np
 import pytest
 from rclpy.action import ActionClient
 
+from nh_tracking.examples.nav2 import nav2_costmap, polyline, route_msg
+from nh_tracking.metrics import cross_track_error
 from nh_tracking.ros import messages as msgs
 from nh_tracking.ros.graph import wait_until
 from nh_tracking.ros.planner_interface import LATCHED
 from nh_tracking.route import closest_point
 from processes import domain_env, Peer, Process
-from test_route import arc, polyline
+from test_route import arc
 
 pytestmark = pytest.mark.timeout(240)
 PARAMS = str(FilePath(__file__).resolve().parents[1] / 'config' / 'diff_drive.yaml')
 SPEED, RADIUS, TOLERANCE = 0.5, 0.2, 0.25  # the params file's reference_speed, robot_radius
 L_TURN = polyline((0, 0), (2, 0), (2, 2))  # a pose every 5 cm, a sharp 90-degree turn
-
-
-def route_msg(poses: np.ndarray, stamp_ns: int = 0) -> Path:
-    """Return a Path as Nav2's planners publish it: every pose with the header's stamp."""
-    msg = msgs.path_msg('odom', [stamp_ns] * len(poses), poses)
-    msg.header.stamp = msgs.time_msg(stamp_ns)
-    return msg
 
 
 class Robot:
@@ -130,16 +125,12 @@ def at_rest(robot: Robot, timeout: float) -> bool:
     return wait_until(lambda: abs(robot.odometry[-1][4]) < 0.01, timeout)
 
 
-def speeds_on_straights(track: np.ndarray, route: np.ndarray) -> np.ndarray:
+def speeds_on_straights(track: np.ndarray) -> np.ndarray:
     """Speeds where the robot is on a straight leg of L_TURN, clear of its ends and turn."""
     x, y = track[:, 1], track[:, 2]
     first = (x > 0.5) & (x < 1.2) & (np.abs(y) < 0.1)
     second = (y > 0.8) & (y < 1.5) & (np.abs(x - 2) < 0.1)
     return track[first | second, 4]
-
-
-def cross_track(track: np.ndarray, route: np.ndarray) -> np.ndarray:
-    return np.array([np.hypot(*(closest_point(route[:, :2], p)[1] - p)) for p in track[:, 1:3]])
 
 
 @pytest.mark.parametrize('mode, by', [('effort', 'reference_path'), ('velocity', 'reference_path'),
@@ -158,8 +149,8 @@ def test_an_untimed_route_is_driven_at_its_speed_and_ends_at_rest_in_the_goal(mo
         assert at_rest(robot, 10.0)
         track = robot.track
         moving = track[track[:, 0] > start]
-        error = cross_track(moving[moving[:, 0] > start + 2.0], L_TURN)
-        straights = speeds_on_straights(moving, L_TURN)
+        error = cross_track_error(moving[moving[:, 0] > start + 2.0, 1:3], L_TURN[:, :2])
+        straights = speeds_on_straights(moving)
         end = np.hypot(*(track[-1, 1:3] - L_TURN[-1, :2]))
         overshoot = (moving[:, 2] - L_TURN[-1, 1]).max()
         print(f'\n{mode} by {by}: speed on the straights {straights.min():.3f}-'
@@ -236,37 +227,10 @@ def test_cancel_brings_the_robot_to_rest_and_bad_goals_are_refused_with_the_reas
         assert abs(robot.odometry[-1][1] - x) < 0.05 and 'header stamp of 0' in planner.output
 
 
-def nav2_costmap(blocks: list[tuple[float, float, float, float]], inflation: float = 0.55,
-                 scaling: float = 3.0, resolution: float = 0.05) -> OccupancyGrid:
-    """Return a Nav2 costmap as published around rectangles (x0, y0, x1, y1).
-
-    Lethal (100) inside, inscribed (99) within the robot's radius, inflated 98..1 out to
-    ``inflation``, as the inflation layer grades them (exp(-scaling (d - radius)) onto 1..98).
-    """
-    grid = OccupancyGrid()
-    grid.header.frame_id = 'odom'
-    grid.info.resolution, grid.info.width, grid.info.height = resolution, 140, 80
-    grid.info.origin.position.x, grid.info.origin.position.y = -1.0, -2.0
-    grid.info.origin.orientation.w = 1.0
-    x = -1.0 + (np.arange(140) + 0.5) * resolution
-    y = -2.0 + (np.arange(80) + 0.5) * resolution
-    xx, yy = np.meshgrid(x, y)
-    distance = np.full(xx.shape, np.inf)
-    for x0, y0, x1, y1 in blocks:
-        dx = np.maximum(np.maximum(x0 - xx, xx - x1), 0)
-        dy = np.maximum(np.maximum(y0 - yy, yy - y1), 0)
-        distance = np.minimum(distance, np.hypot(dx, dy))
-    cost = np.where(distance <= inflation, 1 + 97 * np.exp(-scaling * (distance - RADIUS)), 0)
-    cost = np.where(distance <= RADIUS, 99, np.minimum(cost, 98))
-    cost = np.where(distance == 0, 100, cost)
-    grid.data = [int(c) for c in cost.ravel()]
-    return grid
-
-
 def test_a_route_past_an_inflated_block_is_driven_without_collision():
     block = (1.85, 0.35, 2.15, 0.65)  # its near edge 0.35 m beside the route: room for r = 0.2
     with nav2_pair() as (robot, planner, sim):
-        robot.costmap.publish(nav2_costmap([block]))
+        robot.costmap.publish(nav2_costmap([block], RADIUS))
         time.sleep(0.5)
         status, result = result_of(robot.send_goal(polyline((0, 0), (4, 0))), 40.0)
         track = robot.track
@@ -283,7 +247,7 @@ def test_a_route_past_an_inflated_block_is_driven_without_collision():
 
 def test_a_wall_across_the_route_fails_to_make_progress_in_time_without_collision():
     with nav2_pair('movement_time_allowance:=6.0') as (robot, planner, sim):
-        robot.costmap.publish(nav2_costmap([(2.0, -2.0, 2.1, 2.0)]))
+        robot.costmap.publish(nav2_costmap([(2.0, -2.0, 2.1, 2.0)], RADIUS))
         time.sleep(0.5)
         handle = robot.send_goal(polyline((0, 0), (4, 0)))
         stopped = threading.Event()
@@ -383,3 +347,11 @@ def test_fuzzed_follow_path_goals_each_get_a_result_and_the_planner_carries_on(g
     assert all(_finite_message(m) for msgs_ in published.values() for m in msgs_)
     plans = planner.planner.stats.plans
     assert wait_until(lambda: planner.planner.stats.plans > plans, 10.0)  # still planning
+
+
+def test_the_nav2_demo_arrives_and_draws_it(tmp_path):
+    from nh_tracking.examples.nav2 import run_nav2_demo
+
+    summary = run_nav2_demo(tmp_path, log=lambda line: None)
+    assert summary['error_code'] == 0 and summary['max_cross_track_error_after_2s'] <= 0.05
+    assert summary['fallbacks'] == 0 and (tmp_path / 'nav2.png').stat().st_size > 10_000

@@ -17,19 +17,9 @@ import numpy as np
 import pytest
 
 from nh_tracking import models
+from nh_tracking.examples.nav2 import polyline
 from nh_tracking.poses import PoseMap
 from nh_tracking.route import closest_point, RouteHeadings, RouteSettings, time_route
-
-
-def polyline(*corners, spacing=0.05) -> np.ndarray:
-    """Poses (N, 4) every ``spacing`` along straight legs between ``corners``, heading 0."""
-    points = [np.asarray(corners[0], dtype=float)]
-    for a, b in zip(corners, corners[1:]):
-        a, b = np.asarray(a, dtype=float), np.asarray(b, dtype=float)
-        count = max(1, int(np.ceil(np.hypot(*(b - a)) / spacing)))
-        points += [a + (b - a) * f for f in np.arange(1, count + 1) / count]
-    xy = np.array(points)
-    return np.c_[xy, np.zeros(len(xy)), np.zeros(len(xy))]
 
 
 def arc(radius: float, sweep: float, spacing=0.05) -> np.ndarray:

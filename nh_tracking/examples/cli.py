@@ -88,10 +88,16 @@ def cmd_demo(args: argparse.Namespace) -> int:
 
     Scenario sleigh: planner + simulator (10 % heavier) on the paper's sleigh. Scenario
     obstacles: a differential-drive robot on a line through two obstacles, torques limited.
+    Scenario nav2: a differential-drive robot given a follow_path goal as Nav2 sends it.
     """
     def log(line: str) -> None:
         print(line, flush=True)
 
+    if args.scenario == 'nav2':
+        from nh_tracking.examples.nav2 import run_nav2_demo
+
+        result = run_nav2_demo(Path(args.out), log=log)
+        return 0 if result['error_code'] == 0 else 1
     if args.scenario == 'obstacles':
         from nh_tracking.examples.obstacles import run_obstacle_demo
 
@@ -140,9 +146,9 @@ def build_parser() -> argparse.ArgumentParser:
     demo = sub.add_parser('demo', help='closed-loop tracking through ROS (the main job)',
                           description=cmd_demo.__doc__)
     demo.add_argument('--out', default='results/demo')
-    demo.add_argument('--scenario', choices=('sleigh', 'obstacles'), default='sleigh',
-                      help="the paper's sleigh, or a line through two obstacles with torque "
-                           'limits')
+    demo.add_argument('--scenario', choices=('sleigh', 'obstacles', 'nav2'), default='sleigh',
+                      help="the paper's sleigh, a line through two obstacles with torque "
+                           'limits, or a follow_path goal with an untimed route')
     demo.add_argument('--obstacles', choices=('markers', 'costmap'), default='markers',
                       help='obstacles scenario: send them as MarkerArray or OccupancyGrid')
     demo.add_argument('--duration', type=float, default=None,

@@ -228,3 +228,31 @@ def plot_obstacles(reference: Trajectory, obstacles: np.ndarray, robot_radius: f
     ax.set(xlabel='t [s]', ylabel='u (first of each plan)', title='controls and their limit')
     ax.legend(fontsize=8)
     return _finish(fig, path)
+
+
+def plot_route(route: np.ndarray, track: np.ndarray, feedback: np.ndarray,
+               block: tuple[float, float, float, float], robot_radius: float,
+               path: Path) -> Path:
+    """Plot a followed route: path and block, speed, and the action's distance_to_goal.
+
+    ``track`` rows (t, x, y, forward speed), ``feedback`` rows (t, distance_to_goal).
+    """
+    from matplotlib.patches import Rectangle
+
+    fig, axes = _subplots(1, 3, figsize=(16, 4.8))
+    ax = axes[0]
+    ax.plot(route[:, 0], route[:, 1], 'k.', ms=2, label='route (a pose every 5 cm, untimed)')
+    ax.plot(track[:, 1], track[:, 2], '-', lw=2, label='robot')
+    x0, y0, x1, y1 = block
+    ax.add_patch(Rectangle((x0, y0), x1 - x0, y1 - y0, color='r', label='lethal block'))
+    ax.add_patch(Rectangle((x0 - robot_radius, y0 - robot_radius), x1 - x0 + 2 * robot_radius,
+                           y1 - y0 + 2 * robot_radius, fill=False, ec='r', ls=':',
+                           label='inscribed (99)'))
+    ax.set(xlabel='x [m]', ylabel='y [m]', aspect='equal', title='follow_path: a Nav2 route')
+    ax.legend(loc='upper left', fontsize=8)
+    axes[1].plot(track[:, 0], track[:, 3])
+    axes[1].set(xlabel='t [s]', ylabel='forward speed [m/s]', title='speed (reference_speed 0.5)')
+    if len(feedback):
+        axes[2].plot(feedback[:, 0], feedback[:, 1], '.-', ms=3)
+    axes[2].set(xlabel='t [s]', ylabel='distance_to_goal [m]', title='action feedback')
+    return _finish(fig, path)
