@@ -32,11 +32,14 @@ from nh_tracking.settings import check_fields, setting
 
 SPACING = 0.05  # [m] longer segments are cut: speeds change along a route, not between poses
 MAX_POINTS = 20_000  # a longer route is cut more coarsely (a 100 km route: every 5 m)
+CHORD = 0.1  # [m] the tangent at a point is the chord over this much of the route about it
 CURVATURE_WINDOW = 0.2  # [m] curvature is the tangent's turn over this much of the route
 CUSP_TURN = np.deg2rad(135.0)  # a turn sharper than this between two segments is a cusp
 SEARCH_MARGIN = 1.0  # [m] the closest point is looked for this far past the robot's distance
-EQUAL_HEADINGS = 1e-3  # [rad] poses whose headings differ less carry no heading
+EQUAL_HEADINGS = 1e-3  # [rad] headings closer than this are equal (identity: unset)
 TANGENT_TOLERANCE = 0.1  # [rad] a route "turns" where its tangent leaves the poses' heading
+JOIN = 0.1  # [m] a robot further from the route than this is first taken to it, straight
+TURN_RATE, TURN_ACCEL = 1.0, 1.0  # [rad/s, rad/s^2] a turn in place to the goal's heading
 
 
 class RouteHeadings(str, enum.Enum):
@@ -111,20 +114,22 @@ def time_route(poses: np.ndarray, start: np.ndarray, start_speed: float,
                settings: RouteSettings) -> TimedRoute:
     """Return ``poses`` (N, 4) timed from the closest point to ``start`` (x, y).
 
-    ``start_speed`` is the robot's speed along its heading (negative: backwards); the route
-    starts from it where it points the way the route is driven.
+    A robot further than :data:`JOIN` from that point is taken to it first. ``start_speed`` is
+    the robot's speed along its heading (negative: backwards); the route starts from it where
+    it points the way the route is driven.
     """
     poses = np.asarray(poses, dtype=float).reshape(-1, 4)
     keep = np.r_[True, np.hypot(*np.diff(poses[:, :2], axis=0).T) > 1e-9]
     poses = poses[keep]
     reach = float(np.hypot(*(poses[0, :2] - start[:2]))) + SEARCH_MARGIN
     i, foot = closest_point(poses[:, :2], start[:2], reach)
-    if len(poses) > 1:
-        first = poses[i].copy()
-        first[:2] = foot
-        poses = np.vstack([first, poses[i + 1:]])
-        if np.hypot(*(poses[1, :2] - foot)) < 1e-9:
-            poses = poses[1:]
+    first = poses[i].copy()
+    first[:2] = foot
+    poses = np.vstack([first, poses[i + 1:]])
+    if len(poses) > 1 and np.hypot(*(poses[1, :2] - foot)) < 1e-9:
+        poses = poses[1:]
+    if np.hypot(*(foot - start[:2])) > JOIN:
+        poses = np.vstack([np.r_[start[:2], poses[0, 2:]], poses])
     if len(poses) == 1:  # at the goal: hold it
         return TimedRoute(np.array([0.0, 1.0]), np.repeat(poses, 2, axis=0), np.zeros((2, 4)),
                           np.zeros(2), RouteHeadings.POSES, 0)
@@ -138,16 +143,18 @@ def time_route(poses: np.ndarray, start: np.ndarray, start_speed: float,
     piece = np.zeros(len(poses), dtype=int)  # of a point, and of the segment from it on
     for c in cusp_at:
         piece[c:] += 1  # a cusp starts the piece that leaves it
-    headings = _choose_headings(poses, positions, direction, piece, cusp_at, settings)
+    tangent = _tangent(positions, piece)
+    headings = _choose_headings(poses[:, 3], tangent, piece, cusp_at, settings)
     if headings is RouteHeadings.TANGENT:
         gears = (-1.0) ** np.arange(len(cusp_at) + 1)  # forward first, reversing at each cusp
-        yaw = _tangent(positions, piece) + np.where(gears[piece] < 0, np.pi, 0.0)
+        yaw = tangent + np.where(gears[piece] < 0, np.pi, 0.0)
     else:
         yaw = np.unwrap(poses[:, 3])
         along = np.cos(yaw[:-1] - direction)  # each segment: driven facing its way or not
         gears = np.array([1.0 if along[piece[:-1] == p].sum() >= 0 else -1.0
                           for p in range(len(cusp_at) + 1)])
-    speed = _speed_profile(lengths, direction, piece, cusp_at, start_speed * gears[0], settings)
+    speed = _speed_profile(lengths, _curvature(positions, tangent, piece), cusp_at,
+                           start_speed * gears[0], settings)
     times = np.r_[0.0, np.cumsum(_durations(lengths, speed, settings.max_accel))]
     yaw = np.unwrap(yaw)
     signed = speed * gears[piece]
@@ -158,7 +165,37 @@ def time_route(poses: np.ndarray, start: np.ndarray, start_speed: float,
     twists = np.c_[c * world[:, 0] + s * world[:, 1], -s * world[:, 0] + c * world[:, 1],
                    np.zeros(len(times)), yaw_rate]
     out = np.c_[positions, poses[:, 2], yaw]
+    goal = _goal_heading(poses[:, 3])
+    if headings is RouteHeadings.TANGENT and goal is not None:
+        times, out, twists, signed = _turned_to(goal, times, out, twists, signed)
     return TimedRoute(times, out, twists, signed, headings, len(cusp_at))
+
+
+def _goal_heading(yaw: np.ndarray) -> float | None:
+    """The last pose's heading, unless every pose's is the identity's (then none is set)."""
+    return None if np.abs(_wrap(yaw)).max() <= EQUAL_HEADINGS else float(yaw[-1])
+
+
+def _turned_to(goal: float, times: np.ndarray, poses: np.ndarray, twists: np.ndarray,
+               speeds: np.ndarray) -> tuple[np.ndarray, ...]:
+    """The route, then a turn in place to heading ``goal`` (:data:`TURN_RATE`, TURN_ACCEL)."""
+    angle = float(_wrap(goal - poses[-1, 3]))
+    if abs(angle) <= EQUAL_HEADINGS:
+        return times, poses, twists, speeds
+    size, w, a = abs(angle), TURN_RATE, TURN_ACCEL
+    rate = min(w, np.sqrt(size * a))  # the highest rate the turn reaches
+    duration = size / rate + rate / a
+    t = np.linspace(0.0, duration, max(3, int(np.ceil(duration / 0.05)) + 1))[1:]
+    up, down = np.minimum(t, rate / a), np.maximum(t - (duration - rate / a), 0.0)
+    turned = a * up ** 2 / 2 + rate * (t - up) - a * down ** 2 / 2
+    rates = a * up - a * down
+    sign = np.sign(angle)
+    extra = np.repeat(poses[-1:], len(t), axis=0)
+    extra[:, 3] += sign * turned
+    turning = np.zeros((len(t), 4))
+    turning[:, 3] = sign * rates
+    return (np.r_[times, times[-1] + t], np.vstack([poses, extra]),
+            np.vstack([twists, turning]), np.r_[speeds, np.zeros(len(t))])
 
 
 def _wrap(angle: np.ndarray) -> np.ndarray:
@@ -183,30 +220,36 @@ def _resampled(poses: np.ndarray) -> np.ndarray:
     return np.vstack([poses[:1], cut])
 
 
-def _choose_headings(poses: np.ndarray, positions: np.ndarray, direction: np.ndarray,
-                     piece: np.ndarray, cusp_at: np.ndarray,
-                     settings: RouteSettings) -> RouteHeadings:
+def _choose_headings(yaw: np.ndarray, tangent: np.ndarray, piece: np.ndarray,
+                     cusp_at: np.ndarray, settings: RouteSettings) -> RouteHeadings:
+    """The poses' headings, unless ``auto`` finds them unset or not the route's.
+
+    Unset: all but the last pose's equal (the last may carry the goal's, as NavFn's paths do)
+    and the route leaves that heading — forward, or backward when it is not the identity's.
+    """
     choice = RouteHeadings(settings.route_headings)
     if choice is not RouteHeadings.AUTO:
         return choice
-    yaw = poses[:, 3]
-    if np.abs(_wrap(yaw - yaw[0])).max() > EQUAL_HEADINGS:
+    common = yaw[:-1] if len(yaw) > 2 else yaw
+    if np.abs(_wrap(common - common[0])).max() > EQUAL_HEADINGS:
         return RouteHeadings.POSES  # headings of their own
     gears = (-1.0) ** np.arange(len(cusp_at) + 1)
-    tangent = _tangent(positions, piece) + np.where(gears[piece] < 0, np.pi, 0.0)
-    turns = np.abs(_wrap(tangent - yaw[0])).max() > TANGENT_TOLERANCE
-    return RouteHeadings.TANGENT if turns else RouteHeadings.POSES
+    forward = tangent + np.where(gears[piece] < 0, np.pi, 0.0)
+    along = np.abs(_wrap(forward - common[0])).max() <= TANGENT_TOLERANCE
+    backward = abs(_wrap(common[0])) > EQUAL_HEADINGS and \
+        np.abs(_wrap(forward + np.pi - common[0])).max() <= TANGENT_TOLERANCE
+    return RouteHeadings.POSES if along or backward else RouteHeadings.TANGENT
 
 
 def _tangent(positions: np.ndarray, piece: np.ndarray) -> np.ndarray:
-    """Direction of travel at each point: the chord over :data:`CURVATURE_WINDOW` about it.
+    """Direction of travel at each point: the chord over :data:`CHORD` about it.
 
     Within its piece (a cusp starts the piece that leaves it), so a corner's heading turns
     over the stretch where its speed is lowered, not at one pose.
     """
     arc = np.r_[0.0, np.cumsum(np.hypot(*np.diff(positions, axis=0).T))]
     out = np.zeros(len(positions))
-    half = CURVATURE_WINDOW / 2
+    half = CHORD / 2
     for p in np.unique(piece):
         members = np.flatnonzero(piece == p)
         s, xy = arc[members], positions[members]
@@ -222,37 +265,28 @@ def _tangent(positions: np.ndarray, piece: np.ndarray) -> np.ndarray:
     return out
 
 
-def _curvature(lengths: np.ndarray, direction: np.ndarray, piece: np.ndarray) -> np.ndarray:
-    """|curvature| at each point, over :data:`CURVATURE_WINDOW` of route.
+def _curvature(positions: np.ndarray, tangent: np.ndarray, piece: np.ndarray) -> np.ndarray:
+    """|curvature| at each point: the turn of the chord tangent over :data:`CURVATURE_WINDOW`.
 
-    The turn between the segments half the window behind and ahead of the point, over the route
-    between their middles: exact on a regular polygon.
+    Chords smooth a grid planner's jogs (a staircase is a straight diagonal) and are exact on a
+    circle.
     """
-    arc = np.r_[0.0, np.cumsum(lengths)]
-    middle = arc[:-1] + lengths / 2
-    heading = np.unwrap(direction)
-    out = np.zeros(len(arc))
+    arc = np.r_[0.0, np.cumsum(np.hypot(*np.diff(positions, axis=0).T))]
+    out = np.zeros(len(positions))
     half = CURVATURE_WINDOW / 2
-    for p in np.unique(piece[:-1]):
-        segments = np.flatnonzero(piece[:-1] == p)
-        points = np.arange(segments[0], segments[-1] + 2)
-        ends = arc[segments + 1]
-
-        def segment_at(s: np.ndarray) -> np.ndarray:
-            return segments[np.minimum(np.searchsorted(ends, s), len(segments) - 1)]
-        behind, ahead = segment_at(arc[points] - half), segment_at(arc[points] + half)
-        span = middle[ahead] - middle[behind]
-        with np.errstate(divide='ignore', invalid='ignore'):
-            out[points] = np.where(ahead > behind, np.abs(heading[ahead] - heading[behind])
-                                   / np.where(span > 0, span, 1.0), 0.0)
+    for p in np.unique(piece):
+        members = np.flatnonzero(piece == p)
+        s, heading = arc[members], np.unwrap(tangent[members])
+        lo, hi = np.maximum(s - half, s[0]), np.minimum(s + half, s[-1])
+        span = hi - lo
+        turn = np.abs(np.interp(hi, s, heading) - np.interp(lo, s, heading))
+        out[members] = np.where(span > 1e-9, turn / np.maximum(span, 1e-9), 0.0)
     return out
 
 
-def _speed_profile(lengths: np.ndarray, direction: np.ndarray, piece: np.ndarray,
-                   cusp_at: np.ndarray, start_speed: float,
-                   settings: RouteSettings) -> np.ndarray:
+def _speed_profile(lengths: np.ndarray, curvature: np.ndarray, cusp_at: np.ndarray,
+                   start_speed: float, settings: RouteSettings) -> np.ndarray:
     """Speeds [m/s] >= 0 at the points: the fastest within the limits, at rest at each stop."""
-    curvature = _curvature(lengths, direction, piece)
     with np.errstate(divide='ignore'):
         cap = np.minimum(settings.reference_speed,
                          np.sqrt(settings.max_lateral_accel / curvature))

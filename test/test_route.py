@@ -69,11 +69,18 @@ def test_speeds_keep_every_limit_on_random_routes():
         np.testing.assert_allclose(covered[moving], gaps[moving], rtol=1e-9)
 
 
-def test_a_start_speed_is_kept_and_a_robot_beside_the_route_starts_at_its_closest_point():
+def test_a_start_speed_is_kept_and_a_robot_beside_the_route_is_taken_to_it():
     s = RouteSettings()
-    route = time_route(polyline((0, 0), (6, 0)), np.array([2.0, 0.3]), 0.5, s)
+    route = time_route(polyline((0, 0), (6, 0)), np.array([2.0, 0.05]), 0.5, s)
     np.testing.assert_allclose(route.poses[0, :2], [2.0, 0.0], atol=1e-12)
     assert route.speeds[0] == pytest.approx(0.5) and route.length == pytest.approx(4.0)
+    # 3 m off (or a single pose far away): straight to the route first, never a jump
+    for poses, length in ((polyline((0, 3), (3, 3)), 3.0 + 3.0), (np.array([[5.0, 0, 0, 0]]),
+                                                                  5.0)):
+        route = time_route(poses, np.zeros(2), 0.0, s)
+        np.testing.assert_allclose(route.poses[0, :2], [0, 0], atol=1e-12)
+        assert route.length == pytest.approx(length, rel=1e-6)
+        assert np.abs(route.speeds).max() <= s.reference_speed
     # a loop ending where it starts is not finished before it begins
     loop = polyline((0, 0), (2, 0), (2, 2), (0, 2), (0, 0))
     assert time_route(loop, np.zeros(2), 0.0, s).length == pytest.approx(8.0)
@@ -99,12 +106,40 @@ def test_headings_come_from_the_poses_when_they_carry_some():
     along_x = polyline((0, 0), (3, 0))  # identity orientations on a route along them
     assert time_route(along_x, np.zeros(2), 0.0, RouteSettings()).headings is \
         RouteHeadings.POSES
-    along_y = polyline((0, 0), (0, 3))
-    route = time_route(along_y, np.zeros(2), 0.0, RouteSettings())
-    assert route.headings is RouteHeadings.TANGENT
-    np.testing.assert_allclose(route.poses[:, 3], np.pi / 2)
+    for corner in ((0, 3), (-3, 0)):  # identity is unset: a route along y, or back along x
+        route = time_route(polyline((0, 0), corner), np.zeros(2), 0.0, RouteSettings())
+        assert route.headings is RouteHeadings.TANGENT and np.all(route.speeds >= 0)
+        np.testing.assert_allclose(route.poses[:, 3], np.arctan2(corner[1], corner[0]))
+    backing = along_x.copy()
+    backing[:, 3] = np.pi  # set, all alike, facing back along the route: a reversing car
+    route = time_route(backing, np.zeros(2), 0.0, RouteSettings())
+    assert route.headings is RouteHeadings.POSES and np.all(route.speeds <= 0)
     forced = time_route(turning, np.zeros(2), 0.0, RouteSettings(route_headings='poses'))
     assert np.abs(forced.poses[:, 3]).max() == 0
+
+
+def test_a_last_pose_with_a_heading_of_its_own_ends_the_route_with_a_turn_to_it():
+    """NavFn's paths: every orientation unset but the goal's."""
+    navfn = polyline((0, 0), (2, 0), (2, 2))
+    navfn[-1, 3] = np.pi
+    route = time_route(navfn, np.zeros(2), 0.0, RouteSettings())
+    assert route.headings is RouteHeadings.TANGENT
+    turn = route.speeds == 0
+    turn[0] = False
+    assert route.poses[-1, 3] == pytest.approx(np.pi)
+    np.testing.assert_allclose(route.poses[turn][:, :2], [[2, 2]] * turn.sum(), atol=1e-12)
+    assert np.abs(route.twists[turn, 3]).max() <= 1.0 + 1e-9  # TURN_RATE
+    # the turn's rate is the derivative of its heading (trapezoid rule, closed form)
+    covered = np.sum(np.diff(route.times[-turn.sum() - 1:])
+                     * (route.twists[-turn.sum() - 1:-1, 3] + route.twists[-turn.sum():, 3]) / 2)
+    assert covered == pytest.approx(np.pi / 2, rel=1e-3)
+
+
+def test_a_grid_planners_staircase_is_driven_at_speed():
+    steps = [(0.05 * (k // 2 + k % 2), 0.05 * (k // 2)) for k in range(121)]  # 90-degree jogs
+    route = time_route(np.c_[np.array(steps), np.zeros((121, 2))], np.zeros(2), 0.0,
+                       RouteSettings())
+    assert np.median(np.abs(route.speeds)) >= 0.45
 
 
 def test_a_route_reaches_the_pose_map_of_models_it_was_not_written_for():
