@@ -29,14 +29,16 @@ import numpy as np
 from nh_tracking.goal_checking import GoalSettings, GoalState, GoalStatus, GoalTracker
 from nh_tracking.poses import PoseMap
 from nh_tracking.receding_horizon import RecedingHorizonPlanner
-from nh_tracking.reference_checks import (bound_ratio, check_implied_motion,
+from nh_tracking.reference_checks import (bound_ratios, check_implied_motion,
                                           check_velocity_bounds, ReferenceRejected, thin)
-from nh_tracking.route import RouteSettings, time_route, TimedRoute
+from nh_tracking.route import RouteSettings, time_route, time_shape, TimedRoute
+from nh_tracking.route_shape import RouteHeadings, RouteShape, shape_route
 from nh_tracking.session_types import StateEstimate
 from nh_tracking.trajectory import Trajectory
 
 SAME_ROUTE = 1e-3  # [m, rad] a route whose poses all lie this close to those in force is it
 PAST, FUTURE = 1.0, 60.0  # [s] a timed reference starting further off is taken with a warning
+BOUND_MARGIN = 0.98  # a route slowed into the velocity bounds keeps 2 % from them
 
 
 @dataclass(frozen=True)
@@ -110,9 +112,10 @@ class Following:
         else:
             start = pose_map.pose(state.q)[:2]
             speed = float(pose_map.body_twist(state.q, state.v)[0])
-        route = time_route(poses, start, speed, self.route_settings)
-        timed = slowed(TimedPoses(session.now() + route.times, route.poses, route.twists, route),
-                       pose_map, session.planner.limits['velocity_bounds'])
+        shape = shape_route(poses, start, RouteHeadings(self.route_settings.route_headings))
+        route = within_bounds(shape, speed, self.route_settings, pose_map,
+                              session.planner.limits['velocity_bounds'])
+        timed = TimedPoses(session.now() + route.times, route.poses, route.twists, route)
         session.track(timed.times, timed.poses, timed.twists)
         self._follow(timed.poses[:, :2], timed.poses[-1], check_progress, poses)
         return timed
@@ -135,10 +138,14 @@ class Following:
             self.generation += 1
 
     def _same_route(self, poses: np.ndarray) -> bool:
-        """Whether ``poses`` is the route in force, re-sent (same poses, same settings)."""
+        """Whether ``poses`` is the route in force, re-sent (same poses, same settings).
+
+        Once arrived it is a new request (a patrol loop sent again is driven again).
+        """
         with self._lock:
-            route = self._route
-        if route is None or route[1] != self.route_settings or route[0].shape != poses.shape:
+            route, tracker = self._route, self._tracker
+        if route is None or route[1] != self.route_settings or route[0].shape != poses.shape \
+                or tracker is None or tracker.status.state is GoalState.ARRIVED:
             return False
         gap = np.abs(route[0] - poses)
         gap[:, 3] = np.abs(np.remainder(gap[:, 3] + np.pi, 2 * np.pi) - np.pi)
@@ -153,6 +160,21 @@ class Following:
             self._tracker, self.halted = tracker, False
             self.generation += 1
             self._route = None if route is None else (route, self.route_settings)
+
+    def configure(self, route: RouteSettings, goal: GoalSettings) -> None:
+        """Take new settings: the goal in force is judged by them, a route in force re-timed."""
+        changed, self.route_settings, self.goal_settings = (
+            route != self.route_settings), route, goal
+        with self._lock:
+            tracker, sent = self._tracker, self._route
+        if tracker is not None:
+            tracker.judge_by(goal)
+        if changed and sent is not None and tracker is not None and \
+                tracker.status.state is not GoalState.ARRIVED:
+            try:
+                self.set_route(sent[0], tracker.watch is not None)
+            except ReferenceRejected as exc:
+                self.session.log('warn', f'the route in force keeps its timing: {exc}')
 
     def update(self, pose: np.ndarray, twist: np.ndarray, now: float) -> None:
         """Judge the robot at ``pose`` moving with body ``twist`` at ``now`` [s]."""
@@ -184,17 +206,31 @@ def timing_problem(times: np.ndarray, now: float) -> str:
             'now: taken as stamped')
 
 
-def slowed(timed: TimedPoses, pose_map: PoseMap, bounds: tuple | None) -> TimedPoses:
-    """Return ``timed`` slowed as a whole where it asks for more than the velocity ``bounds``."""
-    if bounds is None:
-        return timed
-    reference = pose_map.reference(timed.times, timed.poses, timed.twists)
-    ratio = bound_ratio(reference.v, bounds) * (1 + 1e-3)
-    if not 1 < ratio < np.inf:
-        return timed
-    t0 = timed.times[0]
-    return TimedPoses(t0 + (timed.times - t0) * ratio, timed.poses, timed.twists / ratio,
-                      timed.route)
+def within_bounds(shape: RouteShape, start_speed: float, settings: RouteSettings,
+                  pose_map: PoseMap, bounds: tuple | None) -> TimedRoute:
+    """Return ``shape`` timed, slower where it would ask for more than the velocity ``bounds``.
+
+    A model's velocities at a point scale with the speed there, so each point's speed (and its
+    neighbours', whose times its rates are taken over) is capped by the ratio it asked for, up
+    to five times.
+    """
+    route = time_shape(shape, start_speed, settings)
+    if bounds is None or shape.at_goal:
+        return route
+    caps = np.full(len(shape.positions), np.inf)
+    for _ in range(5):
+        reference = pose_map.reference(route.times, route.poses, route.twists)
+        ratio = bound_ratios(reference.v, bounds)[:len(caps)]
+        if ratio.max() <= 1.0 or not np.isfinite(ratio).all():
+            break
+        with np.errstate(divide='ignore', invalid='ignore'):
+            wanted = np.where(ratio > 1.0, np.abs(route.speeds[:len(caps)]) / ratio
+                              * BOUND_MARGIN, np.inf)
+        # a point's rates are differences with its neighbours': they are slowed alike
+        wanted = np.minimum.reduce([np.roll(wanted, k) for k in (-1, 0, 1)])
+        caps = np.minimum(caps, wanted)
+        route = time_shape(shape, start_speed, settings, caps)
+    return route
 
 
 def checked_reference(times: np.ndarray, poses: np.ndarray, twists: np.ndarray | None,

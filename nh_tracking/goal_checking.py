@@ -28,7 +28,7 @@ import math
 
 import numpy as np
 
-from nh_tracking.route import closest_point
+from nh_tracking.route_shape import closest_point
 from nh_tracking.settings import check_fields, setting
 
 LOOK_AHEAD = 1.0  # [m] the robot's place on the path is looked for this far past the last one
@@ -155,6 +155,12 @@ class GoalTracker:
         self.checker = GoalChecker(settings, has_yaw)
         self.watch = ProgressChecker(settings) if check_progress else None
         self.status = GoalStatus(GoalState.FOLLOWING, self.progress.length)
+
+    def judge_by(self, settings: GoalSettings) -> None:
+        """Judge by ``settings`` from now on (the progress made so far kept)."""
+        self.checker.settings = settings
+        if self.watch is not None:
+            self.watch.settings = settings
 
     def update(self, pose: np.ndarray, twist: np.ndarray, now: float) -> GoalStatus:
         """Judge the state ``pose`` (x, y, z, yaw), body ``twist``, at ``now`` [s]."""

@@ -102,12 +102,10 @@ def check_velocity_bounds(v: np.ndarray, bounds: tuple | None, names: Sequence[s
                                     f'({side} is {bound[j]:g})')
 
 
-def bound_ratio(v: np.ndarray, bounds: tuple | None) -> float:
-    """How many times its velocity bounds ``v`` (N, k) asks for at most (<= 1: within them)."""
-    if bounds is None:
-        return 0.0
+def bound_ratios(v: np.ndarray, bounds: tuple) -> np.ndarray:
+    """How many times its velocity bounds each row of ``v`` (N, k) asks for (<= 1: within)."""
     lo, hi = (np.broadcast_to(np.asarray(b, dtype=float), v.shape[1]) for b in bounds)
     with np.errstate(divide='ignore', invalid='ignore'):
         over = np.where(hi > 0, v / hi, np.where(v > 0, np.inf, 0.0))
         under = np.where(lo < 0, v / lo, np.where(v < 0, np.inf, 0.0))
-    return float(np.nan_to_num(np.maximum(over, under), nan=0.0).max(initial=0.0))
+    return np.nan_to_num(np.maximum(over, under), nan=0.0).max(axis=1)

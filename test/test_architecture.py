@@ -28,7 +28,7 @@ PACKAGE = ROOT / 'nh_tracking'
 LAYERS = [  # lowest first; a module may import from its own layer and the ones below
     {'geometry', 'system', 'models', 'simulate', 'trajectory', 'problem', 'numeric', 'metrics',
      'settings', 'regularity', 'limits', 'costmap', 'lean', 'reference_checks', 'route',
-     'goal_checking'},
+     'route_shape', 'goal_checking'},
     {'solvers'},
     {'receding_horizon', 'avoidance', 'fallback', 'poses', 'session', 'session_types', 'health',
      'following'},

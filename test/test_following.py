@@ -157,6 +157,14 @@ def test_timed_references_that_cannot_be_meant_are_refused_or_warned():
         following.set_route(poses)
 
 
+def test_a_route_is_slowed_where_it_would_pass_the_velocity_bounds():
+    loop = Loop(v_min=[-0.7, -2.0], v_max=[0.7, 2.0])  # the turn asks for 3 rad/s unbounded
+    timed = loop.session.following.set_route(polyline((0, 0), (2, 0), (2, 2)))
+    reference = loop.session.planner.reference
+    assert np.abs(reference.v[:, 1]).max() <= 2.0 and np.abs(timed.twists[:, 3]).max() <= 2.0
+    assert np.median(np.abs(timed.route.speeds)) == pytest.approx(0.5)  # the turn alone
+
+
 def test_a_route_is_slowed_into_the_velocity_bounds_and_a_cancel_brings_it_to_rest():
     loop = Loop(v_max=[0.3, 1.0])
     following = loop.session.following
@@ -177,3 +185,21 @@ def test_a_robot_that_cannot_get_on_is_blocked():
     following.set_route(polyline((0, 0), (4, 0)))
     loop.run(3.0)
     assert following.status.state is GoalState.BLOCKED
+
+
+def test_a_route_sent_again_after_arriving_is_driven_again_and_new_settings_retime_it():
+    loop = Loop()
+    following = loop.session.following
+    patrol = polyline((0, 0), (2, 0), (2, 1), (0, 1), (0, 0))
+    following.set_route(patrol)
+    loop.run(16.0)
+    assert following.status.state is GoalState.ARRIVED
+    assert following.set_route(patrol) is not None  # a patrol sent again: round it again
+    assert following.status.remaining == pytest.approx(6.0, abs=0.05)
+    loop.run(2.0)
+    slower = nht.route.RouteSettings(reference_speed=0.2)
+    following.configure(slower, GoalSettings(xy_goal_tolerance=0.1))
+    reference = loop.session.planner.reference  # re-timed at once from where the robot is
+    speeds = np.hypot(*np.diff(reference.q[:, :2], axis=0).T) / np.diff(reference.t)
+    assert speeds[len(speeds) // 2] == pytest.approx(0.2, rel=0.02)
+    assert following.goal_settings.xy_goal_tolerance == 0.1

@@ -40,7 +40,8 @@ def _console_scripts() -> set[str]:
 
 
 # what config/diff_drive.yaml (a Nav2 diff-drive robot) sets otherwise than the defaults
-DIFF_DRIVE = {'model': 'unicycle', 'epsilon': 0.05, 'robot_radius': 0.2}
+DIFF_DRIVE = {'model': 'unicycle', 'epsilon': 0.05, 'robot_radius': 0.2,
+              'v_min': [-0.7, -3.0], 'v_max': [0.7, 3.0]}
 
 
 @pytest.mark.parametrize('name, changed', [('sleigh.yaml', {}), ('diff_drive.yaml', DIFF_DRIVE)])

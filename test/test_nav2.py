@@ -36,7 +36,7 @@ from nh_tracking.metrics import cross_track_error
 from nh_tracking.ros import messages as msgs
 from nh_tracking.ros.graph import wait_until
 from nh_tracking.ros.planner_interface import LATCHED
-from nh_tracking.route import closest_point
+from nh_tracking.route_shape import closest_point
 from processes import domain_env, Peer, Process
 from test_route import arc
 
@@ -355,3 +355,51 @@ def test_the_nav2_demo_arrives_and_draws_it(tmp_path):
     summary = run_nav2_demo(tmp_path, log=lambda line: None)
     assert summary['error_code'] == 0 and summary['max_cross_track_error_after_2s'] <= 0.05
     assert summary['fallbacks'] == 0 and (tmp_path / 'nav2.png').stat().st_size > 10_000
+
+
+def test_deactivation_and_an_invalid_goal_bring_the_robot_to_rest(graph):
+    """What Nav2's controller_server does: a goal that ends unfinished stops the robot."""
+    from nh_tracking.examples.nav2 import SETTINGS
+    from nh_tracking.ros.graph import parameters
+    from nh_tracking.ros.planner_node import PlannerNode
+    from nh_tracking.ros.simulator_node import SimulatorNode
+    from test_ros import unique_namespace
+
+    ns = unique_namespace()
+    graph.add(SimulatorNode, namespace=ns, parameter_overrides=parameters(model='unicycle'))
+    planner = graph.add(PlannerNode, namespace=ns, parameter_overrides=parameters(**SETTINGS))
+    node = graph.plain_node('nav2', ns)
+    odometry: list[tuple[float, float]] = []  # x, speed
+    node.create_subscription(Odometry, 'odom', lambda m: odometry.append(
+        (m.pose.pose.position.x, m.twist.twist.linear.x)), 100)
+    client = ActionClient(node, FollowPath, 'follow_path')
+    assert client.wait_for_server(30.0)
+
+    def goal(poses: np.ndarray):
+        sent = client.send_goal_async(FollowPath.Goal(path=route_msg(poses),
+                                                      goal_checker_id='general_goal_checker'))
+        assert wait_until(sent.done, 10.0) and sent.result().accepted
+        return sent.result().get_result_async()
+
+    def at_rest(timeout: float) -> bool:
+        return wait_until(lambda: abs(odometry[-1][1]) < 0.02, timeout)
+
+    first = goal(polyline((0, 0), (6, 0)))
+    assert wait_until(lambda: odometry and odometry[-1][1] > 0.4, 20.0)
+    planner.trigger_deactivate()  # effort mode: zero cmd_vel alone would leave it coasting
+    assert at_rest(4.0), odometry[-1]
+    assert wait_until(first.done, 5.0) and first.result().status == GoalStatus.STATUS_ABORTED
+    x = odometry[-1][0]
+    planner.trigger_activate()
+    wait_until(lambda: False, 2.0)
+    assert abs(odometry[-1][0] - x) < 0.02  # the aborted goal's route is not taken up again
+    goal(polyline((x, 0), (x + 4, 0)))
+    assert wait_until(lambda: odometry[-1][1] > 0.4, 20.0)
+    bad = polyline((0, 0), (1, 0))
+    bad[3, 0] = np.nan
+    invalid = goal(bad)  # preempts the running goal, then fails: nothing drives the robot
+    assert wait_until(invalid.done, 5.0)
+    assert invalid.result().result.error_code == FollowPath.Result.INVALID_PATH
+    assert at_rest(4.0), odometry[-1]
+    print(f'\ndeactivated at 0.5 m/s and after an invalid goal: at rest; x = '
+          f'{odometry[-1][0]:.2f} m')

@@ -19,7 +19,8 @@ import pytest
 from nh_tracking import models
 from nh_tracking.examples.nav2 import polyline
 from nh_tracking.poses import PoseMap
-from nh_tracking.route import closest_point, RouteHeadings, RouteSettings, time_route
+from nh_tracking.route import RouteHeadings, RouteSettings, time_route
+from nh_tracking.route_shape import closest_point
 
 
 def arc(radius: float, sweep: float, spacing=0.05) -> np.ndarray:
@@ -119,7 +120,7 @@ def test_headings_come_from_the_poses_when_they_carry_some():
 
 
 def test_a_last_pose_with_a_heading_of_its_own_ends_the_route_with_a_turn_to_it():
-    """NavFn's paths: every orientation unset but the goal's."""
+    """Take NavFn's paths: every orientation unset but the goal's."""
     navfn = polyline((0, 0), (2, 0), (2, 2))
     navfn[-1, 3] = np.pi
     route = time_route(navfn, np.zeros(2), 0.0, RouteSettings())

@@ -39,7 +39,8 @@ from nh_tracking.ros.runner import responsive_threads
 from nh_tracking.ros.simulator_node import SimulatorNode
 
 ROBOT_RADIUS = 0.2
-SETTINGS = {'model': 'unicycle', 'epsilon': 0.05, 'robot_radius': ROBOT_RADIUS}  # diff_drive.yaml
+SETTINGS = {'model': 'unicycle', 'epsilon': 0.05, 'robot_radius': ROBOT_RADIUS,  # diff_drive.yaml
+            'v_min': [-0.7, -3.0], 'v_max': [0.7, 3.0]}
 BLOCK = (2.35, 0.5, 2.65, 0.8)  # x0, y0, x1, y1 [m]: 0.35 m beside the second leg
 INSCRIBED, INFLATED = 99, 98  # Nav2's published costs next to lethal (100)
 

@@ -44,18 +44,19 @@ except ImportError:  # no nav2_msgs: the planner runs without the action (and sa
     FollowPath = None
 
 FEEDBACK_RATE = 10.0  # [Hz]
-# the ids a goal may name (besides ''), as the plugins of a Nav2 controller_server are named
-CONTROLLER_ID, GOAL_CHECKER_ID, PROGRESS_CHECKER_ID = 'FollowPath', 'goal_checker', \
-    'progress_checker'
+# the ids a goal may name besides '': the plugin names of Nav2's default nav2_params.yaml
+PLUGIN_IDS = {'controller_id': ('FollowPath',),
+              'goal_checker_id': ('general_goal_checker', 'goal_checker'),
+              'progress_checker_id': ('progress_checker',)}
 
 
 def plugin_problem(goal: Any) -> str:
     """Why a goal's plugin ids are not this planner's ('' if they are)."""
-    for field, own in (('controller_id', CONTROLLER_ID), ('goal_checker_id', GOAL_CHECKER_ID),
-                       ('progress_checker_id', PROGRESS_CHECKER_ID)):
+    for field, own in PLUGIN_IDS.items():
         value = getattr(goal, field)
-        if value not in ('', own):
-            return f"{field} '{value}' is not this planner's (give '' or '{own}')"
+        if value and value not in own:
+            names = ', '.join(f"'{name}'" for name in own)
+            return f"{field} '{value}' is not this planner's (give '' or {names})"
     return ''
 
 
@@ -65,6 +66,7 @@ class FollowPathServer:
     def __init__(self, node: PlannerNode) -> None:
         self.node = node
         self._current: Any = None  # the goal handle in force; older ones are preempted
+        self._generation = -1  # the path the last goal made the reference (its generation)
         self._ticks: list[Future] = []
         self.companion = CompanionNode(node, 'follow_path', **LEAN)
         self.companion.node.create_timer(1.0 / FEEDBACK_RATE, self._tick)
@@ -113,21 +115,26 @@ class FollowPathServer:
 
     async def _execute(self, handle: Any) -> Any:
         node, result = self.node, FollowPath.Result()
-        problem = plugin_problem(handle.request)
-        if problem:
-            return self._end(handle, FollowPath.Result.INVALID_CONTROLLER, problem)
-        try:
-            take_path(node, handle.request.path, goal=True)
-        except cv.InputRejected as exc:
-            node.reject('follow_path goal', str(exc))
-            return self._end(handle, FollowPath.Result.INVALID_PATH, str(exc))
         following = node.live.following
-        generation = following.generation
+        problem = plugin_problem(handle.request)
+        code = FollowPath.Result.INVALID_CONTROLLER
+        if not problem:
+            try:
+                take_path(node, handle.request.path, goal=True)
+            except cv.InputRejected as exc:
+                node.reject('follow_path goal', str(exc))
+                problem, code = str(exc), FollowPath.Result.INVALID_PATH
+        if problem:  # the goal it preempted is over too: its robot is brought to rest
+            if following.generation == self._generation:
+                following.halt()
+            return self._end(handle, code, problem)
+        generation = self._generation = following.generation
         while True:
             await self._next_tick()
             session = node.session
             if self._current is not handle:
-                return self._end(handle, FollowPath.Result.NONE, 'preempted by a newer goal')
+                return self._end(handle, FollowPath.Result.NONE, 'preempted by a newer goal',
+                                 quiet=True)
             if session is None or not session.active:
                 return self._end(handle, FollowPath.Result.UNKNOWN, 'the planner was '
                                  'deactivated')
@@ -152,10 +159,11 @@ class FollowPathServer:
                                  f'no progress: moved less than {s.required_movement_radius:g} '
                                  f'm in {s.movement_time_allowance:g} s')
 
-    def _end(self, handle: Any, code: int, why: str) -> Any:
-        """Abort ``handle`` with ``code`` and ``why``."""
+    def _end(self, handle: Any, code: int, why: str, quiet: bool = False) -> Any:
+        """Abort ``handle`` with ``code`` and ``why`` (logged, unless ``quiet``: routine)."""
         if self._current is handle:
             self._current = None
         handle.abort()
-        self.node.get_logger().info(f'follow_path goal aborted: {why}')
+        if not quiet:
+            self.node.get_logger().info(f'follow_path goal aborted: {why}')
         return FollowPath.Result(error_code=code, error_msg=why)

@@ -35,29 +35,31 @@ from visualization_msgs.msg import MarkerArray
 from nh_tracking.avoidance import MAX_OBSTACLES
 from nh_tracking.health import HealthLevel, session_health
 from nh_tracking.receding_horizon import PlannerSettings
-from nh_tracking.ros import cdr, conversions as cv, messages as msgs
+from nh_tracking.ros import conversions as cv, messages as msgs
 from nh_tracking.ros.clock_watch import ClockWatchdog
 from nh_tracking.ros.follow_path import FollowPathServer
 from nh_tracking.ros.lifecycle import answer_every_transition
-from nh_tracking.ros.markers import obstacle_markers, plan_markers
 from nh_tracking.ros.obstacle_listener import DISC_SIZE, ObstacleListener
 from nh_tracking.ros.odometry_receiver import OdometryReceiver
 from nh_tracking.ros.parameters import declare_all, declare_model
 from nh_tracking.ros.path_input import take_path, take_trajectory
+from nh_tracking.ros.plan_outputs import PlanOutputs
 from nh_tracking.ros.planner_interface import LATCHED, PARAMETERS
 from nh_tracking.ros.planner_parameters import RuntimeParameters
 from nh_tracking.ros.planner_services import PlannerServices
 from nh_tracking.ros.reference_receiver import ReferenceReceiver
 from nh_tracking.ros.runner import autostart
 from nh_tracking.ros.safety import guarded
-from nh_tracking.session import PlanResult, TrackingSession
+from nh_tracking.session import TrackingSession
 from nh_tracking.session_types import ClockSkew
 
 
-class PlannerNode(RuntimeParameters, ObstacleListener, ClockWatchdog, LifecycleNode):
-    """``nh_tracking_planner``: topics, services and parameters in the README's table."""
+AT_REST = 0.01  # [m/s, rad/s] slower than this, a robot being stopped is at rest
 
-    _displayed: object  # the outcome last shown on planned_path
+
+class PlannerNode(RuntimeParameters, PlanOutputs, ObstacleListener, ClockWatchdog,
+                  LifecycleNode):
+    """``nh_tracking_planner``: topics, services and parameters in the README's table."""
 
     def __init__(self, **kwargs) -> None:
         super().__init__('nh_tracking_planner', **kwargs)
@@ -81,13 +83,6 @@ class PlannerNode(RuntimeParameters, ObstacleListener, ClockWatchdog, LifecycleN
         self.add_post_set_parameters_callback(self._apply_parameters)
         if self.params['autostart']:
             autostart(self, lambda: self._configure_error)
-
-    @property
-    def live(self) -> TrackingSession:
-        """Return the session; callbacks run only while the node is configured."""
-        if self.session is None:
-            raise RuntimeError('the planner is not configured')
-        return self.session
 
     @property
     def planner(self):
@@ -159,12 +154,35 @@ class PlannerNode(RuntimeParameters, ObstacleListener, ClockWatchdog, LifecycleN
         return super().on_activate(state)
 
     def on_deactivate(self, state: LifecycleState) -> TransitionCallbackReturn:
+        """Bring the robot to rest and drop the path in force, then stop commanding."""
+        self._publish_twist(np.zeros(4))
+        try:
+            self._bring_to_rest()
+        except ValueError as exc:  # (a stop the reference checks refuse: faster than allowed)
+            self.fail('stopping on deactivation', exc)
         self.live.active = False
         for timer in self._command_timers:
             self.destroy_timer(timer)
         self._command_timers = []
         self._publish_twist(np.zeros(4))  # the robot stops: nothing commands it any more
         return super().on_deactivate(state)
+
+    def _bring_to_rest(self, timeout: float = 3.0) -> None:
+        """Replan to rest until the robot is (or ``timeout`` [s] has passed).
+
+        A robot driven by effort keeps its speed without controls: one plan would not do, as
+        the simulator (like a driver) drops a sequence not renewed within its timeout.
+        """
+        session = self.live
+        session.following.halt()
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            session.replan()
+            state = session.state
+            if state is None or np.abs(session.pose_map.body_twist(state.q, state.v)).max() \
+                    < AT_REST:
+                return
+            time.sleep(self.params['replan_period'])
 
     def on_cleanup(self, state: LifecycleState) -> TransitionCallbackReturn:
         self._release()
@@ -224,35 +242,6 @@ class PlannerNode(RuntimeParameters, ObstacleListener, ClockWatchdog, LifecycleN
             self.live.replan()
             self._planned_ns = time.time_ns()  # the clock of DDS's reception stamps
 
-    # outputs ----------------------------------------------------------------------------------
-    @guarded('publishing the plan')
-    def _publish_plan(self, result: PlanResult) -> None:
-        """Publish a new plan's control sequence, on the solver thread (as bytes: :mod:`cdr`)."""
-        if result.outcome is not None:
-            plan, session = result.outcome.plan, self.live
-            fields = (self.frame, session.ns(plan.t[0]), plan.t[:-1] - plan.t[0],
-                      session.system.control_names, plan.u)
-            self.pub_controls.publish(cdr.control_sequence(*fields) if cdr.agrees_with_rmw()
-                                      else msgs.control_sequence_msg(*fields))
-
-    @guarded('publishing the plan display')
-    def publish_display(self) -> None:
-        """Publish the newest plan (path; markers if listened to) at display_rate."""
-        session = self.live
-        outcome = session.outcome
-        if outcome is None or outcome is self._displayed:
-            return
-        self._displayed = outcome
-        plan, pose = outcome.plan, session.pose_map.pose
-        stamps = [session.ns(t) for t in plan.t]
-        poses = np.array([pose(q) for q in plan.q])
-        self.pub_path.publish(msgs.path_msg(self.frame, stamps, poses))
-        if self.pub_markers.get_subscription_count() > 0:
-            reference = np.array([pose(q) for q in outcome.reference])
-            markers = plan_markers(self.frame, stamps[0], poses[:, :3], reference[:, :3])
-            markers.markers += obstacle_markers(self.frame, stamps[0], self._discs)
-            self.pub_markers.publish(markers)
-
     def obstacles_changed(self) -> None:
         """Choose the discs in force, one call at a time (executor and odometry threads)."""
         with self._obstacles_lock:
@@ -262,23 +251,6 @@ class PlannerNode(RuntimeParameters, ObstacleListener, ClockWatchdog, LifecycleN
             self._discs = self.obstacle_discs(centre, self.params['costmap_reach'],
                                               MAX_OBSTACLES)
             session.set_obstacles(self._discs)
-
-    @guarded('cmd_vel')
-    def publish_cmd_vel(self) -> None:
-        """Publish the plan's velocity now, as a body twist; zero when odometry is stale."""
-        twist = self.live.command(self.now_ns())
-        if twist is not None:
-            self._publish_twist(twist)
-
-    def _publish_twist(self, twist: np.ndarray) -> None:
-        if self.pub_cmd.msg_type is TwistStamped:
-            self.pub_cmd.publish(msgs.twist_stamped_msg(self.frame, self.now_ns(), twist))
-        else:
-            self.pub_cmd.publish(msgs.twist_msg(twist))
-
-    def on_clock_stopped(self) -> None:
-        if self.live.active:
-            self._publish_twist(np.zeros(4))
 
     # diagnostics ------------------------------------------------------------------------------
     def on_problem(self) -> None:

@@ -43,8 +43,8 @@ class RuntimeParameters(SafeNode):
         session.max_clock_skew = self.params['max_clock_skew']
         session.reference_bounds = (self.params['reference_max_speed'],
                                     self.params['reference_max_accel'])
-        session.following.route_settings = RouteSettings(**self._values(ROUTE))
-        session.following.goal_settings = GoalSettings(**self._values(GOAL))
+        session.following.configure(RouteSettings(**self._values(ROUTE)),
+                                    GoalSettings(**self._values(GOAL)))
 
     def _values(self, specs, changes: dict | None = None) -> dict:
         return {s.name: (changes or {}).get(s.name, self.params[s.name]) for s in specs}
