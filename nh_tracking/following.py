@@ -121,21 +121,31 @@ class Following:
         return timed
 
     def halt(self) -> None:
-        """Drop the path in force: brought to rest, straight ahead; ``cmd_vel`` zero."""
-        session = self.session
-        state = session.state
-        if state is not None:
-            pose = session.pose_map.pose(state.q)
-            speed = float(session.pose_map.body_twist(state.q, state.v)[0])
-            distance = speed * abs(speed) / (2 * self.route_settings.max_accel)
-            ahead = pose + distance * np.array([np.cos(pose[3]), np.sin(pose[3]), 0.0, 0.0])
-            stop = time_route(np.vstack([pose, ahead]), pose[:2], speed, RouteSettings(
-                max(abs(speed), 1e-3), self.route_settings.max_accel,
-                self.route_settings.max_lateral_accel, 'poses'))
-            session.track(session.now() + stop.times, stop.poses, stop.twists)
+        """Drop the path in force: brought to rest, straight ahead; ``cmd_vel`` zero.
+
+        Dropped first: a stop the reference checks refuse (a robot faster than bounds just
+        lowered) leaves the robot held where it is, never on the old path.
+        """
         with self._lock:
             self._tracker, self._route, self.halted = None, None, True
             self.generation += 1
+        session = self.session
+        state = session.state
+        if state is None:
+            return
+        pose = session.pose_map.pose(state.q)
+        speed = float(session.pose_map.body_twist(state.q, state.v)[0])
+        distance = speed * abs(speed) / (2 * self.route_settings.max_accel)
+        ahead = pose + distance * np.array([np.cos(pose[3]), np.sin(pose[3]), 0.0, 0.0])
+        stop = time_route(np.vstack([pose, ahead]), pose[:2], speed, RouteSettings(
+            max(abs(speed), 1e-3), self.route_settings.max_accel,
+            self.route_settings.max_lateral_accel, 'poses'))
+        try:
+            session.track(session.now() + stop.times, stop.poses, stop.twists)
+        except ReferenceRejected as exc:
+            session.log('warn', f'held where it is: the stop asked for too much ({exc})')
+            session.track(session.now() + np.array([0.0, 1.0]), np.vstack([pose, pose]),
+                          np.zeros((2, 4)))
 
     def _same_route(self, poses: np.ndarray) -> bool:
         """Whether ``poses`` is the route in force, re-sent (same poses, same settings).
@@ -157,6 +167,10 @@ class Following:
         tracker = GoalTracker(positions, goal, self.goal_settings,
                               self.session.pose_map.has_yaw, check_progress)
         with self._lock:
+            going = self._tracker
+            if going is not None and going.watch is not None and tracker.watch is not None \
+                    and going.status.state is not GoalState.ARRIVED:
+                tracker.watch = going.watch  # a path updated on the way: progress judged on
             self._tracker, self.halted = tracker, False
             self.generation += 1
             self._route = None if route is None else (route, self.route_settings)

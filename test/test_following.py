@@ -203,3 +203,21 @@ def test_a_route_sent_again_after_arriving_is_driven_again_and_new_settings_reti
     speeds = np.hypot(*np.diff(reference.q[:, :2], axis=0).T) / np.diff(reference.t)
     assert speeds[len(speeds) // 2] == pytest.approx(0.2, rel=0.02)
     assert following.goal_settings.xy_goal_tolerance == 0.1
+
+
+def test_progress_is_judged_across_path_updates_and_a_stop_is_never_refused():
+    loop = Loop(v_max=[0.3, 1.0], u_max=[0.0, 1.0], u_min=[-1.0, -1.0])  # no push forward
+    following = loop.session.following
+    following.goal_settings = GoalSettings(movement_time_allowance=2.0)
+    for k in range(6):  # a planner re-sending a slightly different path every 0.5 s
+        following.set_route(polyline((0, 0.001 * k), (4, 0)))
+        loop.run(0.5)
+    assert following.status.state is GoalState.BLOCKED
+    moving = Loop()
+    moving.session.following.set_route(polyline((0, 0), (4, 0)))
+    moving.run(3.0)
+    moving.session.planner.update(v_max=[0.2, 1.0])  # lowered under the robot's 0.5 m/s
+    moving.session.following.halt()
+    assert moving.session.following.halted
+    assert moving.session.following.status.state is GoalState.NONE
+    assert moving.logs[-1][0] == 'warn' and 'held where it is' in moving.logs[-1][1]
