@@ -65,6 +65,11 @@ class GoalSettings:
     def __post_init__(self) -> None:
         check_fields(self)
 
+    def stuck(self) -> str:
+        """Say what a blocked robot failed to do."""
+        return (f'moved less than {self.required_movement_radius:g} m in '
+                f'{self.movement_time_allowance:g} s')
+
 
 class PathProgress:
     """The robot's place along a path: it moves forward only, so loops are followed around."""

@@ -72,10 +72,9 @@ def session_health(session: TrackingSession, problem: str, counts: dict[str, int
         level, message = HealthLevel.WARN, (f'the reference starts {ahead:.1f} s from now '
                                             '(a clock that jumped back?)')
     elif goal.state is GoalState.BLOCKED:
-        s = session.following.goal_settings
         level, message = HealthLevel.WARN, (
-            f'blocked: moved less than {s.required_movement_radius:g} m in '
-            f'{s.movement_time_allowance:g} s, {goal.remaining:.2f} m before the goal')
+            f'blocked: {session.following.goal_settings.stuck()}, {goal.remaining:.2f} m '
+            'before the goal')
     elif outcome is not None and outcome.status is not PlanStatus.OPTIMAL:
         level, message = HealthLevel.WARN, f'{outcome.status}: {outcome.message}'
     if problem and level is HealthLevel.OK:

@@ -154,10 +154,8 @@ class FollowPathServer:
                 return result
             if status.state is GoalState.BLOCKED:
                 following.halt()
-                s = following.goal_settings
                 return self._end(handle, FollowPath.Result.FAILED_TO_MAKE_PROGRESS,
-                                 f'no progress: moved less than {s.required_movement_radius:g} '
-                                 f'm in {s.movement_time_allowance:g} s')
+                                 f'no progress: {following.goal_settings.stuck()}')
 
     def _end(self, handle: Any, code: int, why: str, quiet: bool = False) -> Any:
         """Abort ``handle`` with ``code`` and ``why`` (logged, unless ``quiet``: routine)."""
