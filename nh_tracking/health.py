@@ -75,6 +75,8 @@ def session_health(session: TrackingSession, problem: str, counts: dict[str, int
         level, message = HealthLevel.WARN, (
             f'blocked: {session.following.goal_settings.stuck()}, {goal.remaining:.2f} m '
             'before the goal')
+    elif session.robot.joints_lost:
+        level, message = HealthLevel.WARN, f'hidden coordinates: {session.robot.hidden_status}'
     elif outcome is not None and outcome.status is not PlanStatus.OPTIMAL:
         level, message = HealthLevel.WARN, f'{outcome.status}: {outcome.message}'
     if problem and level is HealthLevel.OK:
@@ -87,7 +89,7 @@ def session_health(session: TrackingSession, problem: str, counts: dict[str, int
         'optimal': stats.optimal, 'shifted': stats.shifted, 'fallbacks': stats.fallbacks,
         'deadline_misses': stats.deadline_misses, **counts, 'last_problem': problem,
         'reconfiguring': session.reconfiguring, 'stale_fraction': f'{stale:.2f}',
-        'goal': str(goal.state), 'distance_to_goal_m': f'{goal.remaining:.2f}',
+        'hidden_coordinates': session.robot.hidden_status or 'none', 'goal': str(goal.state), 'distance_to_goal_m': f'{goal.remaining:.2f}',
         'solve_time_last_ms': f'{(outcome.solve_time if outcome else 0.0) * 1e3:.2f}',
         'solve_time_p50_ms': f'{np.percentile(times, 50) * 1e3:.2f}',
         'solve_time_p99_ms': f'{np.percentile(times, 99) * 1e3:.2f}',

@@ -29,6 +29,7 @@ import numpy as np
 from scipy.integrate import cumulative_trapezoid
 from scipy.interpolate import CubicSpline
 
+from nh_tracking.implied_shape import ImpliedShape
 from nh_tracking.numeric import NumericFunction
 from nh_tracking.regularity import random_configurations
 from nh_tracking.system import NonholonomicSystem, POSE_AXES
@@ -90,6 +91,7 @@ class PoseMap:
         self.pose_rows = [self.rows[a] for a in AXES if a in self.rows]
         self._axes = [AXES.index(a) for a in AXES if a in self.rows]  # their index in a pose
         self._projection = self._normal_equations()
+        self.implied = ImpliedShape(system, self.pose_rows, self.hidden)
 
     @property
     def has_yaw(self) -> bool:
@@ -107,21 +109,6 @@ class PoseMap:
         if hidden is not None and self.hidden:
             q[self.hidden] = np.asarray(hidden, dtype=float)[self.hidden]
         q[self.pose_rows] = np.asarray(pose, dtype=float)[self._axes]
-        return q
-
-    def dead_reckon(self, pose: np.ndarray, v: np.ndarray, previous_q: np.ndarray | None,
-                    previous_v: np.ndarray | None, dt: float) -> np.ndarray:
-        """Q from a measured pose.
-
-        Hidden coordinates carried forward from the previous estimate by integrating their rates
-        (trapezoid rule) over dt.
-        """
-        if previous_q is None or not self.hidden:
-            return self.configuration(pose, previous_q)
-        q = self.configuration(pose, previous_q)
-        rate_prev = self.system.rho(previous_q)[self.hidden] @ previous_v
-        rate_now = self.system.rho(q)[self.hidden] @ v
-        q[self.hidden] += 0.5 * dt * (rate_prev + rate_now)
         return q
 
     def _normal_equations(self) -> NumericFunction | None:
@@ -146,16 +133,28 @@ class PoseMap:
         return NumericFunction(ca.Function('velocity', [q, twist], [
             ca.solve(rows.T @ rows, rows.T @ world)]))
 
-    def velocity(self, q: np.ndarray, body_twist: np.ndarray) -> np.ndarray:
-        """V from a body-frame twist (vx, vy, vz, wz), projected onto D (least squares)."""
+    def velocity(self, q: np.ndarray, body_twist: np.ndarray, rows: list[int] | None = None,
+                 rates: np.ndarray | None = None) -> np.ndarray:
+        """V from a body-frame twist (vx, vy, vz, wz), projected onto D (least squares).
+
+        ``rows``: hidden coordinates whose ``rates`` are measured too (a steering joint's).
+        """
+        if rows:
+            matrix = self.system.rho(q)[self.pose_rows + list(rows), :]
+            measured = np.concatenate([self.world_rates(q, body_twist)[self._axes], rates])
+            return np.linalg.lstsq(matrix, measured, rcond=None)[0]
         if self._projection is not None:
             v = self._projection(q, body_twist)[0]
             if np.isfinite(v).all():  # (else a singular configuration: lstsq's answer)
                 return v
+        return self.velocity_from_world(q, self.world_rates(q, body_twist))
+
+    def world_rates(self, q: np.ndarray, body_twist: np.ndarray) -> np.ndarray:
+        """(xdot, ydot, zdot, yaw rate) of a body-frame twist at q."""
         yaw = q[self.rows['yaw']] if self.has_yaw else 0.0
         c, s = np.cos(yaw), np.sin(yaw)
         vx, vy, vz, wz = body_twist
-        return self.velocity_from_world(q, np.array([c * vx - s * vy, s * vx + c * vy, vz, wz]))
+        return np.array([c * vx - s * vy, s * vx + c * vy, vz, wz])
 
     def velocity_from_world(self, q: np.ndarray, world: np.ndarray) -> np.ndarray:
         """V from world-frame rates (xdot, ydot, zdot, yaw rate), projected onto D.
@@ -167,12 +166,12 @@ class PoseMap:
         rates = np.asarray(world, dtype=float)[self._axes]
         return np.linalg.lstsq(rows, rates, rcond=None)[0]
 
-    def _project(self, rho: np.ndarray, world: np.ndarray) -> np.ndarray:
-        """(N, k) least-squares velocities from (N, n, k) bases and (N, 4) world rates."""
-        rows = rho[:, self.pose_rows, :]
-        rates = np.asarray(world, dtype=float)[:, self._axes]
-        cutoff = np.finfo(float).eps * max(rows.shape[1:])  # lstsq's default (rcond=None)
-        return (np.linalg.pinv(rows, rcond=cutoff) @ rates[:, :, None])[:, :, 0]
+    @staticmethod
+    def _project(rho: np.ndarray, rows: list[int], rates: np.ndarray) -> np.ndarray:
+        """(N, k) least-squares velocities from (N, n, k) bases and (N, len(rows)) q rates."""
+        matrices = rho[:, rows, :]
+        cutoff = np.finfo(float).eps * max(matrices.shape[1:])  # lstsq's default (rcond=None)
+        return (np.linalg.pinv(matrices, rcond=cutoff) @ rates[:, :, None])[:, :, 0]
 
     def body_twist(self, q: np.ndarray, v: np.ndarray) -> np.ndarray:
         """Body-frame twist (vx, vy, vz, wz) of the motion (q, v)."""
@@ -191,15 +190,15 @@ class PoseMap:
         4).
 
         Without twists, velocities are the derivatives of a C2 spline through the poses (yaw
-        unwrapped first). Either way they are projected onto D; hidden coordinates are
-        integrated from ``hidden0`` along the projected motion.
+        unwrapped first). Either way they are projected onto D. Hidden coordinates the motion
+        implies (a steering angle: :mod:`implied_shape`) are solved for, the others integrated
+        from ``hidden0`` along the projected motion.
         """
         times = np.asarray(times, dtype=float)
         poses = np.array(poses, dtype=float)
         poses[:, 3] = np.unwrap(poses[:, 3])
         if body_twists is None:
-            world = CubicSpline(times, poses, axis=0).derivative()(times) if len(times) > 2 \
-                else np.tile((poses[-1] - poses[0]) / (times[-1] - times[0]), (len(times), 1))
+            world = _derivative(times, poses)
         else:
             yaw, tw = poses[:, 3], np.asarray(body_twists, dtype=float)
             c, s = np.cos(yaw), np.sin(yaw)
@@ -207,8 +206,23 @@ class PoseMap:
                               tw[:, 2], tw[:, 3]], axis=1)
         q = np.array([self.configuration(p, hidden0) for p in poses])
         rho = bases(self.system, q)
-        v = self._project(rho, world)
-        if self.hidden:
-            rates = np.einsum('nik,nk->ni', rho[:, self.hidden, :], v)
-            q[:, self.hidden] += cumulative_trapezoid(rates, times, axis=0, initial=0.0)
+        rates = world[:, self._axes]
+        v = self._project(rho, self.pose_rows, rates)
+        implied = self.implied.indices
+        if implied:
+            q[:, implied] = self.implied.solve(q, v, rates)
+            rho = bases(self.system, q)
+            v = self._project(rho, self.pose_rows + implied,
+                              np.hstack([rates, _derivative(times, q[:, implied])]))
+        integrated = [h for h in self.hidden if h not in implied]
+        if integrated:
+            hidden_rates = np.einsum('nik,nk->ni', rho[:, integrated, :], v)
+            q[:, integrated] += cumulative_trapezoid(hidden_rates, times, axis=0, initial=0.0)
         return Trajectory(t=times, q=q, v=v, u=np.zeros((len(times) - 1, self.system.r)))
+
+
+def _derivative(times: np.ndarray, values: np.ndarray) -> np.ndarray:
+    """Rates of ``values`` (N, d) at ``times``: a C2 spline's derivative (a chord for N = 2)."""
+    if len(times) > 2:
+        return CubicSpline(times, values, axis=0).derivative()(times)
+    return np.tile((values[-1] - values[0]) / (times[-1] - times[0]), (len(times), 1))

@@ -21,7 +21,7 @@ in force, the new solver is swapped in between two replans.
 from __future__ import annotations
 
 from collections import deque
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 import threading
 import time
@@ -34,7 +34,8 @@ from nh_tracking.limits import obstacle_discs
 from nh_tracking.poses import PoseMap
 from nh_tracking.problem import Solution
 from nh_tracking.receding_horizon import PlannerSettings, PlanOutcome, RecedingHorizonPlanner
-from nh_tracking.session_types import (Clock, ClockSkew, PlanResult, settle_heap,
+from nh_tracking.robot_state import RobotState
+from nh_tracking.session_types import (Clock, PlanResult, settle_heap,
                                        Staleness, StateEstimate)
 from nh_tracking.solvers.compiled import cancel_builds
 from nh_tracking.system import NonholonomicSystem
@@ -52,17 +53,17 @@ class TrackingSession:
 
     def __init__(self, model: str, physical: Mapping[str, float], settings: PlannerSettings,
                  clock: Clock, odom_timeout: float = 0.5,
-                 log: Callable[[str, str], None] = lambda level, text: None) -> None:
+                 log: Callable[[str, str], None] = lambda level, text: None,
+                 joint_names: Sequence[str] = ()) -> None:
+        """``joint_names``: ``coordinate:joint`` entries for joints not named as coordinates."""
         self.model = model
         self.clock = clock
-        self.odom_timeout = odom_timeout
-        self.max_clock_skew = 0.1  # [s] odometry stamped further ahead of the clock is refused
         self.reference_bounds = (0.0, 0.0)  # (max speed [m/s], max accel [m/s^2]); 0: unchecked
         self.on_stale: Callable[[], None] = lambda: None  # said at once, on the thread that saw it
         self.log = log
         self.epoch_ns = clock()
         system = models.create(model, **physical)
-        self.pose_map = PoseMap(system)
+        self.robot = RobotState(PoseMap(system), clock, joint_names, odom_timeout, log)
         self.following = Following(self)  # references in; the path in force as a goal
         self.planner = RecedingHorizonPlanner(system, settings)
         self.active = False  # plans are made only while active (the lifecycle's "active")
@@ -72,7 +73,6 @@ class TrackingSession:
         # (odometry receipt -> plan published, of which the numerical planner, of which the
         # NLP solver) [s], for the recent plans
         self.latencies: deque[tuple[float, float, float]] = deque(maxlen=2000)
-        self._state: StateEstimate | None = None
         self._obstacles = np.zeros((0, 3))
         self._lock = threading.Lock()  # the fields above shared between threads
         self._solve_lock = threading.Lock()  # one solve at a time; swaps happen between them
@@ -138,42 +138,32 @@ class TrackingSession:
     def track(self, times: np.ndarray, poses: np.ndarray,
               twists: np.ndarray | None) -> Trajectory:
         """Track poses at ``times`` [s], thinned; ReferenceRejected if the robot may not."""
-        with self._lock:
-            hidden = None if self._state is None else self._state.q
+        state = self.state
+        hidden = None if state is None else state.q
         reference = checked_reference(times, poses, twists, hidden, self.pose_map,
                                       self.planner, self.reference_bounds)
         with self._solve_lock:
             self.planner.set_reference(reference)
         return reference
 
+    def set_joints(self, ns: int, names: Sequence[str], positions: Sequence[float],
+                   velocities: Sequence[float]) -> bool:
+        """Take joint states (:meth:`RobotState.set_joints`)."""
+        return self.robot.set_joints(ns, names, positions, velocities)
+
     def set_odometry(self, ns: int, pose: np.ndarray, twist: np.ndarray,
                      received: float) -> None:
-        """Take the latest pose and body twist (hidden coordinates dead-reckoned).
-
-        ClockSkew if stamped over max_clock_skew ahead; a state is never later than the clock.
-        """
-        now = self.clock()
-        ahead = (ns - now) * 1e-9
-        if ahead > self.max_clock_skew:
-            raise ClockSkew(f'stamped {ahead:.3f} s ahead of this clock (max_clock_skew is '
-                            f'{self.max_clock_skew:g} s): clocks out of step?')
-        ns = min(ns, now)
-        with self._lock:
-            prev = self._state
-        pose_map = self.pose_map
-        q_prev = None if prev is None else prev.q
-        dt = 0.0 if prev is None else (ns - prev.ns) * 1e-9
-        q = pose_map.configuration(pose, q_prev)
-        v = pose_map.velocity(q, twist)
-        q = pose_map.dead_reckon(pose, v, q_prev, None if prev is None else prev.v, dt)
-        with self._lock:
-            self._state = StateEstimate(ns, q, v, received)
-        self.following.update(pose, twist, self.seconds(ns))
+        """Take the latest pose and body twist (:meth:`RobotState.set_odometry`)."""
+        state = self.robot.set_odometry(ns, pose, twist, received)
+        self.following.update(pose, twist, self.seconds(state.ns))
 
     @property
     def state(self) -> StateEstimate | None:
-        with self._lock:
-            return self._state
+        return self.robot.latest
+
+    @property
+    def pose_map(self) -> PoseMap:
+        return self.robot.pose_map
 
     @property
     def obstacles(self) -> np.ndarray:
@@ -218,7 +208,7 @@ class TrackingSession:
             if same_model:
                 planner.previous = old.previous  # the warm start survives a settings change
             else:
-                self.pose_map = PoseMap(system)
+                self.robot.pose_map = PoseMap(system)
             self.planner = planner
         settle_heap(1)
         with self._lock:
@@ -265,7 +255,7 @@ class TrackingSession:
         if state is None:
             return None
         age = (self.clock() - state.ns) * 1e-9
-        if age <= self.odom_timeout:
+        if age <= self.robot.odom_timeout:
             return None
         if self.staleness.mark(True):
             self.log('warn', f'odometry is {age:.2f} s old: stopped commanding')

@@ -61,6 +61,8 @@ def check(value: Any, name: str, default: Any, meta: Setting) -> Any:
         value = float(value)
     if kind is tuple:  # a list of numbers (a ROS double array)
         return _numbers(value, name)
+    if kind is list:  # a list of strings (a ROS string array)
+        return _strings(value, name)
     if not isinstance(value, kind) or (kind is int and isinstance(value, bool)):
         raise ValueError(f'{name} must be {_type_name(kind)}, got {value!r}')
     if meta.bounds is not None and not (math.isfinite(value)
@@ -98,9 +100,17 @@ def _numbers(value: Any, name: str) -> tuple[float, ...]:
     return tuple(float(v) for v in value)
 
 
+def _strings(value: Any, name: str) -> list[str]:
+    if value is None:
+        return []
+    if not isinstance(value, (list, tuple)) or not all(isinstance(v, str) for v in value):
+        raise ValueError(f'{name} must be a list of strings, got {value!r}')
+    return list(value)
+
+
 def _type_name(kind: type) -> str:
-    return {bool: 'true or false', int: 'an integer', float: 'a number', str: 'a string',
-            list: 'a list of numbers'}.get(kind, kind.__name__)
+    return {bool: 'true or false', int: 'an integer', float: 'a number',
+            str: 'a string'}.get(kind, kind.__name__)
 
 
 def markdown_table(rows: list[tuple[str, Any, Setting]]) -> str:

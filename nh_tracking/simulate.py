@@ -34,6 +34,10 @@ class _Exhausted(Exception):
     pass
 
 
+class LeftDomain(RuntimeError):
+    """The state reached the edge of the model's domain (a steering angle at its stop)."""
+
+
 def simulate(
     system: NonholonomicSystem,
     q0: ArrayLike,
@@ -87,8 +91,8 @@ def simulate(
             t_out = sol.t_events[0][0] if len(sol.t_events[0]) else sol.t[-1]
             state = sol.y_events[0][0] if len(sol.y_events[0]) else sol.y[:, -1]
             where = describe(system.coordinates, state[:n])
-            raise RuntimeError(f'integration stopped at t = {t_out:.6g}: the state left the '
-                               f"model's domain ({where})")
+            raise LeftDomain(f'integration stopped at t = {t_out:.6g}: the state left the '
+                             f"model's domain ({where})")
         if not sol.success or not np.all(np.isfinite(sol.y)):
             raise RuntimeError(f'integration failed at t = {reached[0]:.6g}: {sol.message}')
         return sol.y.T

@@ -31,7 +31,7 @@ LAYERS = [  # lowest first; a module may import from its own layer and the ones 
      'route_shape', 'goal_checking'},
     {'solvers'},
     {'receding_horizon', 'avoidance', 'fallback', 'poses', 'session', 'session_types', 'health',
-     'following'},
+     'following', 'joints', 'implied_shape', 'robot_state'},
     {'ros'},
     {'examples'},
 ]

@@ -17,6 +17,8 @@
 The car-like robot (rear-wheel drive, front-wheel steering), loaded with ``model`` =
 ``user_robots:CAR`` by the library, the command line and the ROS nodes.
 """
+import math
+
 import casadi as ca
 
 from nh_tracking import NonholonomicSystem
@@ -28,7 +30,8 @@ def car_like(m: float = 1.0, J: float = 0.5, I_steer: float = 0.05,
     """Q = (x, y, theta, phi): rear axle position, heading, steering angle.
 
     Neither wheel slips sideways; basis: driving e1 = (L cos th cos phi, L sin th cos phi, sin phi,
-    0) (smooth for every phi) and steering e2 = d_phi.
+    0) (smooth for every phi) and steering e2 = d_phi. The steering stops short of +-pi/2, where
+    the front wheel would stand across the car.
     """
 
     def constraints(q):
@@ -45,7 +48,8 @@ def car_like(m: float = 1.0, J: float = 0.5, I_steer: float = 0.05,
 
     return NonholonomicSystem.from_constraints(
         ['x', 'y', 'theta', 'phi'], lambda q: ca.diag(ca.vertcat(m, m, J, I_steer)),
-        constraints, basis=basis, angles=['theta', 'phi'], controls=['drive', 'steer'],
+        constraints, basis=basis, angles=['theta'], domain={'phi': (-math.pi / 2, math.pi / 2)},
+        controls=['drive', 'steer'],
         pose={'x': 'x', 'y': 'y', 'theta': 'yaw'}, name='car_like',
         parameters={'m': m, 'J': J, 'I_steer': I_steer, 'L': L})
 

@@ -27,6 +27,7 @@ from builtin_interfaces.msg import Duration, Time
 from geometry_msgs.msg import Pose, Twist
 from nav_msgs.msg import Odometry, Path
 import numpy as np
+from sensor_msgs.msg import JointState
 from trajectory_msgs.msg import JointTrajectory, MultiDOFJointTrajectory
 
 from nh_tracking.ros import cdr
@@ -218,3 +219,19 @@ def controls_to_arrays(msg: JointTrajectory, names: Sequence[str]
     if len(times_arr) > 1:
         _increasing(times_arr, 'control sequence')
     return stamp_ns(msg.header.stamp), times_arr, np.array(efforts)
+
+
+def joint_state_arrays(msg: JointState) -> tuple[int, list[str], np.ndarray, np.ndarray]:
+    """(stamp [ns], names, positions, velocities (empty: not given)) of a JointState.
+
+    Joints of other parts of the robot may be NaN; the hidden coordinates' values are checked
+    where they are read (:mod:`nh_tracking.joints`).
+    """
+    names, count = list(msg.name), len(msg.name)
+    if len(msg.position) != count:
+        raise InputRejected(f'joint_states has {count} names and {len(msg.position)} positions')
+    if len(msg.velocity) not in (0, count):
+        raise InputRejected(f'joint_states has {count} names and {len(msg.velocity)} '
+                            'velocities (0 or one per name)')
+    return (stamp_ns(msg.header.stamp), names, np.asarray(msg.position, dtype=float),
+            np.asarray(msg.velocity, dtype=float))

@@ -20,11 +20,13 @@ import math
 
 from builtin_interfaces.msg import Duration, Time
 from diagnostic_msgs.msg import DiagnosticStatus, KeyValue
-from geometry_msgs.msg import (Pose, PoseStamped, Quaternion, Transform, Twist, TwistStamped,
-                               Vector3)
+from geometry_msgs.msg import (Pose, PoseStamped, Quaternion, Transform, TransformStamped,
+                               Twist, TwistStamped, Vector3)
 from nav_msgs.msg import Odometry, Path
 import numpy as np
+from sensor_msgs.msg import JointState
 from std_msgs.msg import Header
+from tf2_msgs.msg import TFMessage
 from trajectory_msgs.msg import (JointTrajectory, JointTrajectoryPoint, MultiDOFJointTrajectory,
                                  MultiDOFJointTrajectoryPoint)
 
@@ -74,15 +76,34 @@ def path_msg(frame: str, stamps_ns: Sequence[int], poses: np.ndarray) -> Path:
     return msg
 
 
+def transform_msg(pose: np.ndarray) -> Transform:
+    """(x, y, z, yaw) as a Transform."""
+    return Transform(translation=Vector3(x=float(pose[0]), y=float(pose[1]), z=float(pose[2])),
+                     rotation=quaternion_of(float(pose[3])))
+
+
+def tf_msg(frame: str, child: str, stamp: int, pose: np.ndarray) -> TFMessage:
+    """The transform ``frame`` -> ``child`` at ``pose`` as /tf carries it."""
+    transform = TransformStamped(child_frame_id=child, transform=transform_msg(pose))
+    _stamp(transform.header, frame, stamp)
+    return TFMessage(transforms=[transform])
+
+
+def joint_state_msg(stamp: int, names: Sequence[str], positions: np.ndarray,
+                    velocities: np.ndarray) -> JointState:
+    msg = JointState(name=list(names), position=[float(p) for p in positions],
+                     velocity=[float(v) for v in velocities])
+    _stamp(msg.header, '', stamp)
+    return msg
+
+
 def multidof_msg(frame: str, start_ns: int, offsets: np.ndarray, poses: np.ndarray,
                  body_twists: np.ndarray, joint: str = 'base_link') -> MultiDOFJointTrajectory:
     """Return a one-joint trajectory: pose and body twist per point, timed from ``start_ns``."""
     points = []
     for dt, pose, twist in zip(offsets, poses, body_twists):
         point = MultiDOFJointTrajectoryPoint(time_from_start=duration_msg(float(dt)))
-        point.transforms = [Transform(
-            translation=Vector3(x=float(pose[0]), y=float(pose[1]), z=float(pose[2])),
-            rotation=quaternion_of(float(pose[3])))]
+        point.transforms = [transform_msg(pose)]
         point.velocities = [twist_msg(twist)]
         points.append(point)
     return MultiDOFJointTrajectory(header=Header(frame_id=frame, stamp=time_msg(start_ns)),

@@ -83,6 +83,7 @@ def plain(name: str, default: object, description: str, unit: str = '',
     return ParameterSpec(name, default, Setting(description, unit, bounds, choices), read_only)
 
 
+ARRAYS = {tuple: Parameter.Type.DOUBLE_ARRAY, list: Parameter.Type.STRING_ARRAY}
 _FLOATS: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()  # node -> float names
 
 
@@ -95,7 +96,7 @@ def declare(node: Node, spec: ParameterSpec) -> Any:
     overrides = node._parameter_overrides  # rclpy keeps -p / params-file values here
     if spec.name in overrides:
         value = spec.check(overrides[spec.name].value)
-        if isinstance(spec.default, tuple) and not value:
+        if type(spec.default) in ARRAYS and not value:
             del overrides[spec.name]  # rclpy re-infers [] as a byte array: declare it empty
         else:
             overrides[spec.name] = Parameter(spec.name, value=list(value) if isinstance(
@@ -108,12 +109,11 @@ def declare(node: Node, spec: ParameterSpec) -> Any:
                                 if p.name in names and p.type_ == Parameter.Type.INTEGER
                                 else p for p in params])
         _FLOATS[node].add(spec.name)
-    if isinstance(spec.default, tuple):  # a double array, possibly empty: typed explicitly
-        value = node.declare_parameter(spec.name, Parameter.Type.DOUBLE_ARRAY,
-                                       spec.descriptor()).value
+    array = ARRAYS.get(type(spec.default))
+    if array is not None:  # possibly empty: typed explicitly
+        value = node.declare_parameter(spec.name, array, spec.descriptor()).value
         if value is None:
-            node.set_parameters([Parameter(spec.name, Parameter.Type.DOUBLE_ARRAY,
-                                           list(spec.default))])
+            node.set_parameters([Parameter(spec.name, array, list(spec.default))])
             value = list(spec.default)
         return list(value)
     return node.declare_parameter(spec.name, spec.default, spec.descriptor()).value

@@ -82,6 +82,10 @@ COSTMAP_THRESHOLD = plain(
     'costmap_threshold', 100, 'costmap cells of this cost and more are obstacles (100: '
     "Nav2's lethal cells only; its inflation is not taken for obstacle, the robot's radius is "
     'added once)', '', (1, 100), read_only=True)
+JOINT_NAMES = plain(
+    'joint_names', [], "joints of joint_states that give coordinates a pose does not show, as "
+    "coordinate:joint entries (e.g. phi:front_steering_joint); a coordinate not named is "
+    'its own joint name', read_only=True)
 NODE = (
     plain('frame_id', 'odom', 'fixed frame of references and odometry', read_only=True),
     plain('cmd_vel_stamped', False, 'publish TwistStamped on cmd_vel', read_only=True),
@@ -90,5 +94,6 @@ NODE = (
     plain('costmap_reach', 5.0, 'occupied costmap cells farther from the robot are ignored',
           'm', (0.1, 1000.0)),
     COSTMAP_THRESHOLD,
+    JOINT_NAMES,
 )
 PARAMETERS = SETTINGS + SESSION + ROUTE + GOAL + NODE

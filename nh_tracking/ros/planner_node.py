@@ -29,11 +29,13 @@ from geometry_msgs.msg import Twist, TwistStamped
 from nav_msgs.msg import Odometry, Path
 import numpy as np
 from rclpy.lifecycle import LifecycleNode, LifecycleState, TransitionCallbackReturn
+from sensor_msgs.msg import JointState
 from trajectory_msgs.msg import JointTrajectory, MultiDOFJointTrajectory
 from visualization_msgs.msg import MarkerArray
 
 from nh_tracking.avoidance import MAX_OBSTACLES
 from nh_tracking.health import HealthLevel, session_health
+from nh_tracking.joints import JointsRejected
 from nh_tracking.receding_horizon import PlannerSettings
 from nh_tracking.ros import conversions as cv, messages as msgs
 from nh_tracking.ros.clock_watch import ClockWatchdog
@@ -110,7 +112,8 @@ class PlannerNode(RuntimeParameters, PlanOutputs, ObstacleListener, ClockWatchdo
         try:
             session = TrackingSession(self.model, self.physical,
                                       PlannerSettings(**self._settings_values()), self.now_ns,
-                                      self.params['odom_timeout'], self._log)
+                                      self.params['odom_timeout'], self._log,
+                                      self.params['joint_names'])
             session.planner.prepare()  # blocking: the first plan must not be late
         except Exception as exc:  # noqa: BLE001 - a user's model may raise anything
             self._configure_error = f'{type(exc).__name__}: {exc}'
@@ -139,7 +142,8 @@ class PlannerNode(RuntimeParameters, PlanOutputs, ObstacleListener, ClockWatchdo
         self._follow_path = FollowPathServer.serve(self)
         session.start(self._publish_plan)
         # last: its callbacks start at once, on their own thread, and need all of the above
-        self._odometry = OdometryReceiver(self, 'odom', self.on_odom)
+        self._odometry = OdometryReceiver(self, 'odom', self.on_odom, self.on_joint_states
+                                          if session.pose_map.hidden else None)
         self.get_logger().info(f'planning for {self.model} {self.physical} with '
                                f'{session.planner.settings}')
         return TransitionCallbackReturn.SUCCESS
@@ -241,6 +245,14 @@ class PlannerNode(RuntimeParameters, PlanOutputs, ObstacleListener, ClockWatchdo
         elif self.params['replan_on_odom']:
             self.live.replan()
             self._planned_ns = time.time_ns()  # the clock of DDS's reception stamps
+
+    @guarded('joint_states')
+    def on_joint_states(self, msg: JointState) -> None:
+        stamp, names, positions, velocities = cv.joint_state_arrays(msg)
+        try:
+            self.live.set_joints(stamp, names, positions, velocities)
+        except (ClockSkew, JointsRejected) as exc:
+            raise cv.InputRejected(str(exc)) from None
 
     def obstacles_changed(self) -> None:
         """Choose the discs in force, one call at a time (executor and odometry threads)."""

@@ -39,8 +39,8 @@ class RuntimeParameters(SafeNode):
 
     def _tune(self, session: TrackingSession) -> None:
         """Hand the session the input checks' parameters (they need no rebuild)."""
-        session.odom_timeout = self.params['odom_timeout']
-        session.max_clock_skew = self.params['max_clock_skew']
+        session.robot.odom_timeout = self.params['odom_timeout']
+        session.robot.max_clock_skew = self.params['max_clock_skew']
         session.reference_bounds = (self.params['reference_max_speed'],
                                     self.params['reference_max_accel'])
         session.following.configure(RouteSettings(**self._values(ROUTE)),

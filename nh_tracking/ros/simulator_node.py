@@ -12,7 +12,10 @@
 # See the License for the specific language governing permissions and
 # limitations under the License.
 
-"""The simulator node: integrates the model's real controlled dynamics and publishes odometry.
+"""The simulator node: integrates the model's real controlled dynamics, publishes the robot's state.
+
+Odometry, the coordinates a pose does not show as ``joint_states`` (with their rates), and the
+odometry pose on ``/tf`` (``frame_id`` -> ``child_frame_id``), all at the same stamps.
 
 It applies ``control_sequence`` by its timing (each effort held over its interval, the step
 split at interval boundaries), zero control after ``control_timeout`` without a new sequence
@@ -29,19 +32,22 @@ from nav_msgs.msg import Odometry
 import numpy as np
 from rclpy.clock import Clock, ClockType
 from rosgraph_msgs.msg import Clock as ClockMsg
+from sensor_msgs.msg import JointState
+from tf2_msgs.msg import TFMessage
 from trajectory_msgs.msg import JointTrajectory
 
 from nh_tracking import models
 from nh_tracking.costmap import gap
+from nh_tracking.joints import joint_mapping
 from nh_tracking.limits import bounds_from_lists
 from nh_tracking.poses import PoseMap
 from nh_tracking.ros import conversions as cv
 from nh_tracking.ros import messages as msgs
 from nh_tracking.ros.obstacle_listener import ObstacleListener
 from nh_tracking.ros.parameters import declare, declare_all, declare_model, plain
-from nh_tracking.ros.planner_interface import COSTMAP_THRESHOLD
+from nh_tracking.ros.planner_interface import COSTMAP_THRESHOLD, JOINT_NAMES
 from nh_tracking.ros.safety import guarded
-from nh_tracking.simulate import drive, simulate
+from nh_tracking.simulate import drive, LeftDomain, simulate
 
 INITIAL_STATE = plain('initial_state', [0.0], 'initial q then v (n + k numbers; zeros by '
                       'default)')
@@ -65,6 +71,8 @@ PARAMETERS = (
     plain('robot_radius', 0.0, "the robot's radius: closer to an obstacle is a collision "
           '(a diagnostic)', 'm', (0.0, 100.0), read_only=True),
     COSTMAP_THRESHOLD,
+    JOINT_NAMES,
+    plain('publish_tf', True, 'broadcast frame_id -> child_frame_id on /tf', read_only=True),
 )
 
 
@@ -104,7 +112,12 @@ class SimulatorNode(ObstacleListener):
         self._sim_ns = int(round(start * 1e9)) if self.publish_clock else self._clock_ns()
         self._last_ns = self._sim_ns
 
+        joints = joint_mapping(p['joint_names'], self.pose_map)
+        self.joints = (list(joints), list(joints.values()))  # names, coordinates' indices
         self.pub_odom = self.create_publisher(Odometry, 'odom', 10)
+        self.pub_joints = (self.create_publisher(JointState, 'joint_states', 10)
+                           if joints else None)
+        self.pub_tf = self.create_publisher(TFMessage, '/tf', 100) if p['publish_tf'] else None
         self.pub_clock = (self.create_publisher(ClockMsg, '/clock', 10)
                           if self.publish_clock else None)
         # volatile: matches latched (the planner's) and ordinary publishers alike
@@ -211,18 +224,33 @@ class SimulatorNode(ObstacleListener):
             if u is None:
                 q = drive(self.system, q, v, (b - a) * 1e-9)
                 continue
-            traj = simulate(self.system, q, v, [0.0, (b - a) * 1e-9], u[None, :],
-                            rtol=1e-9, atol=1e-11)
+            try:
+                traj = simulate(self.system, q, v, [0.0, (b - a) * 1e-9], u[None, :],
+                                rtol=1e-9, atol=1e-11)
+            except LeftDomain as exc:  # as at a mechanical stop: the robot halts short of it
+                self.fail('simulation step', LeftDomain(f'{exc}; stopped short of it'))
+                v = np.zeros(self.system.k)
+                break
             q, v = traj.q[-1], traj.v[-1]
         with self._lock:
             self._q, self._v = q, v
         if self.pub_clock is not None:
             self._sim_ns = t1
             self.pub_clock.publish(ClockMsg(clock=msgs.time_msg(t1)))
+        self._publish_state(q, v, t1)
+
+    def _publish_state(self, q: np.ndarray, v: np.ndarray, stamp: int) -> None:
+        """Odometry, joint states and /tf of (q, v) at ``stamp``."""
         pose = self.pose_map.pose(q)
-        self.pub_odom.publish(msgs.odometry_msg(self.frame, self.child_frame, t1, pose,
+        self.pub_odom.publish(msgs.odometry_msg(self.frame, self.child_frame, stamp, pose,
                                                 self.pose_map.body_twist(q, v)))
-        self._check_clearance(pose, t1)
+        if self.pub_joints is not None:
+            names, rows = self.joints
+            self.pub_joints.publish(msgs.joint_state_msg(
+                stamp, names, q[rows], self.system.rho(q)[rows] @ v))
+        if self.pub_tf is not None:
+            self.pub_tf.publish(msgs.tf_msg(self.frame, self.child_frame, stamp, pose))
+        self._check_clearance(pose, stamp)
 
     def _check_clearance(self, pose: np.ndarray, stamp: int) -> None:
         """Count a step that ends closer than robot_radius to an obstacle, and report it."""

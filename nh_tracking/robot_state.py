@@ -1,0 +1,117 @@
+# Copyright 2026 nh_tracking maintainers
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+
+"""The robot's latest state from odometry and joint states, on a session's clock.
+
+Odometry and joint states arrive on one thread (the planner's odometry receiver); the state is
+read by the solver and executor threads.
+"""
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+import threading
+
+import numpy as np
+
+from nh_tracking.joints import JointMap, JointReading, observe
+from nh_tracking.poses import PoseMap
+from nh_tracking.session_types import Clock, ClockSkew, StateEstimate
+
+
+class RobotState:
+    """Pose, twist and joints in; :class:`StateEstimate` (q, v at a stamp) out.
+
+    ``joint_names``: ``coordinate:joint`` entries for joints not named as the model's
+    coordinates (ValueError for a bad one). Odometry or joints stamped over
+    ``max_clock_skew`` [s] ahead of the clock are refused; joints older than ``odom_timeout``
+    [s] are not used (their coordinates are dead-reckoned).
+    """
+
+    def __init__(self, pose_map: PoseMap, clock: Clock, joint_names: Sequence[str] = (),
+                 odom_timeout: float = 0.5,
+                 log: Callable[[str, str], None] = lambda level, text: None) -> None:
+        self.pose_map = pose_map
+        self.clock = clock
+        self.odom_timeout = odom_timeout
+        self.max_clock_skew = 0.1
+        self.log = log
+        self.joint_map = JointMap(pose_map, joint_names)
+        self.measured: list[int] | None = None  # hidden coordinates measured (None: no state)
+        self.joints_lost = False  # some once measured are dead-reckoned now
+        self._joints = JointReading.empty(pose_map.system.n)
+        self._latest: StateEstimate | None = None
+        self._lock = threading.Lock()
+
+    @property
+    def latest(self) -> StateEstimate | None:
+        with self._lock:
+            return self._latest
+
+    def _checked_stamp(self, ns: int) -> int:
+        """``ns`` no later than the clock; ClockSkew if over max_clock_skew ahead of it."""
+        now = self.clock()
+        ahead = (ns - now) * 1e-9
+        if ahead > self.max_clock_skew:
+            raise ClockSkew(f'stamped {ahead:.3f} s ahead of this clock (max_clock_skew is '
+                            f'{self.max_clock_skew:g} s): clocks out of step?')
+        return min(ns, now)
+
+    def set_joints(self, ns: int, names: Sequence[str], positions: Sequence[float],
+                   velocities: Sequence[float]) -> bool:
+        """Take joint states; False if none of them is a hidden coordinate.
+
+        ClockSkew or JointsRejected for a message that cannot be used.
+        """
+        ns = self._checked_stamp(ns)
+        with self._lock:
+            reading = self.joint_map.read(ns, names, positions, velocities, self._joints)
+            if reading is not None:
+                self._joints = reading
+        return reading is not None
+
+    def set_odometry(self, ns: int, pose: np.ndarray, twist: np.ndarray,
+                     received: float) -> StateEstimate:
+        """Take the latest pose and body twist, with the joints (:mod:`joints`).
+
+        ClockSkew if stamped over max_clock_skew ahead; a state is never later than the clock.
+        """
+        ns = self._checked_stamp(ns)
+        with self._lock:
+            prev, joints = self._latest, self._joints
+        q, v, measured = observe(self.pose_map, ns, pose, twist, joints, self.odom_timeout,
+                                 None if prev is None else (prev.ns, prev.q, prev.v))
+        state = StateEstimate(ns, q, v, received)
+        with self._lock:
+            self._latest = state
+        if measured != self.measured:
+            self._say_hidden(measured)
+        return state
+
+    def _say_hidden(self, measured: list[int]) -> None:
+        """Say once which hidden coordinates come from joint_states and which are dead-reckoned."""
+        self.joints_lost = bool(self.measured) and len(measured) < len(self.pose_map.hidden)
+        self.measured = measured
+        if self.pose_map.hidden:
+            self.log('warn' if self.joints_lost else 'info',
+                     f'hidden coordinates: {self.hidden_status}')
+
+    @property
+    def hidden_status(self) -> str:
+        """Where the coordinates a pose does not show come from ('' for a model with none)."""
+        names, measured = self.pose_map.system.coordinates, self.measured or []
+        reckoned = [names[h] for h in self.pose_map.hidden if h not in measured]
+        why = 'joint_states stale' if self.joints_lost else 'no joint_states for them'
+        parts = ([f"{', '.join(names[m] for m in measured)} from joint_states"] if measured
+                 else []) + ([f"{', '.join(reckoned)} dead-reckoned ({why})"] if reckoned else [])
+        return '; '.join(parts)
