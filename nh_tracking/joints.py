@@ -136,7 +136,11 @@ def observe(pose_map: PoseMap, ns: int, pose: np.ndarray, twist: np.ndarray,
         rates = joints.rates[measured]
         known = np.isfinite(rates)
         ahead = (ns - joints.stamps[measured]) * 1e-9
-        q[measured] = joints.positions[measured] + np.where(known, rates * ahead, 0.0)
+        carried = joints.positions[measured] + np.where(known, rates * ahead, 0.0)
+        domain = pose_map.system.domain  # (a joint at its stop is not carried past it)
+        q[measured] = np.where((carried > domain.lower[measured])
+                               & (carried < domain.upper[measured]),
+                               carried, joints.positions[measured])
         rows = [m for m, k in zip(measured, known) if k]
     v = pose_map.velocity(q, twist, rows, None if joints is None else joints.rates[rows])
     reckoned = [h for h in pose_map.hidden if h not in measured]

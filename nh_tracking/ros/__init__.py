@@ -29,12 +29,12 @@ __all__ = ['PlannerNode', 'SimulatorNode', 'planner_main', 'sim_main']
 
 def planner_main(args=None) -> None:
     """``planner`` executable."""
-    sys.exit(run(PlannerNode, lambda: usage('planner', 'nh_tracking_planner',
-                                            planner_node.PARAMETERS), args))
+    sys.exit(run(PlannerNode, lambda argv: usage('planner', 'nh_tracking_planner',
+                                                 planner_node.PARAMETERS, argv), args))
 
 
 def sim_main(args=None) -> None:
     """``sim`` executable."""
-    sys.exit(run(SimulatorNode, lambda: usage('sim', 'nh_tracking_sim',
-                                              (simulator_node.INITIAL_STATE,
-                                               *simulator_node.PARAMETERS)), args))
+    sys.exit(run(SimulatorNode, lambda argv: usage(
+        'sim', 'nh_tracking_sim', simulator_node.PARAMETERS,
+        argv, state_layout=True), args))

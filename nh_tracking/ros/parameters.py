@@ -22,6 +22,7 @@ floating-point parameter (``horizon:=3``) is that number, as every ROS user expe
 """
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
 import weakref
@@ -29,6 +30,7 @@ import weakref
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
 from rclpy.node import Node
 from rclpy.parameter import Parameter
+import yaml
 
 from nh_tracking import models
 from nh_tracking.settings import check, described, markdown_table, Setting
@@ -144,21 +146,72 @@ def declare_model(node: Node) -> tuple[str, dict[str, float]]:
     return str(model), {k: float(v) for k, v in values.items()}
 
 
-def usage(executable: str, node_name: str, specs: tuple[ParameterSpec, ...]) -> str:
-    """``--help`` text: how to start the node and every parameter it takes."""
+def model_asked_for(args: Sequence[str], node_name: str) -> str:
+    """The model a command line gives: ``-p model:=NAME``, else a ``--params-file``'s.
+
+    As rcl ranks them: a ``-p`` over any file, a later file over an earlier one.
+    """
+    given, from_file = None, None
+    for flag, value in zip(args, list(args)[1:]):
+        if flag in ('-p', '--param') and value.startswith('model:='):
+            given = value.partition(':=')[2]
+        elif flag == '--params-file':
+            from_file = _model_in_file(value, node_name) or from_file
+    return given or from_file or str(MODEL.default)
+
+
+def _model_in_file(path: str, node_name: str) -> str | None:
+    """``model`` of ``node_name`` (or of a wildcard entry) in a ROS parameter file."""
+    try:
+        with open(path) as stream:
+            content = yaml.safe_load(stream)
+    except (OSError, yaml.YAMLError):
+        return None  # the node itself says what is wrong with the file
+
+    def search(entry: object, name: str) -> str | None:
+        if not isinstance(entry, dict):
+            return None
+        ours = name.rsplit('/', 1)[-1] in (node_name, '*', '**')
+        params = entry.get('ros__parameters')
+        if ours and isinstance(params, dict) and 'model' in params:
+            return str(params['model'])
+        return next((found for key, value in entry.items()
+                     if (found := search(value, str(key))) is not None), None)
+    return search(content, '')
+
+
+def usage(executable: str, node_name: str, specs: tuple[ParameterSpec, ...],
+          args: Sequence[str] = (), state_layout: bool = False) -> str:
+    """``--help`` text: how to start the node, every parameter it takes, and the model's.
+
+    The model is the one ``args`` asks for (``-p model:=...`` or a params file); with
+    ``state_layout``, the order of q and v in ``initial_state`` too.
+    """
     lines = [f'usage: {executable} [--ros-args -p NAME:=VALUE ... --params-file FILE '
              f'-r __ns:=/NAMESPACE]', '',
              f'Starts the ROS 2 node {node_name}. Parameters (default, range):']
-    for spec in (MODEL, *specs):
-        bounds, choices = spec.meta.bounds, spec.meta.choices
-        limits = f', [{bounds[0]:g}, {bounds[1]:g}]' if bounds else ''
-        fixed = ', read-only' if spec.read_only else ''
-        one_of = f" — one of {', '.join(choices)}" if choices else ''
-        lines.append(f'  {spec.name} ({spec.default!r}{limits}{fixed}): {spec.description}'
-                     f'{one_of}')
-    lines.append("  and the model's physical parameters, e.g. for chaplygin_sleigh: " + ', '.join(
-        f'{s.name} ({s.default!r}): {s.description}' for s in model_specs('chaplygin_sleigh')))
+    lines += [_line(spec) for spec in (MODEL, *specs)]
+    model = model_asked_for(args, node_name)
+    try:
+        physical = model_specs(model)
+        system = models.create(model) if state_layout else None
+    except ValueError as exc:
+        return '\n'.join(lines + ['', f'The physical parameters depend on the model: {exc}'])
+    lines += ['', f'Physical parameters of {model} (give -p model:=NAME for another model):']
+    lines += [_line(spec) for spec in physical]
+    if system is not None:
+        lines += ['', f'The state of {model}:', _line(plain(
+            'initial_state', [0.0] * (system.n + system.k), f'q then v, {system.n} + {system.k}'
+            f" numbers: {', '.join(system.coordinates + system.velocity_names)}"))]
     return '\n'.join(lines)
+
+
+def _line(spec: ParameterSpec) -> str:
+    bounds, choices = spec.meta.bounds, spec.meta.choices
+    limits = f', [{bounds[0]:g}, {bounds[1]:g}]' if bounds else ''
+    fixed = ', read-only' if spec.read_only else ''
+    one_of = f" — one of {', '.join(choices)}" if choices else ''
+    return f'  {spec.name} ({spec.default!r}{limits}{fixed}): {spec.description}{one_of}'
 
 
 def parameter_table(specs: tuple[ParameterSpec, ...]) -> str:

@@ -12,7 +12,7 @@
 # See the License for the specific language governing permissions and
 # limitations under the License.
 
-"""``main()`` plumbing shared by the executables: ``--help``.
+"""``main()`` plumbing shared by the executables: ``--help`` for the model asked for.
 
 Start-up errors as one line and exit code 2, spin, and a clean exit (code 0) on Ctrl-C or SIGTERM
 at any moment, start-up included; the node is destroyed while its context is still up, so a
@@ -104,7 +104,7 @@ def _shut_down() -> None:
             raise
 
 
-def run(make_node: Callable[[], Node], usage: Callable[[], str],
+def run(make_node: Callable[[], Node], usage: Callable[[Sequence[str]], str],
         args: Sequence[str] | None = None) -> int:
     """Create the node and spin it until Ctrl-C, SIGTERM or an external shutdown; exit code 0.
 
@@ -112,7 +112,7 @@ def run(make_node: Callable[[], Node], usage: Callable[[], str],
     """
     argv = list(sys.argv if args is None else args)
     if _wants_help(argv[1:]):
-        print(usage())
+        print(usage(argv[1:]))  # (the model asked for decides what it lists)
         return 0
     stop = StopRequest()
     try:

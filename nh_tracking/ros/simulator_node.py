@@ -49,8 +49,6 @@ from nh_tracking.ros.planner_interface import COSTMAP_THRESHOLD, JOINT_NAMES
 from nh_tracking.ros.safety import guarded
 from nh_tracking.simulate import drive, LeftDomain, simulate
 
-INITIAL_STATE = plain('initial_state', [0.0], 'initial q then v (n + k numbers; zeros by '
-                      'default)')
 PARAMETERS = (
     plain('rate', 50.0, 'integration and odometry rate', 'Hz', (1.0, 2000.0), read_only=True),
     plain('control_timeout', 0.5, 'zero control after this long without commands', 's',
@@ -85,7 +83,7 @@ class SimulatorNode(ObstacleListener):
         self.system = models.create(model, **params)
         self.pose_map = PoseMap(self.system)
         n, k = self.system.n, self.system.k
-        initial = declare(self, plain('initial_state', [0.0] * (n + k),
+        initial = declare(self, plain('initial_state', (0.0,) * (n + k),
                                       f'initial q then v ({n} + {k} numbers)'))
         initial = np.asarray(initial, dtype=float)
         if initial.size != n + k or not np.all(np.isfinite(initial)):

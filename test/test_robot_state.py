@@ -1,0 +1,183 @@
+# Copyright 2026 nh_tracking maintainers
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+
+"""Robots whose state is more than a pose, closed through ROS as separate processes.
+
+The simulator publishes the steering (and rotor) angles on ``joint_states`` and its pose on
+``/tf``; the planner reads them. Without joint_states the same loops are run for comparison.
+"""
+import math
+import os
+from pathlib import Path
+import threading
+
+from nav_msgs.msg import Odometry
+from nav_msgs.msg import Path as PathMsg
+import numpy as np
+import pytest
+from sensor_msgs.msg import JointState
+from tf2_msgs.msg import TFMessage
+
+import nh_tracking as nht
+from nh_tracking.metrics import cross_track_error
+from nh_tracking.poses import PoseMap
+from nh_tracking.ros import conversions as cv
+from nh_tracking.ros import messages as msgs
+from nh_tracking.ros.graph import wait_until
+from nh_tracking.ros.planner_interface import LATCHED
+from processes import domain_env, Peer, Process, run
+
+pytestmark = pytest.mark.timeout(300)
+TEST_DIR = Path(__file__).resolve().parent
+RUN = 20.0  # [s] of tracking, judged after SETTLE
+SETTLE = 15.0
+START = 100.0  # [s] on the simulator's clock
+
+
+def _car_steering(s, q, v):
+    return [2.0 * (1.0 - v[0]), 20.0 * (0.35 * math.sin(0.4 * s) - q[3]) - 4.0 * v[1]]
+
+
+def _board_steering(s, q, v):  # the rotor held still: a path says nothing of a rotor's gait
+    return [-2.0 * v[1], 4.0 * (0.3 * math.sin(0.5 * s) - q[4]) - v[2]]
+
+
+ROBOTS = {  # model: (start (q, v), a steering law making the reference, steering coordinate)
+    'user_robots:CAR': (([0.0] * 4, [1.0, 0.0]), _car_steering, 'phi'),
+    'snakeboard': (([0.0] * 5, [0.5, 0.0, 0.0]), _board_steering, 'phi'),
+}
+
+
+class Watch:
+    """Odometry, /tf and the simulator's joint states, as a peer on the processes' domain."""
+
+    def __init__(self, peer: Peer, joints_topic: str) -> None:
+        self._lock = threading.Lock()
+        self.odom: dict[int, tuple[float, float, float]] = {}  # stamp -> x, y, yaw
+        self.tf: dict[int, tuple[float, float, float]] = {}
+        self.frames: set[tuple[str, str]] = set()
+        self.joints: list[tuple[int, dict[str, float]]] = []
+        peer.node.create_subscription(Odometry, 'odom', self._on_odom, 100)
+        peer.node.create_subscription(TFMessage, '/tf', self._on_tf, 100)
+        peer.node.create_subscription(JointState, joints_topic, self._on_joints, 100)
+
+    def _on_odom(self, msg: Odometry) -> None:
+        pose = cv.pose_array(msg.pose.pose, 'odometry')
+        with self._lock:
+            self.odom[cv.stamp_ns(msg.header.stamp)] = (pose[0], pose[1], pose[3])
+
+    def _on_tf(self, msg: TFMessage) -> None:
+        for transform in msg.transforms:
+            t, r = transform.transform.translation, transform.transform.rotation
+            yaw = 2.0 * math.atan2(r.z, r.w)
+            with self._lock:
+                self.frames.add((transform.header.frame_id, transform.child_frame_id))
+                self.tf[cv.stamp_ns(transform.header.stamp)] = (t.x, t.y, yaw)
+
+    def _on_joints(self, msg: JointState) -> None:
+        with self._lock:
+            self.joints.append((cv.stamp_ns(msg.header.stamp), dict(zip(msg.name, msg.position))))
+
+    def track(self) -> np.ndarray:
+        """Rows (t [s], x, y), in stamp order."""
+        with self._lock:
+            return np.array([(ns * 1e-9, x, y) for ns, (x, y, _) in sorted(self.odom.items())])
+
+
+def _reference(model: str) -> tuple[PathMsg, np.ndarray]:
+    """The path the robot makes with its steering law from its start, stamped from START."""
+    (q0, v0), law, _ = ROBOTS[model]
+    system = nht.models.create(model)
+    reference = nht.simulate(system, q0, v0, np.linspace(0.0, RUN + 10.0, 601), law,
+                             rtol=1e-10)
+    return msgs.reference_message(reference, PoseMap(system), START, 'path'), reference.q[:, :2]
+
+
+def _closed_loop(model: str, with_joints: bool) -> dict:
+    """Run the sim and planner processes for RUN seconds; what the peer saw."""
+    env = dict(domain_env(), PYTHONPATH=os.pathsep.join(
+        [str(TEST_DIR), os.environ.get('PYTHONPATH', '')]))
+    (q0, v0), _, steering = ROBOTS[model]
+    joints_topic = 'joint_states' if with_joints else 'joint_states_unheard'
+    msg, path = _reference(model)
+    peer = Peer(env)
+    planner = sim = None
+    try:
+        watch = Watch(peer, joints_topic)
+        peer.node.create_publisher(PathMsg, 'reference_path', LATCHED).publish(msg)
+        # the robot starts where the reference does: on the simulator's clock, from START
+        planner = Process('planner', ['--ros-args', '-p', f'model:={model}', '-p',
+                                      'use_sim_time:=true'], env)
+        assert planner.wait_for('new reference', 60.0), planner.output
+        sim = Process('sim', ['--ros-args', '-p', f'model:={model}', '-p',
+                              f'initial_state:={list(q0) + list(v0)}', '-p',
+                              'publish_clock:=true', '-p', f'start_time:={START}', '-r',
+                              f'joint_states:={joints_topic}'], env)
+        assert wait_until(lambda: len(watch.track()) and watch.track()[-1, 0] > START + RUN,
+                          RUN + 60.0), sim.output + planner.output
+        track = watch.track()
+        after = track[track[:, 0] >= START + SETTLE]
+        with watch._lock:
+            steer = np.array([j[steering] for _, j in watch.joints])
+            odom, tf, frames = dict(watch.odom), dict(watch.tf), set(watch.frames)
+        return {'cross_track': float(cross_track_error(after[:, 1:], path).max()),
+                'steering': float(np.abs(steer).max()), 'odom': odom, 'tf': tf,
+                'frames': frames, 'planner': planner.output, 'sim': sim.output}
+    finally:
+        peer.close()
+        for process in (planner, sim):
+            if process is not None:
+                assert process.interrupt() == 0, process.output
+
+
+@pytest.mark.parametrize('model', ROBOTS)
+def test_a_steered_robot_tracks_through_ros_with_its_joint_states(model):
+    """Cross-track < 0.05 m after 15 s and the steering inside its domain, with joint_states.
+
+    Without them the planner dead-reckons the steering it cannot see and does worse.
+    """
+    limit = nht.models.create(model).domain.upper[-1]  # the steering's stop
+    seen = _closed_loop(model, with_joints=True)
+    blind = _closed_loop(model, with_joints=False)
+    print(f"\n{model}: with joint_states cross-track after {SETTLE:g} s max "
+          f"{seen['cross_track']:.4f} m, |steering| max {seen['steering']:.3f} rad (stop "
+          f"{limit:.3f}); without: {blind['cross_track']:.4f} m, |steering| max "
+          f"{blind['steering']:.3f} rad")
+    assert seen['cross_track'] < 0.05 and seen['steering'] < limit
+    assert 'from joint_states' in seen['planner'] and 'failed' not in seen['sim']
+    assert 'dead-reckoned (no joint_states for them)' in blind['planner']
+    assert blind['cross_track'] > 2 * seen['cross_track'] or "left the model's domain" in \
+        blind['sim']
+    # /tf carries the odometry pose at the odometry's stamps
+    common = sorted(set(seen['odom']) & set(seen['tf']))
+    assert seen['frames'] == {('odom', 'base_link')}
+    assert len(common) > 0.9 * len(seen['odom'])
+    error = max(np.abs(np.subtract(seen['odom'][ns], seen['tf'][ns])).max() for ns in common)
+    assert error < 1e-9
+
+
+def test_help_lists_the_physical_parameters_of_the_model_asked_for(tmp_path):
+    env = domain_env()
+    unicycle = run('planner', ['--help', '-p', 'model:=unicycle'], env).stdout
+    names = {line.split()[0] for line in unicycle.splitlines() if line.startswith('  ')}
+    assert {'m', 'J'} <= names and 'a' not in names, unicycle  # (a: the sleigh's)
+    assert 'kg m^2' in unicycle
+    params = tmp_path / 'board.yaml'
+    params.write_text('nh_tracking_sim:\n  ros__parameters:\n    model: snakeboard\n')
+    board = run('sim', ['--help', '--ros-args', '--params-file', str(params)], env).stdout
+    assert 'J_r' in board and 'x, y, theta, psi, phi, forward, rotor, steering' in board, board
+    default = run('sim', ['--help'], env).stdout
+    assert 'initial_state ([0.0' in default and 'x1, x2, theta, rotation, forward' in default, default
+    unknown = run('planner', ['--help', '-p', 'model:=no_such_model'], env)
+    assert unknown.returncode == 0 and 'unknown model' in unknown.stdout, unknown.stdout
