@@ -16,10 +16,12 @@
 
 Arguments: ``params_file`` (default: the installed config/sleigh.yaml), ``namespace`` (one
 robot per namespace), ``use_sim_time``, ``autostart`` (false: the planner waits for a lifecycle
-manager to configure and activate it, as Nav2's servers do).
+manager to configure and activate it, as Nav2's servers do), ``rviz`` (true: RViz 2 with the
+installed config/nh_tracking.rviz: the robot via /tf, odometry, reference, plan, obstacles).
 """
 from launch import LaunchDescription
 from launch.actions import DeclareLaunchArgument
+from launch.conditions import IfCondition
 from launch.substitutions import LaunchConfiguration, PathJoinSubstitution
 from launch_ros.actions import Node
 from launch_ros.substitutions import FindPackageShare
@@ -30,11 +32,12 @@ def generate_launch_description() -> LaunchDescription:
     namespace = LaunchConfiguration('namespace')
     use_sim_time = LaunchConfiguration('use_sim_time')
     autostart = LaunchConfiguration('autostart')
+    share = FindPackageShare('nh_tracking')
     return LaunchDescription([
         DeclareLaunchArgument(
             'params_file',
             default_value=PathJoinSubstitution(
-                [FindPackageShare('nh_tracking'), 'config', 'sleigh.yaml']),
+                [share, 'config', 'sleigh.yaml']),
             description='parameter file for both nodes (standard ros__parameters layout)'),
         DeclareLaunchArgument('namespace', default_value='',
                               description="namespace of this robot's nodes and topics"),
@@ -42,6 +45,8 @@ def generate_launch_description() -> LaunchDescription:
                               description='follow /clock'),
         DeclareLaunchArgument('autostart', default_value='true',
                               description='planner configures and activates itself'),
+        DeclareLaunchArgument('rviz', default_value='false',
+                              description='start RViz 2 with config/nh_tracking.rviz'),
         Node(package='nh_tracking', executable='planner', name='nh_tracking_planner',
              namespace=namespace, output='screen',
              parameters=[params_file, {'use_sim_time': use_sim_time,
@@ -49,4 +54,8 @@ def generate_launch_description() -> LaunchDescription:
         Node(package='nh_tracking', executable='sim', name='nh_tracking_sim',
              namespace=namespace, output='screen',
              parameters=[params_file, {'use_sim_time': use_sim_time}]),
+        Node(package='rviz2', executable='rviz2', name='rviz2', output='screen',
+             arguments=['-d', PathJoinSubstitution([share, 'config', 'nh_tracking.rviz'])],
+             parameters=[{'use_sim_time': use_sim_time}],
+             condition=IfCondition(LaunchConfiguration('rviz'))),
     ])

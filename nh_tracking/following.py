@@ -54,9 +54,11 @@ class TimedPoses:
 class Session(Protocol):
     """What :class:`Following` takes from its tracking session."""
 
-    pose_map: PoseMap
     planner: RecedingHorizonPlanner
     log: Callable[[str, str], None]
+
+    @property
+    def pose_map(self) -> PoseMap: ...
 
     @property
     def state(self) -> StateEstimate | None: ...

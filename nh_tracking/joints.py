@@ -48,9 +48,9 @@ def joint_mapping(entries: Sequence[str], pose_map: PoseMap) -> dict[str, int]:
         if not colon or not coordinate or not joint:
             raise ValueError(f'joint_names entry {entry!r} is not coordinate:joint_name')
         if coordinate not in hidden:
+            shown = ', '.join(sorted(hidden)) or 'none'
             raise ValueError(f'joint_names entry {entry!r}: {coordinate!r} is not a coordinate '
-                             f"the pose does not show (those of {pose_map.system.name}: "
-                             f'{sorted(hidden) or "none"})')
+                             f'the pose does not show (those of {pose_map.system.name}: {shown})')
         named[coordinate] = joint
     if len(set(named.values())) != len(named):
         raise ValueError(f'joint_names gives one joint to two coordinates: {named}')
@@ -70,7 +70,7 @@ class JointReading:
         return cls(np.full(n, np.nan), np.full(n, np.nan), np.zeros(n, dtype=np.int64))
 
     def fresh(self, ns: int, timeout: float) -> np.ndarray:
-        """Indices of the coordinates given within ``timeout`` [s] before ``ns``."""
+        """Return the indices of the coordinates given within ``timeout`` [s] before ``ns``."""
         return np.flatnonzero(np.isfinite(self.positions)
                               & ((ns - self.stamps) * 1e-9 <= timeout))
 
@@ -82,8 +82,9 @@ class JointMap:
         self.pose_map = pose_map
         self.by_joint = joint_mapping(entries, pose_map)
 
-    def read(self, ns: int, names: Sequence[str], positions: Sequence[float],
-             velocities: Sequence[float], previous: JointReading) -> JointReading | None:
+    def read(self, ns: int, names: Sequence[str], positions: Sequence[float] | np.ndarray,
+             velocities: Sequence[float] | np.ndarray,
+             previous: JointReading) -> JointReading | None:
         """``previous`` updated with this message's joints (None if it has none of ours).
 
         JointsRejected for a message out of order, or a value not finite or outside the domain.
@@ -132,7 +133,7 @@ def observe(pose_map: PoseMap, ns: int, pose: np.ndarray, twist: np.ndarray,
     q = pose_map.configuration(pose, None if previous is None else previous[1])
     measured = [] if joints is None else [int(i) for i in joints.fresh(ns, timeout)]
     rows: list[int] = []
-    if measured:
+    if joints is not None and measured:
         rates = joints.rates[measured]
         known = np.isfinite(rates)
         ahead = (ns - joints.stamps[measured]) * 1e-9

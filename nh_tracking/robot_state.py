@@ -67,8 +67,8 @@ class RobotState:
                             f'{self.max_clock_skew:g} s): clocks out of step?')
         return min(ns, now)
 
-    def set_joints(self, ns: int, names: Sequence[str], positions: Sequence[float],
-                   velocities: Sequence[float]) -> bool:
+    def set_joints(self, ns: int, names: Sequence[str], positions: Sequence[float] | np.ndarray,
+                   velocities: Sequence[float] | np.ndarray) -> bool:
         """Take joint states; False if none of them is a hidden coordinate.
 
         ClockSkew or JointsRejected for a message that cannot be used.

@@ -146,8 +146,8 @@ class TrackingSession:
             self.planner.set_reference(reference)
         return reference
 
-    def set_joints(self, ns: int, names: Sequence[str], positions: Sequence[float],
-                   velocities: Sequence[float]) -> bool:
+    def set_joints(self, ns: int, names: Sequence[str], positions: Sequence[float] | np.ndarray,
+                   velocities: Sequence[float] | np.ndarray) -> bool:
         """Take joint states (:meth:`RobotState.set_joints`)."""
         return self.robot.set_joints(ns, names, positions, velocities)
 

@@ -27,7 +27,7 @@ from user_robots import car_like
 
 
 def _wheeled_cart(r: float = 0.1, b: float = 0.3) -> nht.NonholonomicSystem:
-    """A differential drive with its wheel angles in q, written from its rolling constraints."""
+    """Return a differential drive with its wheel angles in q, from its rolling constraints."""
     def constraints(q):
         th = q[2]
         return ca.vertcat(ca.horzcat(-ca.sin(th), ca.cos(th), 0, 0, 0),
@@ -39,7 +39,8 @@ def _wheeled_cart(r: float = 0.1, b: float = 0.3) -> nht.NonholonomicSystem:
 
 
 SYSTEMS = {  # the steered ones, a rolling angle, and wheels no issue names
-    'car': lambda: car_like(L=0.8), 'snakeboard': lambda: nht.models.create('snakeboard', l=0.3),
+    'car': lambda: car_like(L=0.8),
+    'snakeboard': lambda: nht.models.create('snakeboard', l=0.3),  # noqa: E741
     'rolling_disk': lambda: nht.models.create('rolling_disk'), 'wheeled_cart': _wheeled_cart}
 
 

@@ -70,6 +70,7 @@ class _Recorder:
 
 def _stub_launch_api(monkeypatch) -> None:
     names = {'launch': ['LaunchDescription'], 'launch.actions': ['DeclareLaunchArgument'],
+             'launch.conditions': ['IfCondition'],
              'launch.substitutions': ['LaunchConfiguration', 'PathJoinSubstitution'],
              'launch_ros.actions': ['Node'], 'launch_ros.substitutions': ['FindPackageShare']}
     for module, classes in names.items():
@@ -97,7 +98,14 @@ def test_launch_file_starts_installed_executables_with_declared_parameters(monke
     assert default_file[1:] == ['config', 'sleigh.yaml']
     assert (ROOT / 'config' / 'sleigh.yaml').exists()
     nodes = [a.kwargs for a in actions if type(a).__name__ == 'Node']
+    rviz = [n for n in nodes if n['package'] == 'rviz2']
+    nodes = [n for n in nodes if n['package'] != 'rviz2']
     assert {n['executable'] for n in nodes} == {'planner', 'sim'} <= _console_scripts()
+    # RViz on request, with the installed configuration
+    assert len(rviz) == 1 and 'rviz' in arguments
+    assert rviz[0]['condition'].args[0].args == ('rviz',)
+    assert rviz[0]['arguments'][0] == '-d'
+    assert rviz[0]['arguments'][1].args[0][1:] == ['config', 'nh_tracking.rviz']
     declared = {'planner': {s.name for s in planner_node.PARAMETERS},
                 'sim': {s.name for s in simulator_node.PARAMETERS}}
     for node in nodes:
@@ -114,6 +122,21 @@ def test_launch_file_starts_installed_executables_with_declared_parameters(monke
     # installed where `ros2 launch nh_tracking tracking.launch.py` looks
     setup = (ROOT / 'setup.py').read_text()
     assert "glob('launch/*.launch.py')" in setup and "glob('config/*.yaml')" in setup
+    assert "glob('config/*.rviz')" in setup
+
+
+def test_the_rviz_configuration_shows_what_the_nodes_publish_in_the_odom_frame():
+    config = yaml.safe_load((ROOT / 'config' / 'nh_tracking.rviz').read_text())
+    manager = config['Visualization Manager']
+    assert manager['Global Options']['Fixed Frame'] == 'odom'
+    displays = {d['Class'].split('/')[-1]: d for d in manager['Displays']}
+    assert {'TF', 'Odometry', 'Path', 'MarkerArray', 'Map'} <= set(displays)
+    topics = {d['Topic']['Value'] for d in manager['Displays'] if 'Topic' in d}
+    assert {'/odom', '/reference_path', '/planned_path', '/planned_markers', '/obstacles',
+            '/costmap'} == topics
+    latched = [d for d in manager['Displays']
+               if d.get('Topic', {}).get('Value') in ('/planned_path', '/planned_markers')]
+    assert all(d['Topic']['Durability Policy'] == 'Transient Local' for d in latched)
 
 
 def test_readme_parameter_tables_are_the_declared_ones():

@@ -96,7 +96,7 @@ class Watch:
 
 
 def _reference(model: str) -> tuple[PathMsg, np.ndarray]:
-    """The path the robot makes with its steering law from its start, stamped from START."""
+    """Return the path the robot makes by its steering law from its start, stamped from START."""
     (q0, v0), law, _ = ROBOTS[model]
     system = nht.models.create(model)
     reference = nht.simulate(system, q0, v0, np.linspace(0.0, RUN + 10.0, 601), law,
@@ -150,7 +150,7 @@ def test_a_steered_robot_tracks_through_ros_with_its_joint_states(model):
     limit = nht.models.create(model).domain.upper[-1]  # the steering's stop
     seen = _closed_loop(model, with_joints=True)
     blind = _closed_loop(model, with_joints=False)
-    print(f"\n{model}: with joint_states cross-track after {SETTLE:g} s max "
+    print(f'\n{model}: with joint_states cross-track after {SETTLE:g} s max '
           f"{seen['cross_track']:.4f} m, |steering| max {seen['steering']:.3f} rad (stop "
           f"{limit:.3f}); without: {blind['cross_track']:.4f} m, |steering| max "
           f"{blind['steering']:.3f} rad")
@@ -178,6 +178,43 @@ def test_help_lists_the_physical_parameters_of_the_model_asked_for(tmp_path):
     board = run('sim', ['--help', '--ros-args', '--params-file', str(params)], env).stdout
     assert 'J_r' in board and 'x, y, theta, psi, phi, forward, rotor, steering' in board, board
     default = run('sim', ['--help'], env).stdout
-    assert 'initial_state ([0.0' in default and 'x1, x2, theta, rotation, forward' in default, default
+    assert 'initial_state ([0.0' in default, default
+    assert 'x1, x2, theta, rotation, forward' in default, default
     unknown = run('planner', ['--help', '-p', 'model:=no_such_model'], env)
     assert unknown.returncode == 0 and 'unknown model' in unknown.stdout, unknown.stdout
+
+
+def test_bad_joint_states_are_rejected_with_one_line_each_and_the_state_kept(graph):
+    """Malformed, out-of-domain, future-stamped or out-of-order joint states change nothing."""
+    from nh_tracking.ros import PlannerNode, SimulatorNode
+    from nh_tracking.ros.graph import parameters
+    from test_ros import unique_namespace
+
+    ns = unique_namespace()
+    sim = graph.add(SimulatorNode, namespace=ns, cli_args=[  # its joints: elsewhere
+        '--ros-args', '-r', 'joint_states:=sim_joint_states'], parameter_overrides=parameters(
+        model='snakeboard', initial_state=[0.0] * 5 + [0.4, 0.0, 0.0]))
+    planner = graph.add(PlannerNode, namespace=ns, parameter_overrides=parameters(
+        model='snakeboard', joint_names=['phi:steering_joint']))
+    probe = graph.plain_node('probe', ns)
+    publisher = probe.create_publisher(JointState, 'joint_states', 10)
+    assert wait_until(lambda: planner.live.state is not None, 20.0)
+    publisher.publish(msgs.joint_state_msg(planner.now_ns(), ['steering_joint', 'psi'],
+                                           [0.1, 0.2], []))  # by the mapped name
+    assert wait_until(lambda: planner.live.robot.measured == [3, 4], 10.0)
+    assert planner.live.state.q[3:].tolist() == pytest.approx([0.2, 0.1])
+    bad = [(['psi', 'steering_joint'], [0.0], [], 0, 'names and 1 positions'),
+           (['psi'], [0.0], [1.0, 2.0], 0, 'velocities'),
+           (['steering_joint'], [3.0], [], 0, "outside the model's domain"),
+           (['psi'], [float('nan')], [], 0, 'position is nan'),
+           (['psi'], [0.0], [], 5_000_000_000, 'ahead of this clock'),
+           (['psi'], [0.0], [], -3_000_000_000, 'out of order')]
+    for names, positions, velocities, ahead, reason in bad:
+        before = planner.rejected_inputs
+        message = msgs.joint_state_msg(planner.now_ns() + ahead, names, positions, velocities)
+        message.position = positions  # (as sent, however malformed)
+        publisher.publish(message)
+        assert wait_until(lambda: planner.rejected_inputs > before, 10.0), reason
+        assert reason in planner.last_problem and 'joint_states' in planner.last_problem
+    assert planner.errors == 0 and sim.errors == 0
+    assert planner.live.state.q[4] == pytest.approx(0.1)  # the last good steering angle

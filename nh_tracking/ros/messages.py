@@ -83,7 +83,7 @@ def transform_msg(pose: np.ndarray) -> Transform:
 
 
 def tf_msg(frame: str, child: str, stamp: int, pose: np.ndarray) -> TFMessage:
-    """The transform ``frame`` -> ``child`` at ``pose`` as /tf carries it."""
+    """Return the transform ``frame`` -> ``child`` at ``pose``, as /tf carries it."""
     transform = TransformStamped(child_frame_id=child, transform=transform_msg(pose))
     _stamp(transform.header, frame, stamp)
     return TFMessage(transforms=[transform])
@@ -91,6 +91,7 @@ def tf_msg(frame: str, child: str, stamp: int, pose: np.ndarray) -> TFMessage:
 
 def joint_state_msg(stamp: int, names: Sequence[str], positions: np.ndarray,
                     velocities: np.ndarray) -> JointState:
+    """Return the joints' positions and velocities at ``stamp`` (no frame: joints have none)."""
     msg = JointState(name=list(names), position=[float(p) for p in positions],
                      velocity=[float(v) for v in velocities])
     _stamp(msg.header, '', stamp)

@@ -21,8 +21,9 @@ interpreter with the solver. Here each message wakes an executor that waits on o
 and the callback may plan at once, on this thread: a hand-off to the solver thread costs ~1 ms.
 Not for a message that arrived while the last such plan was being made (DDS's reception stamp
 says so): newer ones may wait behind it, and planning for each in turn would fall further behind
-with every plan slower than the odometry; the solver thread plans for the latest instead. Joint states, part of the same state, arrive on
-the same thread, so a state is never made of a pose and joints half-written.
+with every plan slower than the odometry; the solver thread plans for the latest instead. Joint
+states, part of the same state, arrive on the same thread, so a state is never made of a pose
+and joints half-written.
 """
 from __future__ import annotations
 

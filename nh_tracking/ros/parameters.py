@@ -85,7 +85,8 @@ def plain(name: str, default: object, description: str, unit: str = '',
     return ParameterSpec(name, default, Setting(description, unit, bounds, choices), read_only)
 
 
-ARRAYS = {tuple: Parameter.Type.DOUBLE_ARRAY, list: Parameter.Type.STRING_ARRAY}
+ARRAYS: dict[type, Parameter.Type] = {tuple: Parameter.Type.DOUBLE_ARRAY,
+                                      list: Parameter.Type.STRING_ARRAY}
 _FLOATS: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()  # node -> float names
 
 
@@ -115,8 +116,9 @@ def declare(node: Node, spec: ParameterSpec) -> Any:
     if array is not None:  # possibly empty: typed explicitly
         value = node.declare_parameter(spec.name, array, spec.descriptor()).value
         if value is None:
-            node.set_parameters([Parameter(spec.name, array, list(spec.default))])
-            value = list(spec.default)
+            default: list = list(spec.default)  # type: ignore[call-overload]
+            node.set_parameters([Parameter(spec.name, array, default)])
+            value = default
         return list(value)
     return node.declare_parameter(spec.name, spec.default, spec.descriptor()).value
 
@@ -147,7 +149,7 @@ def declare_model(node: Node) -> tuple[str, dict[str, float]]:
 
 
 def model_asked_for(args: Sequence[str], node_name: str) -> str:
-    """The model a command line gives: ``-p model:=NAME``, else a ``--params-file``'s.
+    """Return the model a command line gives: ``-p model:=NAME``, else a params file's.
 
     As rcl ranks them: a ``-p`` over any file, a later file over an earlier one.
     """

@@ -83,8 +83,8 @@ COSTMAP_THRESHOLD = plain(
     "Nav2's lethal cells only; its inflation is not taken for obstacle, the robot's radius is "
     'added once)', '', (1, 100), read_only=True)
 JOINT_NAMES = plain(
-    'joint_names', [], "joints of joint_states that give coordinates a pose does not show, as "
-    "coordinate:joint entries (e.g. phi:front_steering_joint); a coordinate not named is "
+    'joint_names', [], 'joints of joint_states that give coordinates a pose does not show, as '
+    'coordinate:joint entries (e.g. phi:front_steering_joint); a coordinate not named is '
     'its own joint name', read_only=True)
 NODE = (
     plain('frame_id', 'odom', 'fixed frame of references and odometry', read_only=True),

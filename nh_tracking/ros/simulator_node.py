@@ -12,7 +12,7 @@
 # See the License for the specific language governing permissions and
 # limitations under the License.
 
-"""The simulator node: integrates the model's real controlled dynamics, publishes the robot's state.
+"""The simulator node: integrates the model's real controlled dynamics, publishes the state.
 
 Odometry, the coordinates a pose does not show as ``joint_states`` (with their rates), and the
 odometry pose on ``/tf`` (``frame_id`` -> ``child_frame_id``), all at the same stamps.
