@@ -19,8 +19,10 @@ let the robot move the way the path does (a car turns on the circle its steering
 reference must carry those values; one holding the steering at its first value on a curve has
 the planner fight its own plan. Each sample's implied coordinates z are found with its
 velocities v by Gauss-Newton on rho_pose(q(z)) v = the pose rates, z drawn weakly toward the
-start's shape; where the path is at rest nothing is implied and the last value holds. The other
-hidden coordinates (a rolling angle, a rotor's) are what the motion integrates.
+start's shape (relative to the speed, so a slow path implies what a fast one does); where the
+path hardly moves (at rest, or turning on the spot, where no steering makes it) nothing is
+implied and the last value holds. The other hidden coordinates (a rolling angle, a rotor's)
+are what the motion integrates.
 """
 from __future__ import annotations
 
@@ -33,38 +35,38 @@ from nh_tracking.regularity import random_configurations
 from nh_tracking.system import NonholonomicSystem
 
 ITERATIONS = 12
-PRIOR_WEIGHT = 1e-3  # z's pull toward the start's shape, against rates of order 1
+PRIOR_WEIGHT = 1e-3  # z's pull toward the start's shape, times the squared pose rates
 VELOCITY_WEIGHT = 1e-6  # fixes v along basis fields that move no pose axis (a steering rate)
-AT_REST = 1e-6  # [pose units/s] below this no shape is implied
-DOMAIN_MARGIN = 1e-3  # implied values stay this far inside the model's domain
+AT_REST = 1e-4  # [m/s] slower than this, and than MOVING of the path's top speed, ...
+MOVING = 0.1  # ... a sample implies no shape (spline ringing about a stop)
 
 
 class ImpliedShape:
     """Solves a path's implied coordinates, for a system and the coordinates its pose shows."""
 
     def __init__(self, system: NonholonomicSystem, pose_rows: Sequence[int],
-                 hidden: Sequence[int]) -> None:
+                 hidden: Sequence[int], translation: Sequence[int]) -> None:
+        """Take ``translation``: which of the pose rows are a position's (rates: a speed)."""
         self.system = system
         self.indices = _implied(system, list(pose_rows), list(hidden))
+        self.translation = list(translation)
         self._step = self._gauss_newton(list(pose_rows)) if self.indices else None
-        lo, hi = system.domain.lower[self.indices], system.domain.upper[self.indices]
-        self._box = (lo + DOMAIN_MARGIN * np.minimum(1.0, hi - lo),
-                     hi - DOMAIN_MARGIN * np.minimum(1.0, hi - lo))
 
     def _gauss_newton(self, pose_rows: list[int]) -> ca.Function:
-        """(q, z0, rates) -> z after one Gauss-Newton step of the regularised least squares."""
+        """(q, z, v, z0, rates, w) -> (z, v) after a Gauss-Newton step; w weighs the prior."""
         system, m = self.system, len(self.indices)
-        q, z0 = ca.SX.sym('q', system.n), ca.SX.sym('z0', m)
+        q, z0, w = ca.SX.sym('q', system.n), ca.SX.sym('z0', m), ca.SX.sym('w')
         rates, v = ca.SX.sym('rates', len(pose_rows)), ca.SX.sym('v', system.k)
         z = ca.SX.sym('z', m)
         full = ca.vertcat(*[z[self.indices.index(i)] if i in self.indices else q[i]
                             for i in range(system.n)])
         x = ca.vertcat(z, v)
         residual = ca.vertcat(system.rho_fn(full)[pose_rows, :] @ v - rates,
-                              np.sqrt(PRIOR_WEIGHT) * (z - z0), np.sqrt(VELOCITY_WEIGHT) * v)
+                              ca.sqrt(w) * (z - z0), np.sqrt(VELOCITY_WEIGHT) * v)
         jac = ca.jacobian(residual, x)
         step = -ca.solve(jac.T @ jac, jac.T @ residual)
-        return ca.Function('implied_step', [q, z, v, z0, rates], [z + step[:m], v + step[m:]])
+        return ca.Function('implied_step', [q, z, v, z0, rates, w],
+                           [z + step[:m], v + step[m:]])
 
     def solve(self, q: np.ndarray, v: np.ndarray, rates: np.ndarray) -> np.ndarray:
         """(N, m) implied coordinates along configurations q (N, n) from velocities v (N, k).
@@ -75,13 +77,17 @@ class ImpliedShape:
         z0 = q[:, self.indices]
         if self._step is None or count == 0:
             return z0
+        rates = np.asarray(rates, dtype=float)
+        speed = np.linalg.norm(rates[:, self.translation], axis=1)
+        moving = speed > max(AT_REST, MOVING * speed.max())
+        weight = PRIOR_WEIGHT * np.maximum(np.sum(rates ** 2, axis=1), AT_REST ** 2)
         step = self._step.map(count)
         z, v = z0.T, np.asarray(v, dtype=float).T
         for _ in range(ITERATIONS):
-            z_new, v_new = step(q.T, z, v, z0.T, np.asarray(rates, dtype=float).T)
-            z = np.clip(np.array(z_new), self._box[0][:, None], self._box[1][:, None])
+            z_new, v_new = step(q.T, z, v, z0.T, rates.T, weight[None, :])
+            z = self.system.domain.inside(np.array(z_new).T, self.indices).T
             v = np.array(v_new)
-        return _held_at_rest(z.T, np.linalg.norm(rates, axis=1) > AT_REST, z0)
+        return _held_at_rest(z.T, moving, z0)
 
 
 def _implied(system: NonholonomicSystem, pose_rows: list[int], hidden: list[int]) -> list[int]:

@@ -31,6 +31,9 @@ import numpy as np
 from nh_tracking.poses import PoseMap
 
 
+EDGE = 1e-2  # a joint this far past the model's domain is at its edge (rounding, a stop)
+
+
 class JointsRejected(ValueError):
     """A joint state that cannot be used; the message says why."""
 
@@ -40,20 +43,20 @@ def joint_mapping(entries: Sequence[str], pose_map: PoseMap) -> dict[str, int]:
 
     Hidden coordinates no entry names are their own joints. ValueError naming a bad entry.
     """
-    coordinates = pose_map.system.coordinates
-    hidden = {coordinates[i]: i for i in pose_map.hidden}
+    system = pose_map.system
+    hidden = {system.coordinates[i]: i for i in pose_map.hidden}
     named = {name: name for name in hidden}
     for entry in entries:
-        coordinate, colon, joint = str(entry).partition(':')
+        coordinate, colon, joint = (part.strip() for part in str(entry).partition(':'))
         if not colon or not coordinate or not joint:
             raise ValueError(f'joint_names entry {entry!r} is not coordinate:joint_name')
         if coordinate not in hidden:
-            shown = ', '.join(sorted(hidden)) or 'none'
-            raise ValueError(f'joint_names entry {entry!r}: {coordinate!r} is not a coordinate '
-                             f'the pose does not show (those of {pose_map.system.name}: {shown})')
+            raise ValueError(f'joint_names entry {entry!r}: {coordinate!r} is not a hidden '
+                             f"coordinate of {system.name} ({', '.join(hidden) or 'it has none'})")
         named[coordinate] = joint
     if len(set(named.values())) != len(named):
-        raise ValueError(f'joint_names gives one joint to two coordinates: {named}')
+        raise ValueError(f'joint_names gives one joint to two coordinates: {named} (a '
+                         'coordinate not named in joint_names is its own joint)')
     return {joint: hidden[coordinate] for coordinate, joint in named.items()}
 
 
@@ -62,7 +65,7 @@ class JointReading:
     """The latest of each hidden coordinate's joint: (n,) arrays, NaN where never given."""
 
     positions: np.ndarray
-    rates: np.ndarray  # NaN: not known yet (no velocity and nothing to difference with)
+    rates: np.ndarray  # NaN: not known (no velocity, nothing to difference with)
     stamps: np.ndarray  # [ns] int64
 
     @classmethod
@@ -70,55 +73,69 @@ class JointReading:
         return cls(np.full(n, np.nan), np.full(n, np.nan), np.zeros(n, dtype=np.int64))
 
     def fresh(self, ns: int, timeout: float) -> np.ndarray:
-        """Return the indices of the coordinates given within ``timeout`` [s] before ``ns``."""
+        """Return the indices of the coordinates given within ``timeout`` [s] of ``ns``."""
         return np.flatnonzero(np.isfinite(self.positions)
-                              & ((ns - self.stamps) * 1e-9 <= timeout))
+                              & (np.abs(ns - self.stamps) * 1e-9 <= timeout))
 
 
 class JointMap:
-    """Reads joint states into a :class:`JointReading` for one model's hidden coordinates."""
+    """Reads joint states into a :class:`JointReading` for one model's hidden coordinates.
+
+    Positions up to :data:`EDGE` past the model's domain are taken as at its edge (a joint at
+    its stop), further ones refused; a continuous joint reported in (-pi, pi] is unwrapped.
+    """
 
     def __init__(self, pose_map: PoseMap, entries: Sequence[str] = ()) -> None:
-        self.pose_map = pose_map
+        self.system = pose_map.system
         self.by_joint = joint_mapping(entries, pose_map)
 
     def read(self, ns: int, names: Sequence[str], positions: Sequence[float] | np.ndarray,
-             velocities: Sequence[float] | np.ndarray,
-             previous: JointReading) -> JointReading | None:
+             velocities: Sequence[float] | np.ndarray, previous: JointReading,
+             timeout: float) -> JointReading | None:
         """``previous`` updated with this message's joints (None if it has none of ours).
 
-        JointsRejected for a message out of order, or a value not finite or outside the domain.
+        A joint's history counts within ``timeout`` [s]: older (or a clock that jumped back
+        further) starts it afresh. JointsRejected for a message out of order, a joint named
+        twice, a position not finite or outside the domain.
         """
         ours = [(i, self.by_joint[name]) for i, name in enumerate(names) if name in self.by_joint]
         if not ours:
             return None
         if len({c for _, c in ours}) != len(ours):
             raise JointsRejected(f'a joint is named twice in {list(names)}')
-        system = self.pose_map.system
         reading = JointReading(previous.positions.copy(), previous.rates.copy(),
                                previous.stamps.copy())
         for i, c in ours:
-            name = system.coordinates[c]
-            position = float(positions[i])
-            if ns < previous.stamps[c]:
-                raise JointsRejected(f'{names[i]} is stamped before the last one given '
-                                     f'({(previous.stamps[c] - ns) * 1e-9:.3f} s): out of order')
-            if not np.isfinite(position):
-                raise JointsRejected(f'{names[i]} ({name}) position is {position}')
-            lo, hi = system.domain.lower[c], system.domain.upper[c]
-            if not lo < position < hi:
-                raise JointsRejected(f'{names[i]} ({name}) = {position:g} is outside the '
-                                     f"model's domain ({lo:g}, {hi:g})")
-            if len(velocities):
-                rate = float(velocities[i])
-                if not np.isfinite(rate):
-                    raise JointsRejected(f'{names[i]} ({name}) velocity is {rate}')
-            elif np.isfinite(previous.positions[c]) and previous.stamps[c] < ns:  # differenced
-                rate = (position - previous.positions[c]) / ((ns - previous.stamps[c]) * 1e-9)
-            else:
-                rate = np.nan
-            reading.positions[c], reading.rates[c], reading.stamps[c] = position, rate, ns
+            velocity = float(velocities[i]) if len(velocities) else np.nan
+            reading.positions[c], reading.rates[c] = self._joint(
+                names[i], c, float(positions[i]), velocity, previous, ns, timeout)
+            reading.stamps[c] = ns
         return reading
+
+    def _joint(self, joint: str, c: int, position: float, velocity: float,
+               previous: JointReading, ns: int, timeout: float) -> tuple[float, float]:
+        """(position, rate) of coordinate ``c`` from its joint's reading; JointsRejected."""
+        what = f'{joint} ({self.system.coordinates[c]})'
+        last, since = previous.positions[c], (ns - previous.stamps[c]) * 1e-9
+        known = bool(np.isfinite(last)) and abs(since) <= timeout
+        if known and since < 0:
+            raise JointsRejected(f'{what} is stamped {-since:.3f} s before the last one '
+                                 'given: out of order')
+        if not np.isfinite(position):
+            raise JointsRejected(f'{what} position is {position}')
+        domain = self.system.domain
+        lo, hi = domain.lower[c], domain.upper[c]
+        if not lo - EDGE < position < hi + EDGE:
+            raise JointsRejected(f"{what} = {position:g} is outside the model's domain "
+                                 f'({lo:g}, {hi:g})')
+        position = float(domain.inside(np.array([position]), [c])[0])
+        if known and self.system.angle_mask[c]:  # continuous: the turn nearest the last
+            position += 2 * np.pi * np.round((last - position) / (2 * np.pi))
+        if np.isfinite(velocity):
+            return position, velocity
+        if known and since > 0:
+            return position, (position - last) / since  # differenced
+        return position, previous.rates[c] if known else np.nan
 
 
 def observe(pose_map: PoseMap, ns: int, pose: np.ndarray, twist: np.ndarray,
@@ -138,10 +155,7 @@ def observe(pose_map: PoseMap, ns: int, pose: np.ndarray, twist: np.ndarray,
         known = np.isfinite(rates)
         ahead = (ns - joints.stamps[measured]) * 1e-9
         carried = joints.positions[measured] + np.where(known, rates * ahead, 0.0)
-        domain = pose_map.system.domain  # (a joint at its stop is not carried past it)
-        q[measured] = np.where((carried > domain.lower[measured])
-                               & (carried < domain.upper[measured]),
-                               carried, joints.positions[measured])
+        q[measured] = pose_map.system.domain.inside(carried, measured)  # (not past a stop)
         rows = [m for m, k in zip(measured, known) if k]
     v = pose_map.velocity(q, twist, rows, None if joints is None else joints.rates[rows])
     reckoned = [h for h in pose_map.hidden if h not in measured]

@@ -91,7 +91,8 @@ class PoseMap:
         self.pose_rows = [self.rows[a] for a in AXES if a in self.rows]
         self._axes = [AXES.index(a) for a in AXES if a in self.rows]  # their index in a pose
         self._projection = self._normal_equations()
-        self.implied = ImpliedShape(system, self.pose_rows, self.hidden)
+        self.implied = ImpliedShape(system, self.pose_rows, self.hidden, [
+            i for i, a in enumerate(a for a in AXES if a in self.rows) if a != 'yaw'])
 
     @property
     def has_yaw(self) -> bool:
@@ -172,6 +173,10 @@ class PoseMap:
         matrices = rho[:, rows, :]
         cutoff = np.finfo(float).eps * max(matrices.shape[1:])  # lstsq's default (rcond=None)
         return (np.linalg.pinv(matrices, rcond=cutoff) @ rates[:, :, None])[:, :, 0]
+
+    def hidden_rates(self, q: np.ndarray, v: np.ndarray) -> np.ndarray:
+        """Rates of the hidden coordinates in the motion (q, v): (rho(q) v) at those rows."""
+        return self.system.rho(q)[self.hidden] @ v
 
     def body_twist(self, q: np.ndarray, v: np.ndarray) -> np.ndarray:
         """Body-frame twist (vx, vy, vz, wz) of the motion (q, v)."""

@@ -68,6 +68,16 @@ class Domain:
     def contains(self, q: np.ndarray) -> bool:
         return bool(np.all(q > self.lower) and np.all(q < self.upper))
 
+    def inside(self, values: np.ndarray, indices: Sequence[int],
+               margin: float = 1e-3) -> np.ndarray:
+        """``values`` of the coordinates ``indices`` moved ``margin`` inside the domain.
+
+        (A fraction ``margin`` of an interval narrower than 1.)
+        """
+        lo, hi = self.lower[list(indices)], self.upper[list(indices)]
+        gap = margin * np.minimum(1.0, hi - lo)
+        return np.clip(values, lo + gap, hi - gap)
+
     def check(self, q: np.ndarray, what: str = 'q') -> None:
         """Raise a ValueError naming each coordinate of ``q`` outside the domain."""
         if (self.lower < q).all() and (q < self.upper).all():  # (NaN fails both)

@@ -24,7 +24,7 @@ import threading
 
 import numpy as np
 
-from nh_tracking.joints import JointMap, JointReading, observe
+from nh_tracking.joints import JointMap, JointReading, JointsRejected, observe
 from nh_tracking.poses import PoseMap
 from nh_tracking.session_types import Clock, ClockSkew, StateEstimate
 
@@ -34,8 +34,8 @@ class RobotState:
 
     ``joint_names``: ``coordinate:joint`` entries for joints not named as the model's
     coordinates (ValueError for a bad one). Odometry or joints stamped over
-    ``max_clock_skew`` [s] ahead of the clock are refused; joints older than ``odom_timeout``
-    [s] are not used (their coordinates are dead-reckoned).
+    ``max_clock_skew`` [s] ahead of the clock are refused, joints older than ``odom_timeout``
+    [s] too; a joint that has gone that long without news is dead-reckoned.
     """
 
     def __init__(self, pose_map: PoseMap, clock: Clock, joint_names: Sequence[str] = (),
@@ -46,12 +46,21 @@ class RobotState:
         self.odom_timeout = odom_timeout
         self.max_clock_skew = 0.1
         self.log = log
+        self.joint_names = tuple(joint_names)
         self.joint_map = JointMap(pose_map, joint_names)
         self.measured: list[int] | None = None  # hidden coordinates measured (None: no state)
+        self.ever_measured: set[int] = set()
         self.joints_lost = False  # some once measured are dead-reckoned now
+        self._said_unmatched = False
         self._joints = JointReading.empty(pose_map.system.n)
         self._latest: StateEstimate | None = None
         self._lock = threading.Lock()
+
+    def set_pose_map(self, pose_map: PoseMap) -> None:
+        """Read poses and joints for a rebuilt model (new physical parameters) from now on."""
+        joint_map = JointMap(pose_map, self.joint_names)
+        with self._lock:
+            self.pose_map, self.joint_map = pose_map, joint_map
 
     @property
     def latest(self) -> StateEstimate | None:
@@ -74,10 +83,19 @@ class RobotState:
         ClockSkew or JointsRejected for a message that cannot be used.
         """
         ns = self._checked_stamp(ns)
+        age = (self.clock() - ns) * 1e-9
+        if age > self.odom_timeout:
+            raise JointsRejected(f'stamped {age:.3f} s ago, older than odom_timeout '
+                                 f'({self.odom_timeout:g} s)')
         with self._lock:
-            reading = self.joint_map.read(ns, names, positions, velocities, self._joints)
+            reading = self.joint_map.read(ns, names, positions, velocities, self._joints,
+                                          self.odom_timeout)
             if reading is not None:
                 self._joints = reading
+        if reading is None and not self._said_unmatched and self.pose_map.hidden:
+            self._said_unmatched = True
+            self.log('info', f"joint_states without {', '.join(self.joint_map.by_joint)}: "
+                             'ignored (joint_names maps joints named otherwise)')
         return reading is not None
 
     def set_odometry(self, ns: int, pose: np.ndarray, twist: np.ndarray,
@@ -100,7 +118,8 @@ class RobotState:
 
     def _say_hidden(self, measured: list[int]) -> None:
         """Say once which hidden coordinates come from joint_states and which are dead-reckoned."""
-        self.joints_lost = bool(self.measured) and len(measured) < len(self.pose_map.hidden)
+        self.ever_measured |= set(measured)
+        self.joints_lost = bool(self.ever_measured - set(measured))
         self.measured = measured
         if self.pose_map.hidden:
             self.log('warn' if self.joints_lost else 'info',
@@ -110,8 +129,11 @@ class RobotState:
     def hidden_status(self) -> str:
         """Where the coordinates a pose does not show come from ('' for a model with none)."""
         names, measured = self.pose_map.system.coordinates, self.measured or []
-        reckoned = [names[h] for h in self.pose_map.hidden if h not in measured]
-        why = 'joint_states stale' if self.joints_lost else 'no joint_states for them'
-        parts = ([f"{', '.join(names[m] for m in measured)} from joint_states"] if measured
-                 else []) + ([f"{', '.join(reckoned)} dead-reckoned ({why})"] if reckoned else [])
+        reckoned = [h for h in self.pose_map.hidden if h not in measured]
+        groups = [(measured, 'from joint_states'),
+                  ([h for h in reckoned if h in self.ever_measured],
+                   'dead-reckoned (joint_states stale)'),
+                  ([h for h in reckoned if h not in self.ever_measured],
+                   'dead-reckoned (no joint_states for them)')]
+        parts = [f"{', '.join(names[h] for h in group)} {how}" for group, how in groups if group]
         return '; '.join(parts)

@@ -208,7 +208,7 @@ class TrackingSession:
             if same_model:
                 planner.previous = old.previous  # the warm start survives a settings change
             else:
-                self.robot.pose_map = PoseMap(system)
+                self.robot.set_pose_map(PoseMap(system))
             self.planner = planner
         settle_heap(1)
         with self._lock:

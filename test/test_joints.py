@@ -73,7 +73,8 @@ def test_with_joint_states_the_state_is_the_true_one(name):
         ns = int(round(t * 1e9))
         rates = system.rho(q)[pose_map.hidden] @ v
         # every other message without velocities: they are differenced
-        reading = joints.read(ns, names, q[pose_map.hidden], rates if i % 2 else [], reading)
+        reading = joints.read(ns, names, q[pose_map.hidden], rates if i % 2 else [], reading,
+                              0.5)
         q_seen, v_seen, measured = observe(pose_map, ns, pose_map.pose(q),
                                            pose_map.body_twist(q, v), reading, 0.5, previous)
         previous = (ns, q_seen, v_seen)
@@ -106,27 +107,37 @@ def test_joint_states_are_read_by_name_mapped_merged_and_checked():
     pose_map = PoseMap(board)
     assert joint_mapping([], pose_map) == {'psi': 3, 'phi': 4}
     joints = JointMap(pose_map, ['phi:steering_joint'])
+    assert joint_mapping([' phi : steering joint '], pose_map)['steering joint'] == 4
+    joints = JointMap(pose_map, ['phi:steering_joint'])
     empty = JointReading.empty(5)
-    assert joints.read(1, ['wheel_left', 'wheel_right'], [0.0, 1.0], [], empty) is None
-    steering = joints.read(10, ['wheel', 'steering_joint'], [np.nan, 0.2], [], empty)
+
+    def read(ns, names, positions, velocities, previous):
+        return joints.read(ns, names, positions, velocities, previous, 0.5)
+    assert read(1, ['wheel_left', 'wheel_right'], [0.0, 1.0], [], empty) is None
+    steering = read(10, ['wheel', 'steering_joint'], [np.nan, 0.2], [], empty)
     assert steering.positions[4] == 0.2 and np.isnan(steering.rates[4])
-    both = joints.read(20, ['psi'], [1.0], [2.0], steering)  # another publisher: merged
+    both = read(20, ['psi'], [1.0], [2.0], steering)  # another publisher: merged
     assert both.positions[3:].tolist() == [1.0, 0.2] and both.stamps[3:].tolist() == [20, 10]
     assert both.fresh(20, 5e-9).tolist() == [3] and both.fresh(20, 1.0).tolist() == [3, 4]
-    later = joints.read(int(0.1e9) + 10, ['steering_joint'], [0.3], [], both)
-    assert later.rates[4] == pytest.approx(1.0)  # differenced
-    for names, positions, velocities, message in [
-            (['steering_joint'], [2.0], [], 'outside the model.s domain'),
-            (['steering_joint'], [np.nan], [], 'position is nan'),
-            (['psi'], [0.0], [np.inf], 'velocity is inf'),
-            (['psi', 'psi'], [0.0, 0.1], [], 'named twice')]:
+    later = read(int(0.1e9) + 10, ['steering_joint', 'psi'], [0.3, 1.1], [np.nan, 0.5], both)
+    assert later.rates[3:].tolist() == pytest.approx([0.5, 1.0])  # NaN velocity: differenced
+    again = read(int(0.1e9) + 10, ['steering_joint'], [0.3], [], later)
+    assert again.rates[4] == pytest.approx(1.0)  # the same stamp: the rate it had
+    at_stop = read(int(0.2e9), ['steering_joint'], [np.pi / 2], [0.0], later)
+    assert np.pi / 2 - 2e-3 < at_stop.positions[4] < np.pi / 2  # inside the domain
+    for names, positions, message in [
+            (['steering_joint'], [2.0], 'outside the model.s domain'),
+            (['steering_joint'], [np.nan], 'position is nan'),
+            (['psi', 'psi'], [0.0, 0.1], 'named twice')]:
         with pytest.raises(JointsRejected, match=message):
-            joints.read(30, names, positions, velocities, both)
+            read(30, names, positions, [], both)
     with pytest.raises(JointsRejected, match='out of order'):
-        joints.read(5, ['psi'], [0.0], [], both)
+        read(5, ['psi'], [0.0], [], both)
+    restarted = read(5, ['psi'], [0.0], [], read(int(9e9), ['psi'], [3.0], [1.0], both))
+    assert restarted.positions[3] == 0.0 and np.isnan(restarted.rates[3])  # a clock reset
     for entries, message in [(['phi'], 'not coordinate:joint_name'),
-                             (['theta:yaw_joint'], "'theta' is not a coordinate"),
-                             (['psi:j', 'phi:j'], 'one joint to two coordinates')]:
+                             (['theta:yaw_joint'], "'theta' is not a hidden coordinate"),
+                             (['psi:phi'], 'one joint to two coordinates')]:
         with pytest.raises(ValueError, match=message):
             joint_mapping(entries, pose_map)
 
@@ -184,3 +195,62 @@ def test_a_path_at_rest_implies_nothing_and_a_rolling_angle_is_integrated():
     reference = pose_map.reference(motion.t, [pose_map.pose(q) for q in motion.q], None,
                                    motion.q[0])
     assert np.abs(reference.q[:, 3] - motion.q[:, 3]).max() < 1e-3
+
+
+def test_a_continuous_joint_reported_wrapped_is_unwrapped():
+    """A rolling angle in (-pi, pi] at 10 rad/s, 50 Hz, no velocity: continuous, rate 10."""
+    disk = SYSTEMS['rolling_disk']()
+    pose_map = PoseMap(disk)
+    joints = JointMap(pose_map)
+    reading = JointReading.empty(disk.n)
+    angles = 10.0 * np.arange(0.0, 1.0, 0.02)
+    for i, angle in enumerate(angles):
+        wrapped = math.remainder(angle, 2 * math.pi)
+        reading = joints.read(int(i * 2e7), ['phi'], [wrapped], [], reading, 0.5)
+        assert reading.positions[3] == pytest.approx(angle)
+        assert i == 0 or reading.rates[3] == pytest.approx(10.0)
+
+
+def test_partly_recovered_joints_are_still_reported_lost_and_stale_ones_refused():
+    board = nht.models.create('snakeboard')
+    now = [1_000_000_000]
+    robot = RobotState(PoseMap(board), lambda: now[0])
+    pose, twist = np.zeros(4), np.zeros(4)
+    robot.set_joints(now[0], ['psi', 'phi'], [0.1, 0.2], [])
+    robot.set_odometry(now[0], pose, twist, 0.0)
+    now[0] += 1_000_000_000
+    robot.set_joints(now[0], ['phi'], [0.2], [])
+    robot.set_odometry(now[0], pose, twist, 0.0)
+    assert robot.joints_lost
+    assert robot.hidden_status == 'phi from joint_states; psi dead-reckoned (joint_states stale)'
+    with pytest.raises(JointsRejected, match='older than odom_timeout'):
+        robot.set_joints(now[0] - 600_000_000, ['phi'], [0.2], [])
+
+
+@pytest.mark.parametrize('speed', [1.0, 0.02, 0.002])
+def test_a_slow_path_implies_the_steering_a_fast_one_does(speed):
+    """A circle of radius 1 for a car of wheelbase 0.5: phi = atan(0.5) at any speed."""
+    car = car_like(L=0.5)
+    pose_map = PoseMap(car)
+    t = np.linspace(0.0, 2.0 / speed, 201)
+    angle = speed * t
+    poses = np.stack([np.sin(angle), 1 - np.cos(angle), 0 * t, angle], axis=1)
+    reference = pose_map.reference(t, poses, None, np.zeros(4))
+    assert np.abs(reference.q[5:-5, 3] - math.atan(0.5)).max() < 1e-3
+
+
+def test_a_turn_on_the_spot_implies_a_steering_inside_the_stops_that_settles():
+    """No steering turns a board on the spot: held during the turn, straight once it drives.
+
+    (About the corner the spline through the poses rings, and the steering with it.)
+    """
+    board = SYSTEMS['snakeboard']()
+    pose_map = PoseMap(board)
+    t = np.linspace(0.0, 4.0, 161)
+    spin = np.clip(t, 0, 1)  # a turn in place for 1 s, then straight ahead
+    ahead = np.clip(t - 1, 0, None) * 0.5
+    poses = np.stack([ahead * np.cos(1.0), ahead * np.sin(1.0), 0 * t, spin], axis=1)
+    reference = pose_map.reference(t, poses, None, np.zeros(5))
+    assert np.isfinite(reference.v).all() and np.abs(reference.q[:, 4]).max() < np.pi / 2
+    assert np.all(reference.q[:40, 4] == reference.q[0, 4])  # held through the turn
+    assert np.abs(reference.q[t >= 1.5, 4]).max() < 0.01

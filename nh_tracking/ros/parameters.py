@@ -155,8 +155,9 @@ def model_asked_for(args: Sequence[str], node_name: str) -> str:
     """
     given, from_file = None, None
     for flag, value in zip(args, list(args)[1:]):
-        if flag in ('-p', '--param') and value.startswith('model:='):
-            given = value.partition(':=')[2]
+        name, _, model = value.partition(':=')
+        if flag in ('-p', '--param') and name in ('model', f'{node_name}:model'):
+            given = model
         elif flag == '--params-file':
             from_file = _model_in_file(value, node_name) or from_file
     return given or from_file or str(MODEL.default)

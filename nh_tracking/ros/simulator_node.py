@@ -111,7 +111,8 @@ class SimulatorNode(ObstacleListener):
         self._last_ns = self._sim_ns
 
         joints = joint_mapping(p['joint_names'], self.pose_map)
-        self.joints = (list(joints), list(joints.values()))  # names, coordinates' indices
+        by_coordinate = {c: joint for joint, c in joints.items()}
+        self.joint_names = [by_coordinate[h] for h in self.pose_map.hidden]
         self.pub_odom = self.create_publisher(Odometry, 'odom', 10)
         self.pub_joints = (self.create_publisher(JointState, 'joint_states', 10)
                            if joints else None)
@@ -243,9 +244,9 @@ class SimulatorNode(ObstacleListener):
         self.pub_odom.publish(msgs.odometry_msg(self.frame, self.child_frame, stamp, pose,
                                                 self.pose_map.body_twist(q, v)))
         if self.pub_joints is not None:
-            names, rows = self.joints
             self.pub_joints.publish(msgs.joint_state_msg(
-                stamp, names, q[rows], self.system.rho(q)[rows] @ v))
+                stamp, self.joint_names, q[self.pose_map.hidden],
+                self.pose_map.hidden_rates(q, v)))
         if self.pub_tf is not None:
             self.pub_tf.publish(msgs.tf_msg(self.frame, self.child_frame, stamp, pose))
         self._check_clearance(pose, stamp)
