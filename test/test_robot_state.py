@@ -212,7 +212,7 @@ def test_bad_joint_states_are_rejected_with_one_line_each_and_the_state_kept(gra
            (['psi'], [0.0], [], -200_000_000, 'out of order')]
     for names, positions, velocities, ahead, reason in bad:
         if reason == 'out of order':  # after a good one
-            publisher.publish(msgs.joint_state_msg(planner.now_ns(), ['psi'], [0.3], []))
+            publisher.publish(msgs.joint_state_msg(planner.now_ns(), ['psi'], [0.3], [0.0]))
             assert wait_until(lambda: abs(planner.live.state.q[3] - 0.3) < 1e-6, 10.0)
         before = planner.rejected_inputs
         message = msgs.joint_state_msg(planner.now_ns() + ahead, names, positions, velocities)
