@@ -34,6 +34,7 @@ import numpy as np
 
 SAMPLES = 64  # random configurations, besides the special points
 BASIS_CONDITION_MIN = 1e-3  # below this a basis is refused (docs/theory.md, "Regularity")
+VANISHING = 1e-6  # a field this much shorter than its RMS length somewhere vanishes there
 _IMPLICATED = 10.0  # moving a coordinate improves the condition this much: it is implicated
 
 
@@ -161,10 +162,10 @@ def check_constraint_rank(constraints: Callable[[np.ndarray], np.ndarray],
     m = mus.shape[1]
     if m == 0:
         return
-    scale = np.sqrt(np.mean(np.sum(mus**2, axis=2), axis=0))
-    if np.any(scale == 0):
+    norms = np.linalg.norm(mus, axis=2)  # (samples, m): each row at each configuration
+    if np.any(np.all(norms == 0, axis=0)):
         raise ValueError('constraints(q) has a row that is zero at every sampled configuration')
-    sv = np.linalg.svd(mus / scale[None, :, None], compute_uv=False)
+    sv = np.array([_smallest_svs(mu) for mu in mus])
     rank_deficient = sv[:, -1]**2 < BASIS_CONDITION_MIN  # as for a basis: squared lengths
     if rank_deficient.all():
         rank = int(np.max(np.sum(sv**2 >= BASIS_CONDITION_MIN, axis=1)))
@@ -173,20 +174,32 @@ def check_constraint_rank(constraints: Callable[[np.ndarray], np.ndarray],
                          'gives the wrong number of degrees of freedom); give independent rows')
     if rank_deficient.any():
         worst = samples[int(np.argmin(sv[:, -1]))]
-        near = implicated(lambda q: _smallest_sv(constraints(q), scale), worst, coordinates)
+        near = implicated(lambda q: float(_smallest_svs(constraints(q))[-1]), worst,
+                          coordinates)
         raise ValueError(f'constraints(q) lose rank near {near} (at '
                          f'{describe(coordinates, worst)}): the distribution changes rank '
                          'there; restrict the configurations with domain=')
 
 
-def _smallest_sv(mu: np.ndarray, scale: np.ndarray) -> float:
-    return float(np.linalg.svd(mu / scale[:, None], compute_uv=False)[-1])
+def _smallest_svs(mu: np.ndarray) -> np.ndarray:
+    """Singular values of ``mu`` with each row scaled to length 1 (a zero row: rank lost).
+
+    Per configuration: the rows' lengths may vary over the domain (a polar coordinate's
+    row grows with r) without any loss of rank.
+    """
+    norms = np.linalg.norm(mu, axis=1)
+    if np.any(norms == 0):
+        return np.zeros(min(mu.shape))
+    return np.linalg.svd(mu / norms[:, None], compute_uv=False)
 
 
 def basis_condition(rho_and_metric: Callable[[np.ndarray], tuple[np.ndarray, ...]],
                     samples: np.ndarray, coordinates: Sequence[str], what: str) -> float:
-    """Smallest eigenvalue of the fields' Gram matrix, fields scaled once over all samples.
+    """Smallest eigenvalue of the fields' Gram matrix, each field scaled to length 1 per sample.
 
+    That measures how near dependent the fields are at each configuration, whatever their
+    lengths do over the domain (a polar coordinate's field grows with r). A field shorter than
+    :data:`VANISHING` of its RMS length somewhere is taken to vanish there (condition 0).
     Refuses (ValueError) a non-finite basis or one below :data:`BASIS_CONDITION_MIN`.
     """
     grams = []
@@ -201,7 +214,10 @@ def basis_condition(rho_and_metric: Callable[[np.ndarray], tuple[np.ndarray, ...
         raise ValueError(f'{what} has a field that is zero at every sampled configuration')
 
     def condition(q_gram: np.ndarray) -> float:
-        return float(np.linalg.eigvalsh(q_gram / np.outer(scale, scale))[0])
+        lengths = np.sqrt(np.maximum(np.diag(q_gram), 0.0))
+        if np.any(lengths < VANISHING * scale):
+            return 0.0
+        return float(np.linalg.eigvalsh(q_gram / np.outer(lengths, lengths))[0])
 
     values = np.array([condition(x) for x in gram])
     worst = int(np.argmin(values))
@@ -222,7 +238,7 @@ def basis_condition(rho_and_metric: Callable[[np.ndarray], tuple[np.ndarray, ...
 def implicated(score: Callable[[np.ndarray], float], worst: np.ndarray,
                coordinates: Sequence[str]) -> str:
     """Name the coordinates whose change lifts ``score`` out of its low at ``worst``."""
-    base = max(score(worst), 1e-300)
+    base = max(score(worst), 1e-9)  # (scores are scale-free: below this, rounding)
     names = []
     for i, c in enumerate(coordinates):
         best = 0.0

@@ -36,6 +36,40 @@ def inclined_knife_edge(m: float = 1.3, J: float = 0.4, alpha: float = 0.35,
     )
 
 
+def rotor_sleigh(m: float = 1.0, J: float = 2.0, a: float = 0.3,
+                 J_r: float = 0.5) -> nht.NonholonomicSystem:
+    """Build a Chaplygin sleigh driven only by an internal rotor: q = (x, y, theta, psi), r = 1.
+
+    psi is the rotor's angle on the body (its absolute angle theta + psi); the one control is
+    the torque between body and rotor, a generalised force on psi alone.
+    """
+    def metric(q: ca.SX) -> ca.SX:
+        s, c = ca.sin(q[2]), ca.cos(q[2])
+        return ca.blockcat([[m, 0, -m * a * s, 0], [0, m, m * a * c, 0],
+                            [-m * a * s, m * a * c, J + m * a ** 2 + J_r, J_r],
+                            [0, 0, J_r, J_r]])
+
+    return nht.NonholonomicSystem.from_constraints(
+        ['x', 'y', 'theta', 'psi'], metric,
+        lambda q: ca.horzcat(-ca.sin(q[2]), ca.cos(q[2]), 0, 0),
+        actuators=lambda q: ca.DM([[0], [0], [0], [1]]), angles=['theta', 'psi'],
+        pose={'x': 'x', 'y': 'y', 'theta': 'yaw'}, name='rotor_sleigh')
+
+
+def polar_knife(J: float = 0.5, r_max: float = 100.0) -> nht.NonholonomicSystem:
+    """Build a knife edge in polar coordinates: q = (r, phi, theta), metric diag(1, r^2, J).
+
+    The blade at (r cos phi, r sin phi) points along theta and cannot slip across it; valid for
+    r in (0.2, r_max). Its constraint row (sin(theta - phi), -r cos(theta - phi), 0) has a
+    length that grows with r: a rank check that scales rows by one constant over the domain
+    sees a rank drop at small r that is not there.
+    """
+    return nht.NonholonomicSystem.from_constraints(
+        ['r', 'phi', 'theta'], lambda q: ca.diag(ca.vertcat(1, q[0] ** 2, J)),
+        lambda q: ca.horzcat(ca.sin(q[2] - q[1]), -q[0] * ca.cos(q[2] - q[1]), 0),
+        angles=['phi', 'theta'], domain={'r': (0.2, r_max)}, name='polar_knife')
+
+
 def coupled_system() -> nht.NonholonomicSystem:
     """Build a made-up system with a configuration-dependent, non-diagonal metric.
 

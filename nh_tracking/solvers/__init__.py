@@ -21,6 +21,8 @@ transcription, §5; options ``backend``, ``compiled``), :class:`Pontryagin` (sho
 """
 from __future__ import annotations
 
+import time
+
 import numpy as np
 
 from nh_tracking.problem import Solution, TrackingProblem
@@ -67,15 +69,16 @@ def solve(problem: TrackingProblem, method: str | Method = 'variational', *, sta
           second_look: bool = True, **options: object) -> Solution:
     """Solve ``problem`` with ``method`` (a name and its ``options``, e.g. ``compiled=True``.
 
-    Or a :class:`Method`). ``max_time`` [s] bounds the wall time of each solve, every route
-    included (it then stops and reports failure). ``second_look`` re-solves once from a
-    perturbed copy of the plan: a stationary point that is not a minimum (a saddle, typical of
-    symmetric starts) is then reported and the better plan returned, and a failure from a
-    degenerate start gets a second chance — about one warm solve more. With ``starts`` > 1,
-    that many initial guesses (``initial_guess`` or the default one, and random perturbations
-    of it) run in parallel processes; the best plan is returned with the distinct local minima
-    found in ``Solution.minima`` — plans that do not replay on the continuous dynamics
-    (time-step artefacts) are not counted as minima.
+    Or a :class:`Method`). ``max_time`` [s] bounds the wall time of the call, every route and
+    the second look included (it then stops and reports failure). ``second_look`` re-solves
+    once from a perturbed copy of the plan: a stationary point that is not a minimum (a
+    saddle, typical of symmetric starts) is then reported and the better plan returned, and a
+    failure from a degenerate start gets a second chance — about one warm solve more. With
+    ``starts`` > 1, that many initial guesses (``initial_guess`` or the default one, and
+    random perturbations of it) run in parallel processes; the best plan is returned with the
+    distinct local minima found in ``Solution.minima`` — plans that do not replay on the
+    continuous dynamics (time-step artefacts) are not counted as minima. A plan that leaves
+    the model's domain is no success.
     """
     solver = make_method(method, **options)
     if isinstance(starts, bool) or not isinstance(starts, (int, np.integer)) or starts < 1:
@@ -85,10 +88,12 @@ def solve(problem: TrackingProblem, method: str | Method = 'variational', *, sta
     if starts > 1:
         return search.multi_start(problem, solver, guess, int(starts), seed, processes,
                                   max_time)
+    started = time.perf_counter()
     solution = solver.solve(problem, guess, max_time)
     if not second_look:
         return solution
-    return search.second_look(problem, solver, solution, max_time, seed)
+    left = None if max_time is None else max_time - (time.perf_counter() - started)
+    return search.second_look(problem, solver, solution, left, seed)
 
 
 def sample_plan(problem: TrackingProblem, plan: Solution | Trajectory) -> Guess:

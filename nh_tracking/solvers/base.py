@@ -103,6 +103,26 @@ class Structure:
     replanned: bool = True
 
 
+def inside_domain(problem: TrackingProblem, solution: Solution) -> Solution:
+    """``solution``, failed if its plan leaves the model's domain (where the model is not valid).
+
+    Transcriptions do not bound the configurations: a plan may pass through r = 0 of a polar
+    chart, where the dynamics are not defined, and still satisfy every constraint at its knots.
+    """
+    domain = problem.system.domain
+    if not solution.success or not domain.bounded or domain.contains(solution.q):
+        return solution
+    outside = ~((solution.q > domain.lower) & (solution.q < domain.upper))
+    knot, column = np.argwhere(outside)[0]
+    solution.success = False
+    name = domain.coordinates[column]
+    solution.message = (f"the plan leaves the model's domain ({name} = "
+                        f'{solution.q[knot, column]:.4g} at t = {solution.t[knot]:.3g} s, not in '
+                        f'({domain.lower[column]:.4g}, {domain.upper[column]:.4g})); '
+                        f'{solution.message}')
+    return solution
+
+
 class Method(ABC):
     """A tracking method; subclasses are frozen dataclasses (fields = options)."""
 
@@ -121,9 +141,9 @@ class Method(ABC):
         """Solve ``problem`` from ``guess`` (default: the reference).
 
         ``deadline`` [s, > 0] bounds the solve's wall time, every route included (it then
-        stops and reports failure).
+        stops and reports failure). A plan that leaves the model's domain is no success.
         """
-        return self.solve_until(problem, guess, deadline_after(deadline))
+        return inside_domain(problem, self.solve_until(problem, guess, deadline_after(deadline)))
 
     def globalised(self) -> Method:
         """Return this method without local shortcuts, for guesses that are not near a minimum.

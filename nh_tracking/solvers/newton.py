@@ -64,7 +64,7 @@ def _kkt(w: ca.SX, residual: ca.SX, g: ca.SX, active: ca.SX | ca.DM, target: ca.
     target_i - g_i: at a fixed point with λ = ``last`` they hold exactly.
     """
     jac_r, jac_g = ca.jacobian(residual, w), ca.jacobian(g, w)
-    held = ca.times(ca.repmat(active, 1, w.shape[0]), jac_g)  # the sparsity of G, rows off
+    held = ca.mtimes(ca.diag(active), jac_g)  # the sparsity of G, rows off (no dense mask)
     if hessian is None:
         hessian = ca.mtimes(jac_r.T, jac_r)
     hessian = hessian + REGULARISATION * ca.SX.eye(w.shape[0])

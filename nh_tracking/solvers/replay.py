@@ -88,7 +88,8 @@ def _window(step: NumericFunction, x: np.ndarray, u: np.ndarray, t: np.ndarray,
     sens = np.zeros((dim, 0))  # d x / d (controls so far)
     for j, i in enumerate(span):
         end, d_u, d_x = step(x, u[i], t[i + 1] - t[i])
-        sens = np.hstack([d_x @ sens, d_u])
+        # (a single control's Jacobian comes back as a vector)
+        sens = np.hstack([np.reshape(d_x, (dim, dim)) @ sens, np.reshape(d_u, (dim, r))])
         gaps[j * dim:(j + 1) * dim] = knots[i + 1] - end
         jac[j * dim:(j + 1) * dim, :sens.shape[1]] = sens
         x = end

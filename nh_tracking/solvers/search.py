@@ -65,11 +65,19 @@ def random_guess(problem: TrackingProblem, rng: np.random.Generator,
 
 def second_look(problem: TrackingProblem, method: Method, first: Solution,
                 max_time: float | None, seed: int) -> Solution:
-    """Re-solve from a perturbed copy of ``first`` (or of the reference, if it failed)."""
+    """Re-solve from a perturbed copy of ``first`` (or of the reference, if it failed).
+
+    Within what is left of the call's ``max_time`` [s] (none left: ``first`` as it is). The
+    perturbation is scaled by the extent of the reference's motion (not by where it lies: a
+    heading wound several turns, far coordinates) and kept inside the model's domain.
+    """
+    if max_time is not None and max_time <= 0:
+        return first
     rng = np.random.default_rng(seed)
     base = Guess(first.q, first.v, first.u) if first.success else None
-    size = 1.0 + np.abs(problem.reference_samples[0]).max()
-    guess = random_guess(problem, rng, base, LOOK_SCALE * size)
+    guess = random_guess(problem, rng, base, LOOK_SCALE * motion_extent(problem))
+    system = problem.system
+    guess = Guess(system.domain.inside(guess.q, range(system.n)), guess.v, guess.u)
     second = method.globalised().solve(problem, guess, max_time)
     total = first.solve_time + second.solve_time
     better = second.success and (not first.success or second.cost < first.cost - LOWER_RTOL * (
@@ -86,6 +94,12 @@ def second_look(problem: TrackingProblem, method: Method, first: Solution,
     second.route = f'{second.route} -> perturbed restart'
     second.solve_time = total
     return second
+
+
+def motion_extent(problem: TrackingProblem) -> float:
+    """1 + how far the reference moves over the horizon, in its largest coordinate."""
+    q_ref = problem.reference_samples[0]
+    return 1.0 + float(np.ptp(q_ref, axis=0).max())
 
 
 def replay_gap(problem: TrackingProblem, plan: Solution) -> float:

@@ -1,0 +1,93 @@
+# Copyright 2026 nh_tracking maintainers
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+
+"""Systems of kinds no other test uses: a single input, a polar chart, wound headings.
+
+Each solve returns, is judged inside the model's domain, and agrees across methods.
+"""
+import numpy as np
+import pytest
+
+import nh_tracking as nht
+from systems import polar_knife, rotor_sleigh
+
+
+def test_a_polar_chart_whose_constraint_row_grows_with_r_is_a_valid_system():
+    """Rows and fields are judged per configuration: r in (0.2, 100) is regular everywhere."""
+    knife = polar_knife(r_max=100.0)
+    assert knife.k == 2 and knife.basis_condition > 1e-3
+    for r in (0.2 + 1e-6, 1.0, 99.0):
+        mu = knife.constraints([r, 0.3, 1.1])
+        assert np.abs(mu @ knife.rho([r, 0.3, 1.1])).max() < 1e-12
+
+
+def test_a_plan_through_the_edge_of_the_domain_is_no_success():
+    """A straight line passing 0.1 m from the origin: in polar coordinates r dips below 0.2."""
+    knife = polar_knife()
+    t = np.linspace(0.0, 6.0, 121)
+    x, y = -1.5 + 0.5 * t, np.full_like(t, 0.1)
+    q_ref = np.stack([np.hypot(x, y), np.unwrap(np.arctan2(y, x)), np.zeros_like(t)], axis=1)
+    reference = nht.Trajectory(t, q_ref, np.tile([1.0, 0.0], (len(t), 1)),
+                               np.zeros((len(t) - 1, 2)))
+    problem = nht.TrackingProblem(knife, reference, q_ref[0], [0.5, 0.0], horizon=6.0, steps=40,
+                                  terminal='cost')
+    solution = nht.solve(problem, max_time=30.0)
+    assert not solution.success
+    assert "leaves the model's domain (r = " in solution.message
+
+
+def test_headings_wound_several_turns_are_solved_and_looked_at_again_inside_the_domain():
+    knife = polar_knife()
+    q0 = np.array([2.0, 6 * np.pi, 6.5 * np.pi])  # as odometry that has turned three times
+    t = np.linspace(0.0, 10.0, 201)
+    reference = nht.simulate(knife, q0, [0.5, 0.3], t, lambda s, q, v: [0.1 * np.sin(s), 0.0])
+    problem = nht.TrackingProblem(knife, reference, q0 + [0.05, 0.0, 0.05], reference.v[0],
+                                  horizon=4.0, steps=40, terminal='cost')
+    solution = nht.solve(problem, max_time=30.0)
+    assert solution.success and solution.q[:, 0].min() > 0.2
+
+
+def test_the_deadline_covers_the_second_look():
+    """With no time left after the first solve, the second look is not started."""
+    board = nht.models.create('chaplygin_sleigh')
+    t = np.linspace(0.0, 10.0, 201)
+    reference = nht.simulate(board, [0.0, 0.5, 0.0], [1 / 3, 1.0], t)
+    problem = nht.TrackingProblem(board, reference, [0.0, 0.6, 0.05], [1 / 3, 1.0],
+                                  horizon=5.0, steps=37, terminal='cost')
+    solution = nht.solve(problem, max_time=1e-4)
+    assert not solution.success and 'deadline reached' in solution.message
+    assert 'perturbed' not in solution.route
+
+
+@pytest.fixture(scope='module')
+def rotor_problem():
+    sleigh = rotor_sleigh()
+    t = np.linspace(0.0, 6.0, 121)
+    reference = nht.simulate(sleigh, np.zeros(4), [0.0, 0.3, 0.0], t,
+                             lambda s, q, v: [0.5 * np.sin(2 * s)])
+    return nht.TrackingProblem(sleigh, reference, [0.0, 0.05, 0.0, 0.0], reference.v[0],
+                               horizon=4.0, steps=40, epsilon=0.1, terminal='cost')
+
+
+def test_a_sleigh_driven_by_its_rotor_alone_is_tracked_alike_by_every_method(rotor_problem):
+    """One input (r = 1): PMP's held controls fit a single column too."""
+    assert rotor_problem.system.r == 1
+    costs = {}
+    for method in ('variational', 'multiple_shooting', 'pmp'):
+        solution = nht.solve(rotor_problem, method=method, max_time=120.0)
+        assert solution.success, (method, solution.message)
+        assert solution.u.shape == (40, 1) and np.isfinite(solution.u).all()
+        costs[method] = solution.cost
+    print(f'\nrotor sleigh costs: {costs}')
+    assert max(costs.values()) / min(costs.values()) < 1.01
