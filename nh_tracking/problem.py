@@ -85,7 +85,7 @@ class TrackingProblem:
                             f'{type(self.reference).__name__}')
         set_ = functools.partial(object.__setattr__, self)
         set_('q0', sys.check_configuration(self.q0, 'q0').copy())
-        set_('v0', sys.as_velocity(self.v0).copy())
+        set_('v0', sys.as_velocity(self.v0, 'v0').copy())
         if not np.isfinite(self.v0).all():
             raise ValueError('initial state (q0, v0) must be finite')
         for name in ('horizon', 'epsilon', 'omega'):

@@ -260,18 +260,18 @@ class NonholonomicSystem:
             f'r={self.r}, parameters={self.parameters})'
         )
 
-    def as_configuration(self, q: ArrayLike) -> np.ndarray:
-        return _vector(q, self.n, 'q')
+    def as_configuration(self, q: ArrayLike, what: str = 'q') -> np.ndarray:
+        return _vector(q, self.n, what)
 
-    def as_velocity(self, v: ArrayLike) -> np.ndarray:
-        return _vector(v, self.k, 'v')
+    def as_velocity(self, v: ArrayLike, what: str = 'v') -> np.ndarray:
+        return _vector(v, self.k, what)
 
     def as_control(self, u: ArrayLike | None) -> np.ndarray:
         return np.zeros(self.r) if u is None else _vector(u, self.r, 'u')
 
     def check_configuration(self, q: ArrayLike, what: str = 'q') -> np.ndarray:
         """``q`` as an array, or a ValueError if it is not finite or outside the domain."""
-        q = self.as_configuration(q)
+        q = self.as_configuration(q, what)
         self.domain.check(q, what)
         return q
 
@@ -284,7 +284,18 @@ def _vector(x: ArrayLike, size: int, what: str) -> np.ndarray:
 
 
 def _as_sx(value: Any, shape: tuple[int, int] | None, what: str) -> ca.SX:
-    sx = value if isinstance(value, ca.SX) else ca.SX(value)
+    if isinstance(value, (list, tuple)):  # rows of expressions, as users write them
+        try:
+            value = ca.vertcat(*[ca.horzcat(*row) if isinstance(row, (list, tuple)) else row
+                                 for row in value])
+        except Exception as exc:  # noqa: BLE001 - CasADi's own message names no argument
+            raise ValueError(f'{what}(q) must be a CasADi SX matrix (or a list of rows of '
+                             f'expressions), got {type(value).__name__}: {exc}') from None
+    try:
+        sx = value if isinstance(value, ca.SX) else ca.SX(value)
+    except Exception:  # noqa: BLE001
+        raise ValueError(f'{what}(q) must be a CasADi SX matrix, got '
+                         f'{type(value).__name__}') from None
     if shape is not None and sx.shape != shape:
         raise ValueError(f'{what}(q) must have shape {shape}, got {sx.shape}')
     return sx

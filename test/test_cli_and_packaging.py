@@ -40,7 +40,7 @@ def test_simulate_command_writes_plot_and_summary(tmp_path):
 
 def test_simulate_command_reports_bad_input_without_traceback(tmp_path, capsys):
     assert main(['simulate', '--model', 'unicycle', '--q0', '1 2', '--out', str(tmp_path)]) == 2
-    assert 'q must have 3 entries' in capsys.readouterr().err
+    assert 'must have 3 entries' in capsys.readouterr().err
     assert main(['simulate', '--model', 'unicycle', '--param', 'm=-1',
                  '--out', str(tmp_path)]) == 2
 

@@ -91,3 +91,21 @@ def test_a_sleigh_driven_by_its_rotor_alone_is_tracked_alike_by_every_method(rot
         costs[method] = solution.cost
     print(f'\nrotor sleigh costs: {costs}')
     assert max(costs.values()) / min(costs.values()) < 1.01
+
+
+def test_constraints_as_rows_of_expressions_are_taken_and_wrong_sizes_name_the_argument():
+    import casadi as ca
+
+    knife = nht.NonholonomicSystem.from_constraints(
+        ['x', 'y', 'theta'], lambda q: ca.SX.eye(3),
+        lambda q: [[ca.sin(q[2]), -ca.cos(q[2]), 0]], angles=['theta'])
+    assert knife.k == 2
+    with pytest.raises(ValueError, match=r'constraints\(q\) must be a CasADi SX matrix'):
+        nht.NonholonomicSystem.from_constraints(['x', 'y'], lambda q: ca.SX.eye(2),
+                                                lambda q: 'x = y')
+    reference = nht.simulate(knife, np.zeros(3), [1.0, 0.0], np.linspace(0.0, 5.0, 51))
+    with pytest.raises(ValueError, match='q0 must have 3 entries, got 2'):
+        nht.TrackingProblem(knife, reference, [0.0, 0.0], [1.0, 0.0], horizon=2.0, steps=10)
+    with pytest.raises(ValueError, match='v0 must have 2 entries, got 3'):
+        nht.TrackingProblem(knife, reference, np.zeros(3), [1.0, 0.0, 0.0], horizon=2.0,
+                            steps=10)

@@ -210,7 +210,7 @@ BASE = {'system': nht.models.chaplygin_sleigh(), 'q0': [0, 0, 0], 'v0': [0, 0],
     ({'reference': np.zeros((3, 3))}, TypeError, 'reference must be a Trajectory'),
     ({'reference': lambda t: (np.zeros((len(t), 2)), np.zeros((len(t), 2)))}, ValueError,
      r'reference\(times\) must return'),
-    ({'q0': [0, 0]}, ValueError, 'q must have 3 entries'),
+    ({'q0': [0, 0]}, ValueError, 'q0 must have 3 entries'),
 ])
 def test_bad_problem_arguments_get_errors_naming_them(change, error, message):
     args = {**BASE, 'reference': sleigh_problem().reference, **change}
