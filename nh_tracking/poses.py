@@ -30,9 +30,10 @@ from scipy.integrate import cumulative_trapezoid
 from scipy.interpolate import CubicSpline
 
 from nh_tracking.implied_shape import ImpliedShape
+from nh_tracking.lagrangian_data import POSE_AXES
 from nh_tracking.numeric import NumericFunction
 from nh_tracking.regularity import random_configurations
-from nh_tracking.system import NonholonomicSystem, POSE_AXES
+from nh_tracking.system import NonholonomicSystem
 from nh_tracking.trajectory import Trajectory
 
 AXES = POSE_AXES

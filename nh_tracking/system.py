@@ -30,7 +30,6 @@ on symbols) with numpy wrappers (for users). The data is checked for regularity 
 from __future__ import annotations
 
 from collections.abc import Callable, Mapping, Sequence
-import re
 from typing import Any
 
 import casadi as ca
@@ -38,13 +37,11 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from nh_tracking import geometry, lean, regularity
+from nh_tracking.lagrangian_data import as_sx, check_name, pose_axes
 from nh_tracking.numeric import NumericFunction
 from nh_tracking.regularity import Domain
 
 SymbolicMap = Callable[[ca.SX], Any]
-
-POSE_AXES = ('x', 'y', 'z', 'yaw')  # of a ROS pose: position and heading
-NAME = re.compile(r'[A-Za-z][A-Za-z0-9_]*')  # a system's name names its CasADi functions
 
 
 class NonholonomicSystem:
@@ -89,7 +86,7 @@ class NonholonomicSystem:
         self.velocity_names = tuple(velocities or (f'v{a + 1}' for a in range(self.k)))
         self.parameters = dict(parameters or {})
         self.basis_condition = basis_condition
-        self.pose = _pose_axes(name, self.coordinates, pose)
+        self.pose = pose_axes(name, self.coordinates, pose)
         if len(self.control_names) != self.r or len(self.velocity_names) != self.k:
             raise ValueError(f'{name}: need {self.r} control and {self.k} velocity names')
 
@@ -168,11 +165,11 @@ class NonholonomicSystem:
         check_name(name)
         box = Domain.of(coordinates, domain)
         q = ca.SX.sym('q', n)
-        g = _as_sx(metric(q), (n, n), 'metric')
-        mu = _as_sx(constraints(q), None, 'constraints') if constraints else ca.SX(0, n)
+        g = as_sx(metric(q), (n, n), 'metric')
+        mu = as_sx(constraints(q), None, 'constraints') if constraints else ca.SX(0, n)
         if mu.shape[1] != n or mu.shape[0] >= n:
             raise ValueError(f'constraints must be (m, {n}) with m < {n}, got {mu.shape}')
-        pot = _as_sx(potential(q), (1, 1), 'potential') if potential else ca.SX(0)
+        pot = as_sx(potential(q), (1, 1), 'potential') if potential else ca.SX(0)
         samples = regularity.sample_configurations(coordinates, angles, box)
         data = regularity.numeric_map(q, g, mu, pot, ca.gradient(pot, q))
         regularity.check_finite('metric(q)', lambda x: data(x)[:1], samples, coordinates)
@@ -184,7 +181,7 @@ class NonholonomicSystem:
                                          coordinates)
         k = n - mu.shape[0]
         if basis is not None:
-            rho = _as_sx(basis(q), (n, k), 'basis')
+            rho = as_sx(basis(q), (n, k), 'basis')
             regularity.check_in_distribution(regularity.numeric_map(q, rho, mu), samples,
                                              coordinates)
             condition = regularity.basis_condition(
@@ -193,7 +190,7 @@ class NonholonomicSystem:
             rho, condition = geometry.orthonormal_basis(q, g, mu, k, samples, coordinates)
         forces = None
         if actuators is not None:
-            forces = _as_sx(actuators(q), None, 'actuators')
+            forces = as_sx(actuators(q), None, 'actuators')
             regularity.check_actuators(q, g, rho, forces, samples, coordinates)
         return cls(
             name=name, coordinates=coordinates, q=q, metric=g, constraints=mu, potential=pot,
@@ -281,44 +278,3 @@ def _vector(x: ArrayLike, size: int, what: str) -> np.ndarray:
     if arr.size != size:
         raise ValueError(f'{what} must have {size} entries, got {arr.size}')
     return arr
-
-
-def _as_sx(value: Any, shape: tuple[int, int] | None, what: str) -> ca.SX:
-    if isinstance(value, (list, tuple)):  # rows of expressions, as users write them
-        try:
-            value = ca.vertcat(*[ca.horzcat(*row) if isinstance(row, (list, tuple)) else row
-                                 for row in value])
-        except Exception as exc:  # noqa: BLE001 - CasADi's own message names no argument
-            raise ValueError(f'{what}(q) must be a CasADi SX matrix (or a list of rows of '
-                             f'expressions), got {type(value).__name__}: {exc}') from None
-    try:
-        sx = value if isinstance(value, ca.SX) else ca.SX(value)
-    except Exception:  # noqa: BLE001
-        raise ValueError(f'{what}(q) must be a CasADi SX matrix, got '
-                         f'{type(value).__name__}') from None
-    if shape is not None and sx.shape != shape:
-        raise ValueError(f'{what}(q) must have shape {shape}, got {sx.shape}')
-    return sx
-
-
-def check_name(name: object) -> str:
-    """Refuse names CasADi cannot take as a function name (they fail deep inside it)."""
-    if not isinstance(name, str) or not NAME.fullmatch(name) or '__' in name:
-        raise ValueError(f'system name must be letters, digits and single underscores, '
-                         f'starting with a letter; got {name!r}')
-    return name
-
-
-def _pose_axes(name: str, coordinates: tuple[str, ...],
-               pose: Mapping[str, str] | None) -> dict[str, str] | None:
-    if pose is None:
-        return None
-    pose = dict(pose)
-    if not set(pose) <= set(coordinates):
-        raise ValueError(f'{name}: pose names {sorted(set(pose) - set(coordinates))}, which '
-                         f'are not coordinates {coordinates}')
-    axes = list(pose.values())
-    if not set(axes) <= set(POSE_AXES) or len(set(axes)) != len(axes):
-        raise ValueError(f'{name}: pose axes must be distinct members of {POSE_AXES}, '
-                         f'got {pose}')
-    return pose

@@ -1,0 +1,71 @@
+# Copyright 2026 nh_tracking maintainers
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+
+"""The user's Lagrangian data as CasADi matrices, and the names a system is given, checked.
+
+Metric, constraints, potential, basis and actuators come as callables of a CasADi SX column q;
+what they return is taken as an SX matrix of the shape the system needs (a list of rows of
+expressions too), or refused with the argument named.
+"""
+from __future__ import annotations
+
+from collections.abc import Mapping
+import re
+from typing import Any
+
+import casadi as ca
+
+POSE_AXES = ('x', 'y', 'z', 'yaw')  # of a ROS pose: position and heading
+NAME = re.compile(r'[A-Za-z][A-Za-z0-9_]*')  # a system's name names its CasADi functions
+
+
+def as_sx(value: Any, shape: tuple[int, int] | None, what: str) -> ca.SX:
+    if isinstance(value, (list, tuple)):  # rows of expressions, as users write them
+        try:
+            value = ca.vertcat(*[ca.horzcat(*row) if isinstance(row, (list, tuple)) else row
+                                 for row in value])
+        except Exception as exc:  # noqa: BLE001 - CasADi's own message names no argument
+            raise ValueError(f'{what}(q) must be a CasADi SX matrix (or a list of rows of '
+                             f'expressions), got {type(value).__name__}: {exc}') from None
+    try:
+        sx = value if isinstance(value, ca.SX) else ca.SX(value)
+    except Exception:  # noqa: BLE001
+        raise ValueError(f'{what}(q) must be a CasADi SX matrix, got '
+                         f'{type(value).__name__}') from None
+    if shape is not None and sx.shape != shape:
+        raise ValueError(f'{what}(q) must have shape {shape}, got {sx.shape}')
+    return sx
+
+
+def check_name(name: object) -> str:
+    """Refuse names CasADi cannot take as a function name (they fail deep inside it)."""
+    if not isinstance(name, str) or not NAME.fullmatch(name) or '__' in name:
+        raise ValueError(f'system name must be letters, digits and single underscores, '
+                         f'starting with a letter; got {name!r}')
+    return name
+
+
+def pose_axes(name: str, coordinates: tuple[str, ...],
+              pose: Mapping[str, str] | None) -> dict[str, str] | None:
+    if pose is None:
+        return None
+    pose = dict(pose)
+    if not set(pose) <= set(coordinates):
+        raise ValueError(f'{name}: pose names {sorted(set(pose) - set(coordinates))}, which '
+                         f'are not coordinates {coordinates}')
+    axes = list(pose.values())
+    if not set(axes) <= set(POSE_AXES) or len(set(axes)) != len(axes):
+        raise ValueError(f'{name}: pose axes must be distinct members of {POSE_AXES}, '
+                         f'got {pose}')
+    return pose
