@@ -141,15 +141,11 @@ class PoseMap:
 
         ``rows``: hidden coordinates whose ``rates`` are measured too (a steering joint's).
         """
-        if rows:
-            matrix = self.system.rho(q)[self.pose_rows + list(rows), :]
-            measured = np.concatenate([self.world_rates(q, body_twist)[self._axes], rates])
-            return np.linalg.lstsq(matrix, measured, rcond=None)[0]
-        if self._projection is not None:
+        if not rows and self._projection is not None:
             v = self._projection(q, body_twist)[0]
             if np.isfinite(v).all():  # (else a singular configuration: lstsq's answer)
                 return v
-        return self.velocity_from_world(q, self.world_rates(q, body_twist))
+        return self.velocity_from_world(q, self.world_rates(q, body_twist), rows, rates)
 
     def world_rates(self, q: np.ndarray, body_twist: np.ndarray) -> np.ndarray:
         """(xdot, ydot, zdot, yaw rate) of a body-frame twist at q."""
@@ -158,15 +154,19 @@ class PoseMap:
         vx, vy, vz, wz = body_twist
         return np.array([c * vx - s * vy, s * vx + c * vy, vz, wz])
 
-    def velocity_from_world(self, q: np.ndarray, world: np.ndarray) -> np.ndarray:
+    def velocity_from_world(self, q: np.ndarray, world: np.ndarray,
+                            rows: list[int] | None = None,
+                            rates: np.ndarray | None = None) -> np.ndarray:
         """V from world-frame rates (xdot, ydot, zdot, yaw rate), projected onto D.
 
-        One least-squares solve (the tracking law's, and odometry's where the pose rows of rho
-        lose rank): a third of a batched pseudo-inverse.
+        With the ``rates`` of hidden coordinates ``rows`` too. One least-squares solve (the
+        tracking law's, and odometry's where the pose rows of rho lose rank or joints are
+        measured): a third of a batched pseudo-inverse.
         """
-        rows = self.system.rho(q)[self.pose_rows, :]
-        rates = np.asarray(world, dtype=float)[self._axes]
-        return np.linalg.lstsq(rows, rates, rcond=None)[0]
+        matrix = self.system.rho(q)[self.pose_rows + list(rows or ()), :]
+        measured = np.concatenate([np.asarray(world, dtype=float)[self._axes],
+                                   [] if rates is None else rates])
+        return np.linalg.lstsq(matrix, measured, rcond=None)[0]
 
     @staticmethod
     def _project(rho: np.ndarray, rows: list[int], rates: np.ndarray) -> np.ndarray:

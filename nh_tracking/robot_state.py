@@ -67,14 +67,14 @@ class RobotState:
         with self._lock:
             return self._latest
 
-    def _checked_stamp(self, ns: int) -> int:
-        """``ns`` no later than the clock; ClockSkew if over max_clock_skew ahead of it."""
+    def _checked_stamp(self, ns: int) -> tuple[int, int]:
+        """(``ns`` no later than the clock, the clock); ClockSkew if over max_clock_skew ahead."""
         now = self.clock()
         ahead = (ns - now) * 1e-9
         if ahead > self.max_clock_skew:
             raise ClockSkew(f'stamped {ahead:.3f} s ahead of this clock (max_clock_skew is '
                             f'{self.max_clock_skew:g} s): clocks out of step?')
-        return min(ns, now)
+        return min(ns, now), now
 
     def set_joints(self, ns: int, names: Sequence[str], positions: Sequence[float] | np.ndarray,
                    velocities: Sequence[float] | np.ndarray) -> bool:
@@ -82,8 +82,8 @@ class RobotState:
 
         ClockSkew or JointsRejected for a message that cannot be used.
         """
-        ns = self._checked_stamp(ns)
-        age = (self.clock() - ns) * 1e-9
+        ns, now = self._checked_stamp(ns)
+        age = (now - ns) * 1e-9
         if age > self.odom_timeout:
             raise JointsRejected(f'stamped {age:.3f} s ago, older than odom_timeout '
                                  f'({self.odom_timeout:g} s)')
@@ -104,7 +104,7 @@ class RobotState:
 
         ClockSkew if stamped over max_clock_skew ahead; a state is never later than the clock.
         """
-        ns = self._checked_stamp(ns)
+        ns = self._checked_stamp(ns)[0]
         with self._lock:
             prev, joints = self._latest, self._joints
         q, v, measured = observe(self.pose_map, ns, pose, twist, joints, self.odom_timeout,
