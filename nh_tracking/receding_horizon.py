@@ -23,7 +23,6 @@ previous plan, shifted, stays in force; with no previous plan, a classical track
 from __future__ import annotations
 
 from collections import deque
-from contextlib import nullcontext
 import dataclasses
 from dataclasses import dataclass, field
 from enum import Enum
@@ -38,7 +37,7 @@ from nh_tracking.limits import bounds_from_lists, in_the_plane, Limits
 from nh_tracking.problem import Solution, Terminal, terminal_error, TrackingProblem
 from nh_tracking.settings import check_fields, setting
 from nh_tracking.solvers import Guess, make_method, Method, METHODS, sample_plan, Structure
-from nh_tracking.solvers.cache import builds_deferred
+from nh_tracking.solvers.cache import builds_deferred, builds_inline
 from nh_tracking.solvers.inequalities import (obstacle_slots, Shape, start_violation,
                                               VIOLATION_TOL)
 from nh_tracking.system import NonholonomicSystem
@@ -231,7 +230,7 @@ class RecedingHorizonPlanner:
         if guess is not None and guess.q.shape[1] != self.system.n:
             guess = None
         try:
-            with builds_deferred() if self.prepared else nullcontext():  # never stalls
+            with builds_deferred() if self.prepared else builds_inline():  # never stalls
                 sol = self.method.solve(problem, None if guess is None
                                         else sample_plan(problem, guess), s.max_solve_time)
                 if sol.success and avoidance.hits_one_left_out(problem, sol, discs):

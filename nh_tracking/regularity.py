@@ -69,15 +69,26 @@ class Domain:
     def contains(self, q: np.ndarray) -> bool:
         return bool(np.all(q > self.lower) and np.all(q < self.upper))
 
-    def inside(self, values: np.ndarray, indices: Sequence[int],
-               margin: float = 1e-3) -> np.ndarray:
-        """``values`` of the coordinates ``indices`` moved ``margin`` inside the domain.
+    @property
+    def bounded_coordinates(self) -> tuple[int, ...]:
+        """Indices of the coordinates with a finite end."""
+        return tuple(int(i) for i in np.flatnonzero(np.isfinite(self.lower)
+                                                    | np.isfinite(self.upper)))
+
+    def interior(self, indices: Sequence[int],
+                 margin: float = 1e-3) -> tuple[np.ndarray, np.ndarray]:
+        """Return closed bounds ``margin`` inside the open box, for the coordinates ``indices``.
 
         (A fraction ``margin`` of an interval narrower than 1.)
         """
         lo, hi = self.lower[list(indices)], self.upper[list(indices)]
         gap = margin * np.minimum(1.0, hi - lo)
-        return np.clip(values, lo + gap, hi - gap)
+        return lo + gap, hi - gap
+
+    def inside(self, values: np.ndarray, indices: Sequence[int],
+               margin: float = 1e-3) -> np.ndarray:
+        """``values`` of the coordinates ``indices`` moved ``margin`` inside the domain."""
+        return np.clip(values, *self.interior(indices, margin))
 
     def check(self, q: np.ndarray, what: str = 'q') -> None:
         """Raise a ValueError naming each coordinate of ``q`` outside the domain."""

@@ -70,6 +70,35 @@ def polar_knife(J: float = 0.5, r_max: float = 100.0) -> nht.NonholonomicSystem:
         angles=['phi', 'theta'], domain={'r': (0.2, r_max)}, name='polar_knife')
 
 
+def euler_ball(m: float = 1.0, R: float = 0.2) -> nht.NonholonomicSystem:
+    """Build a ball rolling without slipping: q = (x, y, phi, theta, psi), ZXZ Euler angles.
+
+    The contact point does not slide: (xdot, ydot) = R (omega_y, -omega_x) with omega the
+    spatial angular velocity. The angles are singular at theta = 0 and pi (gimbal lock), so
+    the domain keeps theta in (0.1, pi - 0.1). Three torques on the Euler angles drive it.
+    """
+    inertia = 0.4 * m * R**2
+
+    def omega(q: ca.SX) -> ca.SX:  # spatial angular velocity per (phidot, thetadot, psidot)
+        phi, theta = q[2], q[3]
+        return ca.vertcat(ca.horzcat(0, ca.cos(phi), ca.sin(phi) * ca.sin(theta)),
+                          ca.horzcat(0, ca.sin(phi), -ca.cos(phi) * ca.sin(theta)),
+                          ca.horzcat(1, 0, ca.cos(theta)))
+
+    def metric(q: ca.SX) -> ca.SX:
+        w = omega(q)
+        return ca.diagcat(m * ca.SX.eye(2), inertia * w.T @ w)
+
+    def constraints(q: ca.SX) -> ca.SX:
+        w = omega(q)
+        return ca.vertcat(ca.horzcat(1, 0, -R * w[1, :]), ca.horzcat(0, 1, R * w[0, :]))
+
+    return nht.NonholonomicSystem.from_constraints(
+        ['x', 'y', 'phi', 'theta', 'psi'], metric, constraints,
+        angles=['phi', 'theta', 'psi'], domain={'theta': (0.1, np.pi - 0.1)},
+        pose={'x': 'x', 'y': 'y'}, name='euler_ball')
+
+
 def coupled_system() -> nht.NonholonomicSystem:
     """Build a made-up system with a configuration-dependent, non-diagonal metric.
 

@@ -32,8 +32,12 @@ def test_a_polar_chart_whose_constraint_row_grows_with_r_is_a_valid_system():
         assert np.abs(mu @ knife.rho([r, 0.3, 1.1])).max() < 1e-12
 
 
-def test_a_plan_through_the_edge_of_the_domain_is_no_success():
-    """A straight line passing 0.1 m from the origin: in polar coordinates r dips below 0.2."""
+def test_a_reference_through_the_edge_of_the_domain_is_tracked_inside_it():
+    """A straight line passing 0.1 m from the origin: in polar coordinates r dips below 0.2.
+
+    The transcriptions hold the plan inside the domain (the variational one on a second route,
+    the domain as bounds) and agree; PMP cannot bound its states and says its plan leaves.
+    """
     knife = polar_knife()
     t = np.linspace(0.0, 6.0, 121)
     x, y = -1.5 + 0.5 * t, np.full_like(t, 0.1)
@@ -42,9 +46,18 @@ def test_a_plan_through_the_edge_of_the_domain_is_no_success():
                                np.zeros((len(t) - 1, 2)))
     problem = nht.TrackingProblem(knife, reference, q_ref[0], [0.5, 0.0], horizon=6.0, steps=40,
                                   terminal='cost')
-    solution = nht.solve(problem, max_time=30.0)
-    assert not solution.success
-    assert "leaves the model's domain (r = " in solution.message
+    costs = {}
+    for method in ('variational', 'multiple_shooting'):
+        solution = nht.solve(problem, method=method, max_time=30.0)
+        assert solution.success, (method, solution.message)
+        assert solution.q[:, 0].min() > 0.2
+        costs[method] = solution.cost
+    assert 'the domain as bounds' in nht.solve(problem, second_look=False).route
+    print(f'\nplans held inside r > 0.2: {costs}')
+    assert max(costs.values()) / min(costs.values()) < 1.01
+    pmp = nht.solve(problem, method='pmp', max_time=30.0)
+    assert not pmp.success
+    assert "leaves the model's domain (r = " in pmp.message
 
 
 def test_headings_wound_several_turns_are_solved_and_looked_at_again_inside_the_domain():

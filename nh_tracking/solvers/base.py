@@ -26,11 +26,13 @@ from abc import ABC, abstractmethod
 from collections.abc import Callable
 import dataclasses
 from dataclasses import dataclass
+import time
 from typing import ClassVar, NamedTuple
 
 import numpy as np
 
 from nh_tracking.problem import Multipliers, Solution, Terminal, TrackingProblem
+from nh_tracking.solvers.cache import builds_until, NotPrepared
 from nh_tracking.solvers.inequalities import Shape
 from nh_tracking.solvers.nlp import before, deadline_after
 from nh_tracking.system import NonholonomicSystem
@@ -103,6 +105,19 @@ class Structure:
     replanned: bool = True
 
 
+def unsolved(problem: TrackingProblem, method: str, message: str, elapsed: float = 0.0,
+             q: np.ndarray | None = None, v: np.ndarray | None = None,
+             route: str = '') -> Solution:
+    """Return a failed solve's result: the plan it stopped at (default: held at the start)."""
+    steps, system = problem.steps, problem.system
+    return Solution(
+        t=problem.grid, q=np.tile(problem.q0, (steps + 1, 1)) if q is None else q,
+        v=np.tile(problem.v0, (steps + 1, 1)) if v is None else v,
+        u=np.zeros((steps, system.r)), cost=float('inf'), success=False, iterations=0,
+        solve_time=elapsed, terminal_error=float('inf'), method=method, message=message,
+        route=route)
+
+
 def inside_domain(problem: TrackingProblem, solution: Solution) -> Solution:
     """``solution``, failed if its plan leaves the model's domain (where the model is not valid).
 
@@ -140,10 +155,17 @@ class Method(ABC):
               deadline: float | None = None) -> Solution:
         """Solve ``problem`` from ``guess`` (default: the reference).
 
-        ``deadline`` [s, > 0] bounds the solve's wall time, every route included (it then
-        stops and reports failure). A plan that leaves the model's domain is no success.
+        ``deadline`` [s, > 0] bounds the solve's wall time, every route and NLP build
+        included (it then stops and reports failure; a build goes on in the background, ready
+        for a later call). A plan that leaves the model's domain is no success.
         """
-        return inside_domain(problem, self.solve_until(problem, guess, deadline_after(deadline)))
+        stop, started = deadline_after(deadline), time.perf_counter()
+        try:
+            with builds_until(stop):
+                solution = self.solve_until(problem, guess, stop)
+        except NotPrepared as exc:
+            solution = unsolved(problem, self.name, str(exc), time.perf_counter() - started)
+        return inside_domain(problem, solution)
 
     def globalised(self) -> Method:
         """Return this method without local shortcuts, for guesses that are not near a minimum.

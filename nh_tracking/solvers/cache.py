@@ -19,23 +19,41 @@ Per system only the structures of the few horizon sizes used last are kept: a pa
 
 A replanning loop must never stop to build one: inside :func:`builds_deferred` a structure not
 built yet is built on a background thread instead, and the call raises :class:`NotPrepared`
-(the loop keeps the plan in force and finds the structure ready later).
+(the loop keeps the plan in force and finds the structure ready later). A solve with a deadline
+(inside :func:`builds_until`) waits for its build only until the deadline: a build is C++ that
+cannot be stopped (seconds at thousands of intervals), so it goes on in the background and the
+call raises :class:`NotPrepared` in time, the structure ready for a later call.
 """
 from __future__ import annotations
 
-from collections import OrderedDict
+import atexit
+from collections import deque, OrderedDict
 from collections.abc import Callable, Hashable, Iterator
-from contextlib import contextmanager
+from contextlib import contextmanager, nullcontext
 from contextvars import ContextVar
+from dataclasses import dataclass
+import logging
 import threading
+import time
 from typing import Generic, TypeVar
 import weakref
 
 from nh_tracking.system import NonholonomicSystem
 
+LOG = logging.getLogger(__name__)
 T = TypeVar('T')
 GROUPS = 3  # horizon sizes kept per system
-_DEFERRED: ContextVar[bool] = ContextVar('nh_tracking_builds_deferred', default=False)
+
+
+@dataclass(frozen=True)
+class _Policy:
+    """How a missing structure is built: in the background only, or awaited until ``stop``."""
+
+    deferred: bool = False
+    stop: float | None = None
+
+
+_POLICY: ContextVar[_Policy | None] = ContextVar('nh_tracking_builds', default=None)
 
 
 class NotPrepared(RuntimeError):
@@ -45,11 +63,34 @@ class NotPrepared(RuntimeError):
 @contextmanager
 def builds_deferred() -> Iterator[None]:
     """Within this block, missing structures are built in the background, never in line."""
-    token = _DEFERRED.set(True)
+    with _policy(_Policy(deferred=True)):
+        yield
+
+
+@contextmanager
+def builds_inline() -> Iterator[None]:
+    """Within this block, missing structures are built in line, whatever the deadline."""
+    with _policy(_Policy()):
+        yield
+
+
+@contextmanager
+def builds_until(stop: float | None) -> Iterator[None]:
+    """Within this block, builds are awaited until ``stop`` (perf_counter clock) at most.
+
+    Unless an enclosing block already says how to build (a replanning loop's).
+    """
+    with _policy(_Policy(stop=stop)) if _POLICY.get() is None else nullcontext():
+        yield
+
+
+@contextmanager
+def _policy(policy: _Policy) -> Iterator[None]:
+    token = _POLICY.set(policy)
     try:
         yield
     finally:
-        _DEFERRED.reset(token)
+        _POLICY.reset(token)
 
 
 def by_steps(key: Hashable) -> Hashable:
@@ -69,7 +110,8 @@ class PerSystemCache(Generic[T]):
     def __init__(self, group: Callable[[Hashable], Hashable] = lambda key: key,
                  groups: int = GROUPS) -> None:
         self._store: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
-        self._building: set[tuple[int, Hashable]] = set()
+        self._building: dict[tuple[int, Hashable], threading.Event] = {}
+        self._errors: dict[tuple[int, Hashable], Exception] = {}
         self._lock = threading.Lock()
         self._group, self._groups = group, groups
 
@@ -78,11 +120,30 @@ class PerSystemCache(Generic[T]):
             found = self._lookup(system, key)
         if found is not None:
             return found
-        if _DEFERRED.get():
+        policy = _POLICY.get() or _Policy()
+        if policy.deferred:
             self._build_later(system, key, build)
             raise NotPrepared(f'its NLP ({key}) was not prepared; it is being built in the '
                               'background')
-        return self._keep(system, key, build())
+        if policy.stop is None:
+            return self._keep(system, key, build())
+        return self._await(system, key, build, policy.stop)
+
+    def _await(self, system: NonholonomicSystem, key: Hashable, build: Callable[[], T],
+               stop: float) -> T:
+        """Build on a background thread and wait for it until ``stop``; raise if not done."""
+        ident = (id(system), key)
+        done = self._build_later(system, key, build)
+        done.wait(max(0.0, stop - time.perf_counter()))
+        with self._lock:
+            found = self._lookup(system, key)
+            error = self._errors.pop(ident, None) if done.is_set() else None
+        if found is not None:
+            return found
+        if error is not None:
+            raise error
+        raise NotPrepared(f'deadline reached while building its NLP for {system.name}; the '
+                          'build goes on in the background, ready for a later call')
 
     def _lookup(self, system: NonholonomicSystem, key: Hashable) -> T | None:
         groups: OrderedDict = self._store.setdefault(system, OrderedDict())
@@ -108,12 +169,13 @@ class PerSystemCache(Generic[T]):
                        for entries in groups.values())
 
     def _build_later(self, system: NonholonomicSystem, key: Hashable,
-                     build: Callable[[], T]) -> None:
+                     build: Callable[[], T]) -> threading.Event:
+        """Queue a build (once) for the background builder; the event is set when it ends."""
         ident = (id(system), key)
         with self._lock:
             if ident in self._building:
-                return
-            self._building.add(ident)
+                return self._building[ident]
+            done = self._building[ident] = threading.Event()
         held = weakref.ref(system)
 
         def work() -> None:
@@ -122,8 +184,60 @@ class PerSystemCache(Generic[T]):
                 alive = held()
                 if alive is not None:
                     self._keep(alive, key, built)
+            except Exception as exc:  # noqa: B902 - handed to the caller that awaits it
+                LOG.exception('building %s for %s failed', key, system.name)
+                with self._lock:
+                    self._errors[ident] = exc
             finally:
                 with self._lock:
-                    self._building.discard(ident)
+                    del self._building[ident]
+                done.set()
 
-        threading.Thread(target=work, name='nh_tracking_nlp_build', daemon=True).start()
+        _BUILDER.submit(work)
+        return done
+
+
+class _Builder:
+    """One background thread builds the queued structures in turn.
+
+    Builds at once would only share the GIL and add up their peak memory (a storm of horizon
+    sizes, each up to GBs while its derivatives are formed). At exit the queue is dropped and
+    the build under way awaited: CasADi torn down under a running build aborts the interpreter.
+    """
+
+    def __init__(self) -> None:
+        self._jobs: deque[Callable[[], None]] = deque()
+        self._lock = threading.Lock()
+        self.idle = threading.Event()
+        self.idle.set()
+        atexit.register(self._drop_queue)
+
+    def submit(self, job: Callable[[], None]) -> None:
+        with self._lock:
+            self._jobs.append(job)
+            if self.idle.is_set():
+                self.idle.clear()
+                threading.Thread(target=self._run, name='nh_tracking_nlp_build',
+                                 daemon=True).start()
+
+    def _run(self) -> None:
+        while True:
+            with self._lock:
+                if not self._jobs:
+                    self.idle.set()
+                    return
+                job = self._jobs.popleft()
+            job()
+
+    def _drop_queue(self) -> None:
+        with self._lock:
+            self._jobs.clear()
+        self.idle.wait()
+
+
+_BUILDER = _Builder()
+
+
+def await_builds(timeout: float | None = None) -> bool:
+    """Wait until no structure is being built in the background; False if ``timeout`` passed."""
+    return _BUILDER.idle.wait(timeout)

@@ -36,11 +36,13 @@ import numpy as np
 
 from nh_tracking.limits import Limits
 from nh_tracking.problem import TrackingProblem
+from nh_tracking.regularity import Domain
 
 SOFT_WEIGHT = 1e4  # per unit of violation: above the multipliers of any sane tracking cost
 MIN_SLOTS = 2  # obstacle slots of an NLP with obstacles (then 4, 8: one NLP per size)
 POINT_SLOTS = 4  # discs a knot or midpoint keeps clear of at most (those nearest it)
 VIOLATION_TOL = 1e-6  # a plan breaking a limit by more is no success
+DOMAIN_MARGIN = 1e-3  # a bounded plan stays this fraction of its interval inside the domain
 
 
 def obstacle_slots(count: int, every: bool = False) -> int:
@@ -66,12 +68,14 @@ class Shape:
     velocities: bool = False
     slots: int = 0
     soft: bool = False
+    domain: bool = False  # the model's domain bounds the configurations
 
     @classmethod
-    def of(cls, limits: Limits, soft: bool = False, every: bool = False) -> Shape:
+    def of(cls, limits: Limits, soft: bool = False, every: bool = False,
+           domain: bool = False) -> Shape:
         """Return the shape of ``limits``' NLP; a soft one has every disc at every point."""
         return cls(limits.bounded_controls, limits.bounded_velocities,
-                   obstacle_slots(len(limits.obstacles), every or soft), soft)
+                   obstacle_slots(len(limits.obstacles), every or soft), soft, domain)
 
 
 class ConstraintStack:
@@ -97,6 +101,7 @@ class Rows:
     shape: Shape
     plane: tuple[int, int] | None
     points: int  # clearance points: an interval's midpoint and end knot each
+    bounded: tuple[int, ...] = ()  # the coordinates the domain bounds (if the shape says so)
     obstacles: ca.SX = field(init=False)  # parameters: (x, y, R, on) per point and slot
     kinds: list[tuple[int, int, str]] = field(default_factory=list)  # (first row, size, kind)
     at: list[ca.SX] = field(default_factory=list)  # the clearance points' configurations
@@ -111,6 +116,12 @@ class Rows:
 
     def velocity(self, v: ca.SX, start: int) -> list[ca.SX]:
         return self._add(v, start, 'v') if self.shape.velocities else []
+
+    def configuration(self, q: ca.SX, start: int) -> list[ca.SX]:
+        """Return the bounded coordinates of a knot or midpoint, if the shape bounds the domain."""
+        if not self.shape.domain or not self.bounded:
+            return []
+        return self._add(ca.vertcat(*[q[i] for i in self.bounded]), start, 'q')
 
     def clearance(self, q: ca.SX, start: int) -> list[ca.SX]:
         if not self.shape.slots or self.plane is None:
@@ -167,16 +178,23 @@ class Rows:
         values[:, :, :3], values[:, :, 3] = discs[nearest], 1.0
         return values.ravel()
 
-    def bounds(self, rows: int, limits: Limits) -> tuple[np.ndarray, np.ndarray]:
-        """Lower and upper bounds of all ``rows`` of g: 0 for equalities, the limits else."""
+    def bounds(self, rows: int, limits: Limits,
+               domain: Domain | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """Lower and upper bounds of all ``rows`` of g: 0 for equalities, the limits else.
+
+        The domain's rows (if any) are held :data:`DOMAIN_MARGIN` inside its open box.
+        """
         lower, upper = np.zeros(rows), np.zeros(rows)
-        for kind, pair in (('u', limits.controls), ('v', limits.velocities)):
+        pairs = [('u', limits.controls), ('v', limits.velocities)]
+        if self.bounded and domain is not None:
+            pairs.append(('q', np.array(domain.interior(self.bounded, DOMAIN_MARGIN))))
+        for kind, pair in pairs:
             index, channel = self._rows(kind)
             lower[index], upper[index] = pair[0][channel], pair[1][channel]
         upper[self._rows('clear')[0]] = np.inf
         return lower, upper
 
-    def inequality_mask(self, rows: int, kinds: tuple[str, ...] = ('u', 'v', 'clear')
+    def inequality_mask(self, rows: int, kinds: tuple[str, ...] = ('u', 'v', 'clear', 'q')
                         ) -> np.ndarray:
         """Which of ``rows`` rows of g are limits of these kinds."""
         mask = np.zeros(rows, dtype=bool)

@@ -97,7 +97,7 @@ class Transcription:
 
     def bounds(self, problem: TrackingProblem) -> dict[str, np.ndarray]:
         """lbg, ubg (and the slacks' lbx) of a solve: the limits' values go in here."""
-        lower, upper = self.limits.bounds(self.rows, problem.limits)
+        lower, upper = self.limits.bounds(self.rows, problem.limits, problem.system.domain)
         if self.soft_index is None:
             return {'lbg': lower, 'ubg': upper}
         lbg, ubg = soft_bounds(lower, upper, self.soft_index)
@@ -152,6 +152,17 @@ class _StageForm:
     dynamics_rows: list[int]
 
 
+# the interior point and the working set's Newton step of one structure share its form;
+# one horizon size per system is kept (a form at thousands of intervals is large)
+_FORMS: PerSystemCache[_StageForm] = PerSystemCache(group=by_steps, groups=1)
+
+
+def _shared_form(system: NonholonomicSystem, steps: int, terminal: str,
+                 shape: Shape) -> _StageForm:
+    return _FORMS.get(system, (steps, terminal, shape),
+                      lambda: _stage_form(system, steps, terminal, shape))
+
+
 def _stage_form(system: NonholonomicSystem, steps: int, terminal: str,
                 shape: Shape) -> _StageForm:
     n, k, r, big_n = system.n, system.k, system.r, steps
@@ -163,7 +174,8 @@ def _stage_form(system: NonholonomicSystem, steps: int, terminal: str,
     q_mid, v_mid = ca.SX.sym('q_r', n * big_n), ca.SX.sym('v_r', k * big_n)
     q_end, v_end = ca.SX.sym('q_rT', n), ca.SX.sym('v_rT', k)
     h, eps, omega = ca.SX.sym('h'), ca.SX.sym('eps'), ca.SX.sym('omega')
-    limits = Rows(shape, plane(system) if shape.slots else None, 2 * steps)
+    limits = Rows(shape, plane(system) if shape.slots else None, 2 * steps,
+                  system.domain.bounded_coordinates)
     p = ca.vertcat(q0, v0, q_mid, v_mid, q_end, v_end, h, eps, omega, limits.obstacles)
 
     lagrangian, residual = tracking_lagrangian(system), tracking_residual(system)
@@ -180,6 +192,7 @@ def _stage_form(system: NonholonomicSystem, steps: int, terminal: str,
     def knot_limits(x: ca.SX) -> None:
         g.add(*limits.velocity(x[n:], g.rows))
         g.add(*limits.clearance(x[:n], g.rows))
+        g.add(*limits.configuration(x[:n], g.rows))
 
     for i in range(big_n):
         q, v = xs[i][:n], xs[i][n:]
@@ -203,6 +216,7 @@ def _stage_form(system: NonholonomicSystem, steps: int, terminal: str,
         if i > 0:  # the start is data, not a decision
             knot_limits(xs[i])
         g.add(*limits.clearance(z, g.rows))  # the midpoint, where L is evaluated
+        g.add(*limits.configuration(z, g.rows))
         g.add(*limits.control(u, g.rows))
         q_next = xs[i + 1][:n]
         qm = 0.5 * (q + q_next)
@@ -225,7 +239,7 @@ def _stage_form(system: NonholonomicSystem, steps: int, terminal: str,
 
 def _build(system: NonholonomicSystem, steps: int, terminal: str, solver: str,
            compiled: bool, bounded: bool, shape: Shape, iterations: int = 0) -> Transcription:
-    form = _stage_form(system, steps, terminal, shape)
+    form = _shared_form(system, steps, terminal, shape)
     limits, constraints = form.limits, form.constraints
     nlp = {'x': form.unknowns, 'p': form.p, 'f': form.objective, 'g': constraints}
     soft_index = None
@@ -282,7 +296,7 @@ def working_set_step(system: NonholonomicSystem, steps: int, terminal: str,
 
 def _working_set_step(system: NonholonomicSystem, steps: int, terminal: str,
                       shape: Shape) -> WorkingSetStep:
-    form = _stage_form(system, steps, terminal, shape)
+    form = _shared_form(system, steps, terminal, shape)
     rows = form.constraints.shape[0]
     return WorkingSetStep(
         NewtonStep(form.unknowns, form.p, form.cost_residuals, form.constraints,

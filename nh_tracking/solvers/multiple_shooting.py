@@ -31,8 +31,9 @@ from nh_tracking.problem import (Solution, terminal_cost, terminal_error, tracki
                                  TrackingProblem)
 from nh_tracking.solvers.base import clear_of_every_disc, Guess, Method, Structure
 from nh_tracking.solvers.cache import by_steps, PerSystemCache
-from nh_tracking.solvers.inequalities import (ConstraintStack, judged, Rows, Shape, soft_bounds,
-                                              soften, start_violation, VIOLATION_TOL)
+from nh_tracking.solvers.inequalities import (ConstraintStack, DOMAIN_MARGIN, judged, Rows, Shape,
+                                              soft_bounds, soften, start_violation,
+                                              VIOLATION_TOL)
 from nh_tracking.solvers.nlp import BoundedNlp, deadline_after
 from nh_tracking.system import NonholonomicSystem
 
@@ -158,7 +159,7 @@ def _solve_once(problem: TrackingProblem, initial_guess: Guess | None,
     # midpoints integrated from the knots (the discs are not in the dynamics: any will do)
     p = tr.parameters(problem, clearance_points(q_g))
     p = tr.parameters(problem, np.array(tr.clearance_at(w0, p)))
-    lbw, ubw = np.full(w0.size, -np.inf), np.full(w0.size, np.inf)
+    lbw, ubw = _domain_bounds(sys, big_n)
     lbw[:n + k] = ubw[:n + k] = x_g[0]
     if problem.terminal == 'equality':
         q_knots, v_knots = problem.reference_samples[:2]
@@ -190,6 +191,15 @@ def _solve_once(problem: TrackingProblem, initial_guess: Guess | None,
         terminal_error=terminal_error(problem, q[-1], v[-1]), method='multiple_shooting',
         message=message, route='ipopt' if tr.soft_index is None else 'ipopt (soft limits)',
         details=details)
+
+
+def _domain_bounds(system: NonholonomicSystem, steps: int) -> tuple[np.ndarray, np.ndarray]:
+    """Bounds on the stage-wise unknowns: the knots' configurations inside the model's domain."""
+    n, width = system.n, system.n + system.k + system.r
+    size = (steps + 1) * width - system.r  # x_0, u_0, ..., x_N
+    lower, upper = np.full((steps + 1, width), -np.inf), np.full((steps + 1, width), np.inf)
+    lower[:, :n], upper[:, :n] = system.domain.interior(range(n), DOMAIN_MARGIN)
+    return lower.ravel()[:size], upper.ravel()[:size]
 
 
 @dataclass(frozen=True)

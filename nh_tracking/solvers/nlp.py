@@ -33,6 +33,7 @@ import time
 from typing import Any
 
 import casadi as ca
+import numpy as np
 
 from nh_tracking.solvers.compiled import LibraryBuild
 
@@ -197,6 +198,9 @@ class BoundedNlp:
 
     def solve(self, deadline: float | None, warm: bool = False, **args: Any) -> Outcome:
         """Solve from ``args`` (x0, p, bounds); ``warm``: x0 is a near-optimal plan."""
+        if deadline is not None and time.perf_counter() > deadline:  # not started
+            return Outcome({'x': args['x0'], 'lam_g': np.zeros(len(args['lbg']))}, False, 0,
+                           DEADLINE)
         solver = self._solvers[warm and self._warm]  # (the set may be swapped meanwhile)
         if self._chunked:
             return self._chunks(solver, math.inf if deadline is None else deadline, args)

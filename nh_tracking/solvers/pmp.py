@@ -42,7 +42,7 @@ import numpy as np
 from nh_tracking.problem import Solution, terminal_cost, terminal_error, TrackingProblem
 from nh_tracking.solvers.base import Guess, Method, Structure
 from nh_tracking.solvers.hamiltonian import pontryagin_flow
-from nh_tracking.solvers.nlp import deadline_after
+from nh_tracking.solvers.nlp import DEADLINE, deadline_after
 from nh_tracking.solvers.replay import held_controls
 from nh_tracking.solvers.shooting import (Diverged, mu_knots, multiple_shooting, OutOfTime,
                                           Shooter, single_shooting)
@@ -88,7 +88,7 @@ def solve_pmp(problem: TrackingProblem, max_time: float = 60.0,
                 attempts.append(f'multiple-shooting-pmp ({segments} segments)')
                 starts, ok = multiple_shooting(shooter, variational, nodes)
     except OutOfTime:
-        attempts.append(f'deadline of {max_time:g} s reached')
+        attempts.append(f'{DEADLINE} (after {max_time:g} s)')
         ok = False
     return _solution(problem, shooter, starts, nodes, ok, time.perf_counter() - start, attempts)
 
@@ -101,7 +101,8 @@ def _solution(problem: TrackingProblem, shooter: Shooter, starts: list[np.ndarra
     """
     n, k = problem.system.n, problem.system.k
     grid, mids = problem.grid, problem.grid[:-1] + 0.5 * problem.h
-    shooter.deadline = np.inf  # the read-out always runs
+    if ok:  # a plan is always read out; a failure's read-out only while time remains
+        shooter.deadline = np.inf
     z = np.tile(starts[0], (len(grid), 1))
     u = np.zeros((problem.steps, problem.system.r))
     cost, residual = 0.0, np.inf
@@ -115,7 +116,7 @@ def _solution(problem: TrackingProblem, shooter: Shooter, starts: list[np.ndarra
             arcs.append((grid[a], grid[b], arc.dense))
             cost += arc.cost
         residual = float(np.linalg.norm(shooter.terminal_residual(z[-1])))
-    except Diverged:
+    except (Diverged, OutOfTime):
         ok = False
     q, v = z[:, :n], z[:, n:n + k]
     law = _control_law(shooter, arcs) if ok else None

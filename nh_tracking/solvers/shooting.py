@@ -34,6 +34,7 @@ from nh_tracking.solvers.hamiltonian import pontryagin_flow
 
 BLOW_UP = 1e6  # |state, costate| beyond this ends an integration as diverged
 MAX_RHS_EVALS = 40_000  # per integration: bounded work, so a stiff blow-up cannot hang
+DEADLINE_EVERY = 64  # right-hand sides between deadline checks (~3 ms)
 RESIDUAL_TOL = 1e-7
 
 
@@ -91,6 +92,8 @@ class Shooter:
             count[0] += 1
             if count[0] > MAX_RHS_EVALS:
                 raise Diverged()
+            if count[0] % DEADLINE_EVERY == 0 and time.perf_counter() > self.deadline:
+                raise OutOfTime()  # one stiff integration can take seconds
             q_r, v_r = self.problem.reference_point(t)
             zdot, cost_rate, jac = self.rhs(y[:dim], q_r, v_r, eps, *bounds)
             phi_dot = jac @ y[dim + 1:].reshape(dim, dim)

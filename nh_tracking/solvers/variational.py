@@ -38,7 +38,7 @@ import numpy as np
 
 from nh_tracking.limits import plan_path
 from nh_tracking.problem import Solution, TrackingProblem
-from nh_tracking.solvers.base import clear_of_every_disc, Guess, Method, Structure
+from nh_tracking.solvers.base import clear_of_every_disc, Guess, Method, Structure, unsolved
 from nh_tracking.solvers.cache import NotPrepared
 from nh_tracking.solvers.duals import carried_multipliers, multipliers_at
 from nh_tracking.solvers.inequalities import judged, Shape, start_violation, VIOLATION_TOL
@@ -115,10 +115,11 @@ def solve_variational_until(problem: TrackingProblem, initial_guess: Guess | Non
             q, v = coarse_plan.trajectory().sample(problem.grid)
             initial_guess = Guess(q, v, None)
 
-    def route(solver: str, compiled: bool, soft: bool, newton: bool = False) -> Solution:
+    def route(solver: str, compiled: bool, soft: bool, newton: bool = False,
+              domain: bool = False) -> Solution:
         return clear_of_every_disc(lambda guess, every: _solve_with(
-            problem, guess, stop, solver, compiled, soft, newton=newton, every=every),
-            initial_guess, stop, problem)
+            problem, guess, stop, solver, compiled, soft, newton=newton, every=every,
+            domain=domain), initial_guess, stop, problem)
 
     def time_left(previous: Solution) -> bool:
         return previous.message != DEADLINE and before(stop)
@@ -132,6 +133,10 @@ def solve_variational_until(problem: TrackingProblem, initial_guess: Guess | Non
             not result.details.get('through_disc'):  # e.g. a terminal state inside an obstacle
         result = _next_route(result, f'{result.route} failed ({result.message}) -> soft limits',
                              lambda: route(solver, compiled, True))
+    domain = problem.system.domain
+    if domain.bounded and not domain.contains(result.q) and time_left(result):
+        result = _next_route(result, f"{result.route} left the model's domain -> the domain as "
+                             'bounds', lambda: route(solver, compiled, soft, newton, True))
     return result
 
 
@@ -149,10 +154,11 @@ def _next_route(failed: Solution, route: str, solve: Callable[[], Solution]) -> 
 
 def _solve_with(problem: TrackingProblem, initial_guess: Guess | None, stop: float | None,
                 solver: str, compiled: bool = False, soft: bool = False,
-                iterations: int = 0, newton: bool = False, every: bool = False) -> Solution:
+                iterations: int = 0, newton: bool = False, every: bool = False,
+                domain: bool = False) -> Solution:
     sys = problem.system
     tr = transcription(sys, problem.steps, problem.terminal, stop is not None, solver,
-                       compiled, Shape.of(problem.limits, soft, every), iterations)
+                       compiled, Shape.of(problem.limits, soft, every, domain), iterations)
     q_g, v_g, u_g = (*default_guess(problem), None) if initial_guess is None else initial_guess[:3]
     q_g, v_g = np.array(q_g, dtype=float), np.array(v_g, dtype=float)
     q_g[0], v_g[0] = problem.q0, problem.v0
@@ -196,7 +202,8 @@ def _solve_with(problem: TrackingProblem, initial_guess: Guess | None, stop: flo
         elif not all(np.all(np.isfinite(a)) for a in tr.readout(w0, p)):
             # fatrop never returns from a non-finite starting point (its line search cannot
             # recover): refuse to start, and say why (Newton steps from it give up at once)
-            return _failed(problem, q_g, v_g, time.perf_counter() - start, solver, NOT_FINITE)
+            return unsolved(problem, 'variational', NOT_FINITE, time.perf_counter() - start, q_g,
+                            v_g, solver)
         else:  # cold, or the working set did not settle: interior point
             outcome = tr.nlp.solve(stop, warm, x0=np.concatenate([w0, np.zeros(slacks)]), p=p,
                                    **bounds)
@@ -231,7 +238,7 @@ def _held_step(problem: TrackingProblem, tr: Transcription) -> WorkingSetStep | 
     try:
         return working_set_step(problem.system, problem.steps, problem.terminal,
                                 tr.limits.shape)
-    except NotPrepared:  # replanning: built in the background, ready next time
+    except NotPrepared:  # built in the background (replanning, or out of time)
         return None
 
 
@@ -252,14 +259,6 @@ def _working_set(step: WorkingSetStep, w0: np.ndarray, p: np.ndarray,
     return None if held is None else Outcome(
         {'x': held.w, 'lam_g': held.multipliers}, True, held.factorisations,
         f'converged ({held.active} limit rows active)' if held.limited else 'converged')
-
-
-def _failed(problem: TrackingProblem, q: np.ndarray, v: np.ndarray, elapsed: float,
-            solver: str, message: str) -> Solution:
-    return Solution(
-        t=problem.grid, q=q, v=v, u=np.zeros((problem.steps, problem.system.r)),
-        cost=float('inf'), success=False, iterations=0, solve_time=elapsed,
-        terminal_error=float('inf'), method='variational', message=message, route=solver)
 
 
 @dataclass(frozen=True)
