@@ -140,9 +140,8 @@ def fallback(problem: TrackingProblem, clear_of: Limits) -> tuple[Solution, str]
         plan, what = _finite(fallback_plan(problem)), 'tracking law fallback'
         tracking = _closest(plan, clear_of) if len(clear_of.obstacles) else (0.0, 0.0)
         if tracking[0] < 0.0:
-            brake = _finite(fallback_plan(problem, law=BrakingLaw))
+            brake = braking_plan(problem)
             if _closest(brake, clear_of) > tracking:
-                brake.message, brake.route = 'not optimal: braking to rest', 'brake'
                 plan, what = brake, 'braking: the tracking law would come closer to an obstacle'
         return plan, what
     except (ArithmeticError, RuntimeError, ValueError) as exc:
@@ -163,6 +162,13 @@ def _finite(plan: Solution) -> Solution:
     if not all(np.all(np.isfinite(a)) for a in (plan.q, plan.v, plan.u)):
         raise ValueError('the fallback law gave non-finite values')
     return plan
+
+
+def braking_plan(problem: TrackingProblem) -> Solution:
+    """Return braking to rest from the problem's start, as hard as the actuators allow."""
+    brake = _finite(fallback_plan(problem, law=BrakingLaw))
+    brake.message, brake.route = 'not optimal: braking to rest', 'brake'
+    return brake
 
 
 def stop_plan(problem: TrackingProblem, reason: str) -> Solution:

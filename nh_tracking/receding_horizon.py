@@ -32,7 +32,7 @@ from typing import Any, cast
 import numpy as np
 
 from nh_tracking.avoidance import Avoidance, MAX_OBSTACLES
-from nh_tracking.fallback import fallback
+from nh_tracking.fallback import braking_plan, fallback, stop_plan
 from nh_tracking.limits import bounds_from_lists, in_the_plane, Limits
 from nh_tracking.problem import Solution, Terminal, terminal_error, TrackingProblem
 from nh_tracking.settings import check_fields, setting
@@ -54,6 +54,7 @@ class PlanStatus(str, Enum):
     FALLBACK = 'fallback'  # no previous plan: the Kanayama tracking law rolled out
     STOP = 'stop'  # even the tracking law failed: hold the configuration at rest
     LEAST_VIOLATING = 'least-violating'  # the start breaks a limit: the plan breaking it least
+    BRAKE = 'brake'  # the loop lost the robot's state (stale odometry): braking to rest
 
     def __str__(self) -> str:
         return self.value
@@ -286,11 +287,24 @@ class RecedingHorizonPlanner:
         self.stats.fallbacks += 1
         return PlanOutcome(plan, status, solve_time, missed, f'{what} ({error})', reference)
 
-    def preview(self, t: float, q: np.ndarray, v: np.ndarray) -> Solution:
-        """Return a plan from (q.
+    def brake(self, t: float, q: np.ndarray, v: np.ndarray, why: str) -> PlanOutcome:
+        """Plan braking to rest from the last state known, (q, v) at t.
 
-        V) at t that leaves the replanning loop's state alone (a query).
+        For when the loop loses the robot's state: an effort-driven robot given no command
+        coasts on (zero effort is not a stop).
         """
+        problem = self.problem(t, q, v)
+        try:
+            plan, status = braking_plan(problem), PlanStatus.BRAKE
+        except (ArithmeticError, RuntimeError, ValueError) as exc:
+            plan, status = stop_plan(problem, str(exc)), PlanStatus.STOP
+        self.previous = plan
+        self.stats.fallbacks += 1
+        return PlanOutcome(plan, status, 0.0, False, f'{plan.message} ({why})',
+                           problem.reference_samples[0])
+
+    def preview(self, t: float, q: np.ndarray, v: np.ndarray) -> Solution:
+        """Return a plan from (q, v) at t that leaves the replanning loop's state alone."""
         s = self.settings
         problem = self.problem(t, q, v)
         guess = None if self.previous is None else sample_plan(problem, self.previous)

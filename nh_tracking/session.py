@@ -33,7 +33,8 @@ from nh_tracking.following import checked_reference, Following
 from nh_tracking.limits import obstacle_discs
 from nh_tracking.poses import PoseMap
 from nh_tracking.problem import Solution
-from nh_tracking.receding_horizon import PlannerSettings, PlanOutcome, RecedingHorizonPlanner
+from nh_tracking.receding_horizon import (PlannerSettings, PlanOutcome, PlanStatus,
+                                          RecedingHorizonPlanner)
 from nh_tracking.robot_state import RobotState
 from nh_tracking.session_types import (Clock, PlanResult, settle_heap,
                                        Staleness, StateEstimate)
@@ -222,7 +223,7 @@ class TrackingSession:
             state = self.state
             reason = self._why_not(state)
             if reason or state is None:
-                return PlanResult(None, state, reason)
+                return self._brake_if_stale(state, reason)
             planner = self.planner
             planner.obstacles = self._obstacles
             outcome = planner.plan(self.seconds(state.ns), state.q, state.v)
@@ -235,6 +236,20 @@ class TrackingSession:
                 if self.staleness.mark(False):
                     self.log('info', 'odometry is fresh again: planning resumed')
                 self.outcome = outcome
+        return result
+
+    def _brake_if_stale(self, state: StateEstimate | None, reason: str) -> PlanResult:
+        """Once per stale state (and plan in force), brake to rest from it; else plan nothing."""
+        with self._lock:
+            outcome = self.outcome
+        if (state is None or not self.active or not self.staleness.now or outcome is None
+                or outcome.status in (PlanStatus.BRAKE, PlanStatus.STOP)):
+            return PlanResult(None, state, reason)
+        braking = self.planner.brake(self.seconds(state.ns), state.q, state.v, reason)
+        result = PlanResult(braking, state, braking.message)
+        self._on_plan(result)
+        with self._lock:
+            self.outcome = braking
         return result
 
     def _why_not(self, state: StateEstimate | None) -> str:

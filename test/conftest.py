@@ -25,9 +25,10 @@ sys.path.insert(0, os.path.dirname(__file__))
 
 @pytest.fixture
 def graph():
-    """Nodes in one Context of their own, spun on a background thread; torn down after."""
+    """Nodes in one Context and ROS domain of their own, spun on a thread; torn down after."""
     from nh_tracking.ros.graph import InProcessGraph
+    from processes import next_domain
 
-    g = InProcessGraph()
+    g = InProcessGraph(domain_id=next_domain())
     yield g
     g.close()

@@ -19,6 +19,10 @@ Context.
 """
 from __future__ import annotations
 
+from collections.abc import Iterator
+from contextlib import contextmanager
+import itertools
+import multiprocessing
 import os
 from pathlib import Path
 import signal
@@ -27,15 +31,25 @@ import sys
 import threading
 import time
 
+import numpy as np
+
 from nh_tracking.ros.graph import InProcessGraph
 
 BIN = Path(sys.executable).parent
-_domains = iter(range(30 + os.getpid() % 50, 232))
+# the domains ROS recommends (1-101), from a place of this run's own: a test suite, a demo or
+# another suite on this machine never hears this one's nodes (a second /clock made a sim-time
+# loop's clock jump back and forth: issue 36, item 8)
+_domains = itertools.cycle(np.roll(np.arange(1, 102), -(os.getpid() % 101)).tolist())
+
+
+def next_domain() -> int:
+    """Return a ROS_DOMAIN_ID for the next test."""
+    return next(_domains)
 
 
 def domain_env() -> dict[str, str]:
     """Return an environment on a fresh domain: tests never hear each other's nodes."""
-    return dict(os.environ, ROS_DOMAIN_ID=str(next(_domains)),
+    return dict(os.environ, ROS_DOMAIN_ID=str(next_domain()),
                 ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST', PYTHONUNBUFFERED='1')
 
 
@@ -116,3 +130,24 @@ class Peer:
 
     def close(self) -> None:
         self.graph.close()
+
+
+def _spin_forever(stop) -> None:  # a busy core
+    while not stop.is_set():
+        sum(range(10_000))
+
+
+@contextmanager
+def busy_cores(count: int) -> Iterator[None]:
+    """Keep ``count`` cores busy in other processes for the duration of the block."""
+    stop = multiprocessing.Event()
+    hogs = [multiprocessing.Process(target=_spin_forever, args=(stop,), daemon=True)
+            for _ in range(count)]
+    for hog in hogs:
+        hog.start()
+    try:
+        yield
+    finally:
+        stop.set()
+        for hog in hogs:
+            hog.join(timeout=5.0)

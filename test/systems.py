@@ -56,6 +56,43 @@ def rotor_sleigh(m: float = 1.0, J: float = 2.0, a: float = 0.3,
         pose={'x': 'x', 'y': 'y', 'theta': 'yaw'}, name='rotor_sleigh')
 
 
+def roller_racer(m1: float = 1.0, I1: float = 0.2, m2: float = 0.5, I2: float = 0.1,
+                 d1: float = 0.4, d2: float = 0.6, basis: bool = False) -> nht.NonholonomicSystem:
+    """Build a roller racer: q = (x, y, theta, phi), driven only by its joint torque (r = 1).
+
+    Two bodies on wheel pairs that cannot slip sideways, joined by a revolute joint d1 ahead
+    of the first axle (x, y) and d2 ahead of the second; theta heads the first body, theta + phi
+    the second; each body's mass sits at its axle. ``basis``: the hand-written fields (the
+    first axle's rolling and the joint's turning, holding the second body's constraint).
+    """
+    def axle2(q: ca.SX) -> tuple[ca.SX, ca.SX]:
+        return (q[0] + d1 * ca.cos(q[2]) - d2 * ca.cos(q[2] + q[3]),
+                q[1] + d1 * ca.sin(q[2]) - d2 * ca.sin(q[2] + q[3]))
+
+    def metric(q: ca.SX) -> ca.SX:
+        jac = ca.jacobian(ca.vertcat(*axle2(q)), q)
+        return (ca.diag(ca.vertcat(m1, m1, I1 + I2, I2)) + m2 * jac.T @ jac
+                + I2 * ca.SX([[0, 0, 0, 0], [0, 0, 0, 0], [0, 0, 0, 1], [0, 0, 1, 0]]))
+
+    def constraints(q: ca.SX) -> ca.SX:
+        jac = ca.jacobian(ca.vertcat(*axle2(q)), q)
+        heading2 = q[2] + q[3]
+        return ca.vertcat(ca.horzcat(-ca.sin(q[2]), ca.cos(q[2]), 0, 0),
+                          -ca.sin(heading2) * jac[0, :] + ca.cos(heading2) * jac[1, :])
+
+    def fields(q: ca.SX) -> ca.SX:
+        c, s = ca.cos(q[3]), ca.sin(q[3])  # (d2 > d1: d2 - d1 cos(phi) never vanishes)
+        roll = ca.vertcat(ca.cos(q[2]) * (d2 - d1 * c), ca.sin(q[2]) * (d2 - d1 * c), -s, 0)
+        turn = ca.vertcat(0, 0, d2, d1 * c - d2)
+        return ca.horzcat(roll, turn)
+
+    return nht.NonholonomicSystem.from_constraints(
+        ['x', 'y', 'theta', 'phi'], metric, constraints, basis=fields if basis else None,
+        actuators=lambda q: ca.DM([[0], [0], [0], [1]]), angles=['theta', 'phi'],
+        domain={'phi': (-2.0, 2.0)}, pose={'x': 'x', 'y': 'y', 'theta': 'yaw'},
+        name='roller_racer')
+
+
 def polar_knife(J: float = 0.5, r_max: float = 100.0) -> nht.NonholonomicSystem:
     """Build a knife edge in polar coordinates: q = (r, phi, theta), metric diag(1, r^2, J).
 

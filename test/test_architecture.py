@@ -36,7 +36,7 @@ LAYERS = [  # lowest first; a module may import from its own layer and the ones 
     {'ros'},
     {'examples'},
 ]
-MAX_LINES = 300
+MAX_LINES = 400  # a guide that flags a module to look at, not a reason to split one (issue 33)
 ROS = re.compile(r'^(rclpy|rcl_interfaces|\w+_msgs|std_srvs|builtin_interfaces|launch)\b')
 
 
@@ -85,6 +85,7 @@ def _length(path: Path) -> int:
 
 
 def test_no_module_is_long():
+    """Modules split where the seams are; one past this length is worth a look for one."""
     long = {m: n for m, p in _modules() if (n := _length(p)) > MAX_LINES}
     assert long == {}
 

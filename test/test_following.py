@@ -23,7 +23,7 @@ from nh_tracking.examples.nav2 import polyline
 from nh_tracking.goal_checking import (GoalChecker, GoalSettings, GoalState, PathProgress,
                                        ProgressChecker)
 from nh_tracking.metrics import cross_track_error
-from nh_tracking.receding_horizon import PlannerSettings
+from nh_tracking.receding_horizon import PlannerSettings, PlanStatus
 from nh_tracking.reference_checks import ReferenceRejected
 from nh_tracking.session import TrackingSession
 from test_route import arc
@@ -221,3 +221,25 @@ def test_progress_is_judged_across_path_updates_and_a_stop_is_never_refused():
     assert moving.session.following.halted
     assert moving.session.following.status.state is GoalState.NONE
     assert moving.logs[-1][0] == 'warn' and 'held where it is' in moving.logs[-1][1]
+
+
+@pytest.mark.parametrize('model', ['chaplygin_sleigh', 'rolling_disk'])
+def test_stale_odometry_brings_one_braking_plan_that_stops_an_effort_driven_robot(model):
+    """Zero effort is no stop: a sleigh given none coasts on (issue 36, item 8)."""
+    loop = Loop(model, epsilon=0.05)
+    loop.session.following.set_route(polyline((0, 0), (8, 0)))
+    loop.run(3.0)
+    speed = np.linalg.norm(loop.v)
+    loop.ns += int(0.6e9)  # odom_timeout is 0.5 s: the last odometry is stale now
+    braking = loop.session.replan()
+    assert braking.outcome is not None and braking.outcome.status is PlanStatus.BRAKE
+    assert 'stale' in braking.outcome.message
+    plan = braking.outcome.plan
+    rest = nht.simulate(loop.session.system, loop.q, loop.v, plan.t, plan.u)
+    print(f'\n{model}: {speed:.3f} -> {np.linalg.norm(rest.v[-1]):.4f} (m/s, rad/s) over '
+          f'{plan.t[-1] - plan.t[0]:.1f} s')
+    assert np.linalg.norm(rest.v[-1]) < 0.05 * speed
+    again = loop.session.replan()
+    assert again.outcome is None and 'stale' in again.reason  # once per stale episode
+    loop.odometry()
+    assert loop.session.replan().outcome.status is not PlanStatus.BRAKE

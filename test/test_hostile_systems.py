@@ -20,7 +20,7 @@ import numpy as np
 import pytest
 
 import nh_tracking as nht
-from systems import polar_knife, rotor_sleigh
+from systems import inclined_knife_edge, polar_knife, rotor_sleigh
 
 
 def test_a_polar_chart_whose_constraint_row_grows_with_r_is_a_valid_system():
@@ -122,3 +122,53 @@ def test_constraints_as_rows_of_expressions_are_taken_and_wrong_sizes_name_the_a
     with pytest.raises(ValueError, match='v0 must have 2 entries, got 3'):
         nht.TrackingProblem(knife, reference, np.zeros(3), [1.0, 0.0, 0.0], horizon=2.0,
                             steps=10)
+
+
+def test_a_horizon_of_days_in_fifty_steps_is_no_success():
+    """Its intervals do not replay on the continuous dynamics, whatever the solver reported."""
+    knife = inclined_knife_edge()
+    t = np.linspace(0.0, 10.0, 101)
+    reference = nht.simulate(knife, [0.0, 0.0, 0.3], [0.5, 0.2], t)
+    for horizon, replays in ((5.0, True), (1e6, False)):
+        problem = nht.TrackingProblem(knife, reference, [0.0, 0.1, 0.3], [0.5, 0.2],
+                                      horizon=horizon, steps=50)
+        solution = nht.solve(problem, max_time=60.0)
+        assert solution.success is replays, solution.message
+        assert replays or ('does not replay' in solution.message
+                           or 'converged' not in solution.message), solution.message
+        if replays:
+            assert solution.details['interval_gap'] < 1e-3
+
+
+def test_a_start_beyond_a_bound_is_told_apart_from_the_plan_after_it():
+    """v0 beyond a velocity bound: the start breaks it by 0.3, the plan after it keeps it."""
+    knife = inclined_knife_edge()
+    reference = nht.simulate(knife, [0.0, 0.0, 0.3], [0.5, 0.2], np.linspace(0.0, 10.0, 101))
+    assert np.abs(reference.v[:, 0]).max() < 8.5  # it swings across the slope
+    problem = nht.TrackingProblem(knife, reference, [0.0, 0.1, 0.3], [9.3, 0.2], horizon=4.0,
+                                  steps=40, velocity_bounds=([-9.0, -1.0], [9.0, 1.0]))
+    for method in ('variational', 'multiple_shooting'):
+        solution = nht.solve(problem, method=method, max_time=60.0)
+        assert not solution.success, solution.message
+        assert 'the start breaks a limit by 0.3, the plan after it keeps them' in \
+            solution.message, solution.message
+
+
+def test_multiple_shooting_falls_back_on_the_least_violating_plan_as_the_variational_does():
+    """The rotor sleigh barely steers with |u| <= 0.05: no plan keeps clear of the disc."""
+    sleigh = rotor_sleigh()
+    t = np.linspace(0.0, 6.0, 121)
+    reference = nht.simulate(sleigh, np.zeros(4), [0.4, 0.3, 0.0], t,
+                             lambda s, q, v: [0.5 * np.sin(2 * s)])
+    bound = np.array([1.0, 1.0, 0.2])
+    problem = nht.TrackingProblem(sleigh, reference, [0.0, -0.15, 0.0, 0.0], reference.v[0],
+                                  horizon=4.0, steps=40, epsilon=0.1, terminal='cost',
+                                  velocity_bounds=(-bound, bound),
+                                  control_bounds=([-0.05], [0.05]), obstacles=[[1.0, 0.0, 0.12]])
+    plans = {method: nht.solve(problem, method=method, max_time=120.0)
+             for method in ('variational', 'multiple_shooting')}
+    shooting = plans['multiple_shooting']
+    assert shooting.route.endswith('-> soft limits'), shooting.route
+    assert 'least-violating plan' in shooting.message and not shooting.success
+    violations = [plan.details['violation'] for plan in plans.values()]
+    assert 0.0 < min(violations) and max(violations) / min(violations) < 1.01, violations

@@ -68,6 +68,14 @@ class ClockWatch:
         return steady - self._advanced
 
 
+def clock_sources(publishers: int) -> str:
+    """Say why a clock jumps when several nodes publish it: their times interleave."""
+    if publishers <= 1:
+        return ''
+    return (f'; {publishers} nodes publish /clock (simulators of other robots or tests on this '
+            'ROS_DOMAIN_ID?): give each simulated world a domain of its own')
+
+
 class ClockWatchdog(SafeNode):
     """A node's clock watchdog: :meth:`on_clock_stopped` on every look while its clock stands."""
 
@@ -97,8 +105,20 @@ class ClockWatchdog(SafeNode):
             self.get_logger().info('the clock advances again')
         elif event is ClockEvent.JUMPED_BACK:
             self.get_logger().warn(f'the clock jumped back {self.clock_watch.jumped_back_by:.3f}'
-                                   ' s: stamps and references from before the jump lie ahead')
+                                   ' s: stamps and references from before the jump lie ahead'
+                                   f'{clock_sources(self.count_publishers("/clock"))}')
             self.on_problem()
+
+    def other_clocks(self) -> str:
+        """On sim time, a note naming the other /clock publishers ('' if there are none)."""
+        if not self.get_parameter('use_sim_time').value:
+            return ''
+        return clock_sources(self.count_publishers('/clock'))
+
+    def warn_of_other_clocks(self) -> None:
+        """Say so when several nodes publish /clock (odometry is judged stale on it)."""
+        if note := self.other_clocks():
+            self.get_logger().warn(f'the odometry is judged on an interleaved clock{note}')
 
     def on_clock_stopped(self) -> None:
         """Make the robot safe while the clock stands (the node's business)."""

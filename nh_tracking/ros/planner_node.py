@@ -120,7 +120,7 @@ class PlannerNode(RuntimeParameters, PlanOutputs, ObstacleListener, ClockWatchdo
             self.fail('configure', exc)
             return TransitionCallbackReturn.FAILURE
         self._tune(session)
-        session.on_stale = self.publish_diagnostics
+        session.on_stale = self._on_stale
         self.session = session
         cmd_type = TwistStamped if self.params['cmd_vel_stamped'] else Twist
         self.pub_path = self.create_lifecycle_publisher(Path, 'planned_path', LATCHED)
@@ -236,7 +236,7 @@ class PlannerNode(RuntimeParameters, PlanOutputs, ObstacleListener, ClockWatchdo
         try:
             self.live.set_odometry(stamp, pose, twist, received)
         except ClockSkew as exc:
-            raise cv.InputRejected(str(exc)) from None
+            raise cv.InputRejected(f'{exc}{self.other_clocks()}') from None
         if len(self.costmap[0]) and np.hypot(*(pose[:2] - self._discs_centre)) > DISC_SIZE:
             self.obstacles_changed()  # re-choose the costmap discs near the robot
         arrived = info.get('received_timestamp') or 0  # 0: not known (rmw_cyclonedds)
@@ -251,7 +251,9 @@ class PlannerNode(RuntimeParameters, PlanOutputs, ObstacleListener, ClockWatchdo
         stamp, names, positions, velocities = cv.joint_state_arrays(msg)
         try:
             self.live.set_joints(stamp, names, positions, velocities)
-        except (ClockSkew, JointsRejected) as exc:
+        except ClockSkew as exc:
+            raise cv.InputRejected(f'{exc}{self.other_clocks()}') from None
+        except JointsRejected as exc:
             raise cv.InputRejected(str(exc)) from None
 
     def obstacles_changed(self) -> None:
@@ -266,6 +268,10 @@ class PlannerNode(RuntimeParameters, PlanOutputs, ObstacleListener, ClockWatchdo
 
     # diagnostics ------------------------------------------------------------------------------
     def on_problem(self) -> None:
+        self.publish_diagnostics()
+
+    def _on_stale(self) -> None:
+        self.warn_of_other_clocks()
         self.publish_diagnostics()
 
     @guarded('diagnostics')

@@ -78,7 +78,8 @@ def solve(problem: TrackingProblem, method: str | Method = 'variational', *, sta
     random perturbations of it) run in parallel processes; the best plan is returned with the
     distinct local minima found in ``Solution.minima`` — plans that do not replay on the
     continuous dynamics (time-step artefacts) are not counted as minima. A plan that leaves
-    the model's domain is no success.
+    the model's domain, or whose intervals do not replay on the continuous dynamics, is no
+    success.
     """
     solver = make_method(method, **options)
     if isinstance(starts, bool) or not isinstance(starts, (int, np.integer)) or starts < 1:
@@ -86,14 +87,14 @@ def solve(problem: TrackingProblem, method: str | Method = 'variational', *, sta
     deadline_after(max_time)  # checked before any work
     guess = None if initial_guess is None else sample_plan(problem, initial_guess)
     if starts > 1:
-        return search.multi_start(problem, solver, guess, int(starts), seed, processes,
-                                  max_time)
+        return search.replay_checked(problem, search.multi_start(
+            problem, solver, guess, int(starts), seed, processes, max_time))
     started = time.perf_counter()
     solution = solver.solve(problem, guess, max_time)
-    if not second_look:
-        return solution
-    left = None if max_time is None else max_time - (time.perf_counter() - started)
-    return search.second_look(problem, solver, solution, left, seed)
+    if second_look:
+        left = None if max_time is None else max_time - (time.perf_counter() - started)
+        solution = search.second_look(problem, solver, solution, left, seed)
+    return search.replay_checked(problem, solution)
 
 
 def sample_plan(problem: TrackingProblem, plan: Solution | Trajectory) -> Guess:

@@ -82,6 +82,18 @@ def clear_of_every_disc(solve: Callable[[Guess | None, bool], Solution], guess: 
     return result
 
 
+def next_route(failed: Solution, route: str, solve: Callable[[], Solution]) -> Solution:
+    """Try another route after ``failed``; keep ``failed`` if its NLP is not prepared yet."""
+    try:
+        result = solve()
+    except NotPrepared as exc:  # replanning: built in the background, ready next time
+        failed.message = f'{failed.message}; {route} skipped: {exc}'
+        return failed
+    result.route = route
+    result.solve_time += failed.solve_time
+    return result
+
+
 def _after(failed: Solution, retry: Solution, how: str) -> Solution:
     retry.solve_time += failed.solve_time
     retry.route = f'{failed.route} -> again, {how}'

@@ -260,8 +260,8 @@ def judged(rows: Rows, limits: Limits, soft: bool, converged: bool, path: np.nda
     at_points, swept = limits.violation(path, v, u), limits.swept(path)
     violation = max(at_points, swept)
     success = converged and violation <= VIOLATION_TOL
-    if soft:
-        message = f'{message}; least-violating plan: limits broken by {violation:.3g}'
+    if soft and not success:
+        message = f'{message}; least-violating plan: {_broken(limits, path, v, u, swept)}'
     elif converged and swept > max(at_points, VIOLATION_TOL):
         message = (f'{message}; but the plan passes through a disc between its knots and '
                    f'midpoints (by {swept:.3g} m: they are too far apart for its speed; more '
@@ -271,3 +271,15 @@ def judged(rows: Rows, limits: Limits, soft: bool, converged: bool, path: np.nda
         'other_disc': not soft and converged and at_points > VIOLATION_TOL
         and len(limits.obstacles) > rows.shape.slots,
         'through_disc': converged and at_points <= VIOLATION_TOL < swept}
+
+
+def _broken(limits: Limits, path: np.ndarray, v: np.ndarray, u: np.ndarray | None,
+            swept: float) -> str:
+    """Say by how much the start, which no plan can change, and the rest break the limits."""
+    start = limits.violation(path[:1], v[:1])
+    rest = max(limits.violation(path[1:], v[1:], u), swept)
+    if start <= VIOLATION_TOL:
+        return f'limits broken by {rest:.3g}'
+    after = (f'the plan after it by {rest:.3g}' if rest > VIOLATION_TOL
+             else 'the plan after it keeps them')
+    return f'the start breaks a limit by {start:.3g}, {after}'

@@ -29,12 +29,12 @@ import numpy as np
 from nh_tracking.limits import clearance_points, plane
 from nh_tracking.problem import (Solution, terminal_cost, terminal_error, tracking_lagrangian,
                                  TrackingProblem)
-from nh_tracking.solvers.base import clear_of_every_disc, Guess, Method, Structure
+from nh_tracking.solvers.base import clear_of_every_disc, Guess, Method, next_route, Structure
 from nh_tracking.solvers.cache import by_steps, PerSystemCache
 from nh_tracking.solvers.inequalities import (ConstraintStack, DOMAIN_MARGIN, judged, Rows, Shape,
                                               soft_bounds, soften, start_violation,
                                               VIOLATION_TOL)
-from nh_tracking.solvers.nlp import BoundedNlp, deadline_after
+from nh_tracking.solvers.nlp import before, BoundedNlp, DEADLINE, deadline_after
 from nh_tracking.system import NonholonomicSystem
 
 SUBSTEPS = 2  # RK4 steps per control interval
@@ -136,15 +136,25 @@ def solve_multiple_shooting(problem: TrackingProblem, initial_guess: Guess | Non
 
 def _solve_until(problem: TrackingProblem, initial_guess: Guess | None,
                  stop: float | None) -> Solution:
-    return clear_of_every_disc(lambda guess, every: _solve_once(problem, guess, stop, every),
-                               initial_guess, stop, problem)
+    """Solve; after a failure with limits, the least-violating plan (soft limits) instead."""
+    def route(soft: bool) -> Solution:
+        return clear_of_every_disc(
+            lambda guess, every: _solve_once(problem, guess, stop, every, soft),
+            initial_guess, stop, problem)
+
+    soft = start_violation(problem) > VIOLATION_TOL  # only the least-violating plan exists
+    result = route(soft)
+    if (not result.success and problem.limits.active and not soft and before(stop)
+            and result.message != DEADLINE and not result.details.get('through_disc')):
+        result = next_route(result, f'ipopt failed ({result.message}) -> soft limits',
+                            lambda: route(True))
+    return result
 
 
 def _solve_once(problem: TrackingProblem, initial_guess: Guess | None,
-                stop: float | None, every: bool) -> Solution:
+                stop: float | None, every: bool, soft: bool) -> Solution:
     sys, big_n = problem.system, problem.steps
     n, k, r = sys.n, sys.k, sys.r
-    soft = start_violation(problem) > VIOLATION_TOL
     tr = shooting_transcription(sys, big_n, problem.terminal, stop is not None,
                                 Shape.of(problem.limits, soft, every))
     q_g, v_g = problem.reference_samples[:2] if initial_guess is None else initial_guess[:2]

@@ -32,6 +32,8 @@ from nh_tracking.system import NonholonomicSystem
 
 SUBSTEPS = 8  # RK4 steps per interval: their error is far below the fit's
 ITERATIONS = 4
+REPLAY_RTOL = 0.1  # a plan whose replay strays further (relative to its size) is an artefact
+CHECK_SUBSTEPS = 2  # RK4 steps per interval in interval_gap: O(h^5) against the plans' O(h^3)
 
 _CACHE: PerSystemCache[NumericFunction] = PerSystemCache()
 
@@ -45,6 +47,34 @@ def _step(system: NonholonomicSystem) -> NumericFunction:
         return NumericFunction(ca.Function('held_step', [x, u, h],
                                            [end, ca.jacobian(end, u), ca.jacobian(end, x)]))
     return _CACHE.get(system, 'step', build)
+
+
+def _interval_ends(system: NonholonomicSystem, intervals: int) -> NumericFunction:
+    """(x (n + k, N), u (r, N), h (1, N)) -> each interval's end from its start, u held."""
+    def build() -> NumericFunction:
+        x = ca.SX.sym('x', system.n + system.k)
+        u, h = ca.SX.sym('u', system.r), ca.SX.sym('h')
+        end = ca.Function('held_end', [x, u, h], [held_rk4(system, x, u, h, CHECK_SUBSTEPS)])
+        return NumericFunction(end.map(intervals))
+    return _CACHE.get(system, ('ends', intervals), build)
+
+
+def interval_gap(system: NonholonomicSystem, t: np.ndarray, q: np.ndarray, v: np.ndarray,
+                 u: np.ndarray) -> float:
+    """Largest gap between a plan's knots and each interval replayed from the knot before it.
+
+    Relative to the plan's size (inf if the replay is not finite). A plan past
+    :data:`REPLAY_RTOL` does not describe the continuous dynamics: its steps are too long for
+    them (a horizon of days in 50 steps), whatever its solver reported.
+    """
+    knots = np.hstack([q, v])
+    ends = _interval_ends(system, len(t) - 1)
+    with np.errstate(all='ignore'):
+        # (rows of an (N, m) array in C order are the columns of CasADi's (m, N))
+        end = ends(knots[:-1], np.reshape(u, (len(t) - 1, -1)), np.diff(t))[0]
+        end = end.reshape(knots.shape[1], -1, order='F').T
+        gap = float(np.abs(end - knots[1:]).max() / (1.0 + np.abs(knots).max()))
+    return gap if np.isfinite(gap) else float('inf')
 
 
 def held_controls(system: NonholonomicSystem, t: np.ndarray, q: np.ndarray, v: np.ndarray,

@@ -33,11 +33,11 @@ import numpy as np
 from nh_tracking.problem import Solution, TrackingProblem
 from nh_tracking.simulate import simulate
 from nh_tracking.solvers.base import Guess, Method, Structure
+from nh_tracking.solvers.replay import interval_gap, REPLAY_RTOL
 
 DISTINCT_RTOL = 1e-4  # two local minima are the same when their costs agree to this
 LOWER_RTOL = 1e-6  # a second look must beat the first cost by this to count
 LOOK_SCALE = 0.05  # relative size of the second look's perturbation
-REPLAY_RTOL = 0.1  # a plan whose replay strays further (relative to its size) is an artefact
 MULTI_START_SCALE = 6.0  # local minima differ by whole windings: large excursions
 
 
@@ -94,6 +94,21 @@ def second_look(problem: TrackingProblem, method: Method, first: Solution,
     second.route = f'{second.route} -> perturbed restart'
     second.solve_time = total
     return second
+
+
+def replay_checked(problem: TrackingProblem, plan: Solution) -> Solution:
+    """Return the plan, no success if an interval does not replay on the continuous dynamics."""
+    if not plan.success:
+        return plan
+    gap = interval_gap(problem.system, plan.t, plan.q, plan.v, plan.u)
+    plan.details['interval_gap'] = gap
+    if gap > REPLAY_RTOL:
+        plan.success = False
+        strays = ('overflows' if np.isinf(gap) else f"strays by {gap:.3g} of the plan's size")
+        plan.message = (f'{plan.message}; but it does not replay on the continuous dynamics '
+                        f"(an interval's replay {strays}): steps of {problem.h:.3g} s are too "
+                        'long for them (more steps, or a shorter horizon)')
+    return plan
 
 
 def motion_extent(problem: TrackingProblem) -> float:

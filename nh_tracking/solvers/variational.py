@@ -28,7 +28,6 @@ numbers and warm-starts.
 """
 from __future__ import annotations
 
-from collections.abc import Callable
 import dataclasses
 from dataclasses import dataclass
 import time
@@ -38,7 +37,8 @@ import numpy as np
 
 from nh_tracking.limits import plan_path
 from nh_tracking.problem import Solution, TrackingProblem
-from nh_tracking.solvers.base import clear_of_every_disc, Guess, Method, Structure, unsolved
+from nh_tracking.solvers.base import (clear_of_every_disc, Guess, Method, next_route, Structure,
+                                      unsolved)
 from nh_tracking.solvers.cache import NotPrepared
 from nh_tracking.solvers.duals import carried_multipliers, multipliers_at
 from nh_tracking.solvers.inequalities import judged, Shape, start_violation, VIOLATION_TOL
@@ -127,28 +127,16 @@ def solve_variational_until(problem: TrackingProblem, initial_guess: Guess | Non
     result = route(solver, compiled, soft, newton)
     result.solve_time += coarse_time
     if not result.success and solver == 'fatrop' and not soft and time_left(result):
-        result = _next_route(result, f'fatrop failed ({result.message}) -> ipopt',
-                             lambda: route('ipopt', False, False))
+        result = next_route(result, f'fatrop failed ({result.message}) -> ipopt',
+                            lambda: route('ipopt', False, False))
     if not result.success and problem.limits.active and not soft and time_left(result) and \
             not result.details.get('through_disc'):  # e.g. a terminal state inside an obstacle
-        result = _next_route(result, f'{result.route} failed ({result.message}) -> soft limits',
-                             lambda: route(solver, compiled, True))
+        result = next_route(result, f'{result.route} failed ({result.message}) -> soft limits',
+                            lambda: route(solver, compiled, True))
     domain = problem.system.domain
     if domain.bounded and not domain.contains(result.q) and time_left(result):
-        result = _next_route(result, f"{result.route} left the model's domain -> the domain as "
-                             'bounds', lambda: route(solver, compiled, soft, newton, True))
-    return result
-
-
-def _next_route(failed: Solution, route: str, solve: Callable[[], Solution]) -> Solution:
-    """Try another route after ``failed``; keep ``failed`` if its NLP is not prepared yet."""
-    try:
-        result = solve()
-    except NotPrepared as exc:  # replanning: built in the background, ready next time
-        failed.message = f'{failed.message}; {route} skipped: {exc}'
-        return failed
-    result.route = route
-    result.solve_time += failed.solve_time
+        result = next_route(result, f"{result.route} left the model's domain -> the domain as "
+                            'bounds', lambda: route(solver, compiled, soft, newton, True))
     return result
 
 
