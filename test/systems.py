@@ -204,7 +204,7 @@ def random_state(system: nht.NonholonomicSystem, rng: np.random.Generator
                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     q = rng.normal(size=system.n)
     q[system.angle_mask] = rng.uniform(-np.pi, np.pi, system.angle_mask.sum())
-    return q, rng.normal(size=system.k), rng.normal(size=system.k)
+    return q, rng.normal(size=system.k), rng.normal(size=system.r)
 
 
 ALL_SYSTEMS = {
@@ -215,4 +215,5 @@ ALL_SYSTEMS = {
     'rolling_disk': nht.models.rolling_disk,
     'inclined_knife_edge': inclined_knife_edge,
     'coupled': coupled_system,
+    'roller_racer': lambda: roller_racer(basis=True),
 }
