@@ -16,8 +16,8 @@
 from __future__ import annotations
 
 from collections.abc import Callable
+from typing import Any
 
-import casadi as ca
 import numpy as np
 from numpy.typing import ArrayLike
 from scipy.integrate import solve_ivp
@@ -114,17 +114,24 @@ def simulate(
     return Trajectory(t=times, q=states[:, :n], v=states[:, n:], u=controls)
 
 
-def held_rk4(system: NonholonomicSystem, x: ca.SX, u: ca.SX, h: ca.SX, substeps: int) -> ca.SX:
-    """Return the state after ``h`` with ``u`` held, symbolically: ``substeps`` RK4 steps.
+def held_rk4(system: NonholonomicSystem, x: Any, u: Any, h: Any, substeps: int) -> Any:
+    """Return the state after ``h`` with ``u`` held: ``substeps`` fixed RK4 steps.
 
-    Fixed steps in one expression: for what replays or rolls out held controls many times.
+    Symbolic (SX: one expression, for what replays or rolls out held controls many times) or
+    numeric on numpy columns, one interval each (x (n + k, N), u (r, N), h (1, N)): evaluated
+    without building a CasADi function (which would wait on CasADi while it builds an NLP).
     """
+    def ode(x: Any, u: Any) -> Any:
+        rate = system.ode_fn(x, u)
+        return np.asarray(rate) if numeric else rate
+
+    numeric = isinstance(x, np.ndarray)
     dt = h / substeps
     for _ in range(substeps):
-        k1 = system.ode_fn(x, u)
-        k2 = system.ode_fn(x + dt / 2 * k1, u)
-        k3 = system.ode_fn(x + dt / 2 * k2, u)
-        k4 = system.ode_fn(x + dt * k3, u)
+        k1 = ode(x, u)
+        k2 = ode(x + dt / 2 * k1, u)
+        k3 = ode(x + dt / 2 * k2, u)
+        k4 = ode(x + dt * k3, u)
         x = x + dt / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
     return x
 

@@ -129,6 +129,15 @@ class PerSystemCache(Generic[T]):
             return self._keep(system, key, build())
         return self._await(system, key, build, policy.stop)
 
+    def ready(self, system: NonholonomicSystem, key: Hashable, build: Callable[[], T]
+              ) -> T | None:
+        """Return the structure if built; else None, and it is built in the background."""
+        with self._lock:
+            found = self._lookup(system, key)
+        if found is None:
+            self._build_later(system, key, build)
+        return found
+
     def _await(self, system: NonholonomicSystem, key: Hashable, build: Callable[[], T],
                stop: float) -> T:
         """Build on a background thread and wait for it until ``stop``; raise if not done."""
@@ -154,12 +163,18 @@ class PerSystemCache(Generic[T]):
         return entries[key]
 
     def _keep(self, system: NonholonomicSystem, key: Hashable, built: T) -> T:
+        """Store ``built``; the groups it pushes out are freed after the lock is let go.
+
+        (Freeing an NLP of GBs takes seconds, which a lookup must not wait for.)
+        """
+        dropped = []
         with self._lock:
             groups: OrderedDict = self._store.setdefault(system, OrderedDict())
             groups.setdefault(self._group(key), {})[key] = built
             groups.move_to_end(self._group(key))
             while len(groups) > self._groups:
-                groups.popitem(last=False)
+                dropped.append(groups.popitem(last=False))
+        del dropped
         return built
 
     def __len__(self) -> int:

@@ -23,6 +23,7 @@ from dataclasses import dataclass
 
 import casadi as ca
 
+from nh_tracking.numeric import NumericFunction
 from nh_tracking.problem import tracking_lagrangian
 from nh_tracking.solvers.cache import PerSystemCache
 from nh_tracking.system import NonholonomicSystem
@@ -36,7 +37,7 @@ class PontryaginFlow:
     variational equations Phi' = (d zdot/dz) Phi, so shooting gets exact Jacobians.
     """
 
-    rhs: ca.Function  # (z, q_r, v_r, eps, u_lo, u_hi) -> (zdot, running cost, d zdot/dz)
+    rhs: NumericFunction  # (z, q_r, v_r, eps, u_lo, u_hi) -> (zdot, running cost, dzdot/dz)
     control: ca.Function  # (z, eps, u_lo, u_hi) -> u*
     dim: int  # len(z) = 2 (n + k)
 
@@ -69,8 +70,9 @@ def _build(system: NonholonomicSystem) -> PontryaginFlow:
     dim = 2 * (n + k)
     zdot = ca.vertcat(ca.gradient(h_star, p), -ca.gradient(h_star, x))
     return PontryaginFlow(
-        rhs=ca.Function('pmp_rhs', [z, qr, vr, eps, lo, hi],
-                        [zdot, ca.substitute(running, u, u_star), ca.jacobian(zdot, z)]),
+        rhs=NumericFunction(ca.Function(
+            'pmp_rhs', [z, qr, vr, eps, lo, hi],
+            [zdot, ca.substitute(running, u, u_star), ca.jacobian(zdot, z)])),
         control=ca.Function('pmp_control', [z, eps, lo, hi], [u_star]),
         dim=dim,
     )

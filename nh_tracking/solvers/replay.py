@@ -49,14 +49,14 @@ def _step(system: NonholonomicSystem) -> NumericFunction:
     return _CACHE.get(system, 'step', build)
 
 
-def _interval_ends(system: NonholonomicSystem, intervals: int) -> NumericFunction:
-    """(x (n + k, N), u (r, N), h (1, N)) -> each interval's end from its start, u held."""
+def _interval_ends(system: NonholonomicSystem, intervals: int) -> NumericFunction | None:
+    """(x (n + k, N), u (r, N), h (1, N)) -> each interval's end, u held; None until built."""
     def build() -> NumericFunction:
         x = ca.SX.sym('x', system.n + system.k)
         u, h = ca.SX.sym('u', system.r), ca.SX.sym('h')
         end = ca.Function('held_end', [x, u, h], [held_rk4(system, x, u, h, CHECK_SUBSTEPS)])
         return NumericFunction(end.map(intervals))
-    return _CACHE.get(system, ('ends', intervals), build)
+    return _CACHE.ready(system, ('ends', intervals), build)
 
 
 def interval_gap(system: NonholonomicSystem, t: np.ndarray, q: np.ndarray, v: np.ndarray,
@@ -68,11 +68,14 @@ def interval_gap(system: NonholonomicSystem, t: np.ndarray, q: np.ndarray, v: np
     them (a horizon of days in 50 steps), whatever its solver reported.
     """
     knots = np.hstack([q, v])
-    ends = _interval_ends(system, len(t) - 1)
+    ends = _interval_ends(system, len(t) - 1)  # (its first calls: slower, numerically)
     with np.errstate(all='ignore'):
-        # (rows of an (N, m) array in C order are the columns of CasADi's (m, N))
-        end = ends(knots[:-1], np.reshape(u, (len(t) - 1, -1)), np.diff(t))[0]
-        end = end.reshape(knots.shape[1], -1, order='F').T
+        if ends is None:
+            end = held_rk4(system, knots[:-1].T, np.reshape(u, (len(t) - 1, -1)).T,
+                           np.diff(t)[None, :], CHECK_SUBSTEPS).T
+        else:  # (rows of an (N, m) array in C order are the columns of CasADi's (m, N))
+            flat = ends(knots[:-1], np.reshape(u, (len(t) - 1, -1)), np.diff(t))[0]
+            end = flat.reshape(knots.shape[1], -1, order='F').T
         gap = float(np.abs(end - knots[1:]).max() / (1.0 + np.abs(knots).max()))
     return gap if np.isfinite(gap) else float('inf')
 

@@ -28,7 +28,6 @@ import numpy as np
 from scipy.integrate import solve_ivp
 from scipy.optimize import root
 
-from nh_tracking.numeric import NumericFunction
 from nh_tracking.problem import Solution, TrackingProblem
 from nh_tracking.solvers.hamiltonian import pontryagin_flow
 
@@ -65,7 +64,7 @@ class Shooter:
                  atol: float = 1e-10) -> None:
         self.problem = problem
         self.flow = pontryagin_flow(problem.system)
-        self.rhs = NumericFunction(self.flow.rhs)
+        self.rhs = self.flow.rhs
         self.deadline = deadline
         self.rtol, self.atol = rtol, atol
         self.n, self.k = problem.system.n, problem.system.k
