@@ -261,7 +261,7 @@ def judged(rows: Rows, limits: Limits, soft: bool, converged: bool, path: np.nda
     violation = max(at_points, swept)
     success = converged and violation <= VIOLATION_TOL
     if soft and not success:
-        message = f'{message}; least-violating plan: {_broken(limits, path, v, u, swept)}'
+        message = f'{message}; least-violating plan: {_broken(limits, path, v, u)}'
     elif converged and swept > max(at_points, VIOLATION_TOL):
         message = (f'{message}; but the plan passes through a disc between its knots and '
                    f'midpoints (by {swept:.3g} m: they are too far apart for its speed; more '
@@ -273,11 +273,10 @@ def judged(rows: Rows, limits: Limits, soft: bool, converged: bool, path: np.nda
         'through_disc': converged and at_points <= VIOLATION_TOL < swept}
 
 
-def _broken(limits: Limits, path: np.ndarray, v: np.ndarray, u: np.ndarray | None,
-            swept: float) -> str:
+def _broken(limits: Limits, path: np.ndarray, v: np.ndarray, u: np.ndarray | None) -> str:
     """Say by how much the start, which no plan can change, and the rest break the limits."""
     start = limits.violation(path[:1], v[:1])
-    rest = max(limits.violation(path[1:], v[1:], u), swept)
+    rest = max(limits.violation(path[1:], v[1:], u), limits.swept(path[1:]))
     if start <= VIOLATION_TOL:
         return f'limits broken by {rest:.3g}'
     after = (f'the plan after it by {rest:.3g}' if rest > VIOLATION_TOL

@@ -36,6 +36,7 @@ REPLAY_RTOL = 0.1  # a plan whose replay strays further (relative to its size) i
 CHECK_SUBSTEPS = 2  # RK4 steps per interval in interval_gap: O(h^5) against the plans' O(h^3)
 
 _CACHE: PerSystemCache[NumericFunction] = PerSystemCache()
+_ENDS: PerSystemCache[NumericFunction] = PerSystemCache()  # by N: apart from _step's cache
 
 
 def _step(system: NonholonomicSystem) -> NumericFunction:
@@ -56,7 +57,7 @@ def _interval_ends(system: NonholonomicSystem, intervals: int) -> NumericFunctio
         u, h = ca.SX.sym('u', system.r), ca.SX.sym('h')
         end = ca.Function('held_end', [x, u, h], [held_rk4(system, x, u, h, CHECK_SUBSTEPS)])
         return NumericFunction(end.map(intervals))
-    return _CACHE.ready(system, ('ends', intervals), build)
+    return _ENDS.ready(system, intervals, build)
 
 
 def interval_gap(system: NonholonomicSystem, t: np.ndarray, q: np.ndarray, v: np.ndarray,
