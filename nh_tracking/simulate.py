@@ -121,11 +121,12 @@ def held_rk4(system: NonholonomicSystem, x: Any, u: Any, h: Any, substeps: int) 
     numeric on numpy columns, one interval each (x (n + k, N), u (r, N), h (1, N)): evaluated
     without building a CasADi function (which would wait on CasADi while it builds an NLP).
     """
+    numeric = isinstance(x, np.ndarray)
+
     def ode(x: Any, u: Any) -> Any:
         rate = system.ode_fn(x, u)
         return np.asarray(rate) if numeric else rate
 
-    numeric = isinstance(x, np.ndarray)
     dt = h / substeps
     for _ in range(substeps):
         k1 = ode(x, u)

@@ -34,7 +34,7 @@ import numpy as np
 from nh_tracking.problem import Multipliers, Solution, Terminal, TrackingProblem
 from nh_tracking.solvers.cache import builds_until, NotPrepared
 from nh_tracking.solvers.inequalities import Shape
-from nh_tracking.solvers.nlp import before, deadline_after
+from nh_tracking.solvers.nlp import before, DEADLINE, deadline_after
 from nh_tracking.system import NonholonomicSystem
 
 
@@ -80,6 +80,11 @@ def clear_of_every_disc(solve: Callable[[Guess | None, bool], Solution], guess: 
                      np.zeros((steps, sys.r)))
         result = _after(result, solve(rest, True), 'from rest (it went through a disc)')
     return result
+
+
+def time_left(previous: Solution, stop: float | None) -> bool:
+    """Whether another route may start after ``previous``: neither it nor the clock ran out."""
+    return previous.message != DEADLINE and before(stop)
 
 
 def next_route(failed: Solution, route: str, solve: Callable[[], Solution]) -> Solution:

@@ -29,12 +29,13 @@ import numpy as np
 from nh_tracking.limits import clearance_points, plane
 from nh_tracking.problem import (Solution, terminal_cost, terminal_error, tracking_lagrangian,
                                  TrackingProblem)
-from nh_tracking.solvers.base import clear_of_every_disc, Guess, Method, next_route, Structure
+from nh_tracking.solvers.base import (clear_of_every_disc, Guess, Method, next_route, Structure,
+                                      time_left)
 from nh_tracking.solvers.cache import by_steps, PerSystemCache
 from nh_tracking.solvers.inequalities import (ConstraintStack, DOMAIN_MARGIN, judged, Rows, Shape,
                                               soft_bounds, soften, start_violation,
                                               VIOLATION_TOL)
-from nh_tracking.solvers.nlp import before, BoundedNlp, DEADLINE, deadline_after
+from nh_tracking.solvers.nlp import BoundedNlp, deadline_after
 from nh_tracking.system import NonholonomicSystem
 
 SUBSTEPS = 2  # RK4 steps per control interval
@@ -144,8 +145,8 @@ def _solve_until(problem: TrackingProblem, initial_guess: Guess | None,
 
     soft = start_violation(problem) > VIOLATION_TOL  # only the least-violating plan exists
     result = route(soft)
-    if (not result.success and problem.limits.active and not soft and before(stop)
-            and result.message != DEADLINE and not result.details.get('through_disc')):
+    if (not result.success and problem.limits.active and not soft and time_left(result, stop)
+            and not result.details.get('through_disc')):
         result = next_route(result, f'ipopt failed ({result.message}) -> soft limits',
                             lambda: route(True))
     return result

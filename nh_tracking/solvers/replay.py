@@ -68,14 +68,14 @@ def interval_gap(system: NonholonomicSystem, t: np.ndarray, q: np.ndarray, v: np
     :data:`REPLAY_RTOL` does not describe the continuous dynamics: its steps are too long for
     them (a horizon of days in 50 steps), whatever its solver reported.
     """
-    knots = np.hstack([q, v])
+    knots, held = np.hstack([q, v]), np.reshape(u, (len(t) - 1, -1))
     ends = _interval_ends(system, len(t) - 1)  # (its first calls: slower, numerically)
     with np.errstate(all='ignore'):
         if ends is None:
-            end = held_rk4(system, knots[:-1].T, np.reshape(u, (len(t) - 1, -1)).T,
-                           np.diff(t)[None, :], CHECK_SUBSTEPS).T
+            end = held_rk4(system, knots[:-1].T, held.T, np.diff(t)[None, :],
+                           CHECK_SUBSTEPS).T
         else:  # (rows of an (N, m) array in C order are the columns of CasADi's (m, N))
-            flat = ends(knots[:-1], np.reshape(u, (len(t) - 1, -1)), np.diff(t))[0]
+            flat = ends(knots[:-1], held, np.diff(t))[0]
             end = flat.reshape(knots.shape[1], -1, order='F').T
         gap = float(np.abs(end - knots[1:]).max() / (1.0 + np.abs(knots).max()))
     return gap if np.isfinite(gap) else float('inf')

@@ -38,7 +38,7 @@ import numpy as np
 from nh_tracking.limits import plan_path
 from nh_tracking.problem import Solution, TrackingProblem
 from nh_tracking.solvers.base import (clear_of_every_disc, Guess, Method, next_route, Structure,
-                                      unsolved)
+                                      time_left, unsolved)
 from nh_tracking.solvers.cache import NotPrepared
 from nh_tracking.solvers.duals import carried_multipliers, multipliers_at
 from nh_tracking.solvers.inequalities import judged, Shape, start_violation, VIOLATION_TOL
@@ -46,7 +46,7 @@ from nh_tracking.solvers.line_search import line_search_solve
 from nh_tracking.solvers.midpoint import (BACKENDS, Transcription, transcription,
                                           working_set_step, WorkingSetStep)
 from nh_tracking.solvers.newton import newton_steps
-from nh_tracking.solvers.nlp import before, DEADLINE, deadline_after, halfway, Outcome
+from nh_tracking.solvers.nlp import before, deadline_after, halfway, Outcome
 from nh_tracking.solvers.working_set import working_set_solve
 from nh_tracking.system import NonholonomicSystem
 
@@ -121,20 +121,17 @@ def solve_variational_until(problem: TrackingProblem, initial_guess: Guess | Non
             problem, guess, stop, solver, compiled, soft, newton=newton, every=every,
             domain=domain), initial_guess, stop, problem)
 
-    def time_left(previous: Solution) -> bool:
-        return previous.message != DEADLINE and before(stop)
-
     result = route(solver, compiled, soft, newton)
     result.solve_time += coarse_time
-    if not result.success and solver == 'fatrop' and not soft and time_left(result):
+    if not result.success and solver == 'fatrop' and not soft and time_left(result, stop):
         result = next_route(result, f'fatrop failed ({result.message}) -> ipopt',
                             lambda: route('ipopt', False, False))
-    if not result.success and problem.limits.active and not soft and time_left(result) and \
+    if not result.success and problem.limits.active and not soft and time_left(result, stop) and \
             not result.details.get('through_disc'):  # e.g. a terminal state inside an obstacle
         result = next_route(result, f'{result.route} failed ({result.message}) -> soft limits',
                             lambda: route(solver, compiled, True))
     domain = problem.system.domain
-    if domain.bounded and not domain.contains(result.q) and time_left(result):
+    if domain.bounded and not domain.contains(result.q) and time_left(result, stop):
         result = next_route(result, f"{result.route} left the model's domain -> the domain as "
                             'bounds', lambda: route(solver, compiled, soft, newton, True))
     return result
