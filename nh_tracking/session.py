@@ -239,11 +239,18 @@ class TrackingSession:
         return result
 
     def _brake_if_stale(self, state: StateEstimate | None, reason: str) -> PlanResult:
-        """Once per stale state (and plan in force), brake to rest from it; else plan nothing."""
+        """While the state is stale, brake to rest from it (planned once); else plan nothing.
+
+        The braking plan is sent again at every replan: a driver drops a control sequence not
+        renewed within its timeout, and an effort-driven robot given none coasts on.
+        """
         with self._lock:
             outcome = self.outcome
-        if (state is None or not self.active or not self.staleness.now or outcome is None
-                or outcome.status in (PlanStatus.BRAKE, PlanStatus.STOP)):
+        if state is None or not self.active or not self.staleness.now or outcome is None:
+            return PlanResult(None, state, reason)
+        if outcome.status in (PlanStatus.BRAKE, PlanStatus.STOP):
+            if outcome.status is PlanStatus.BRAKE:
+                self._on_plan(PlanResult(outcome, state, reason))
             return PlanResult(None, state, reason)
         braking = self.planner.brake(self.seconds(state.ns), state.q, state.v, reason)
         result = PlanResult(braking, state, braking.message)

@@ -225,7 +225,7 @@ def test_progress_is_judged_across_path_updates_and_a_stop_is_never_refused():
 
 @pytest.mark.parametrize('model', ['chaplygin_sleigh', 'rolling_disk'])
 def test_stale_odometry_brings_one_braking_plan_that_stops_an_effort_driven_robot(model):
-    """Zero effort is no stop: a sleigh given none coasts on (issue 36, item 8)."""
+    """Zero effort is no stop: a sleigh given none coasts on, so the brake is renewed."""
     loop = Loop(model, epsilon=0.05)
     loop.session.following.set_route(polyline((0, 0), (8, 0)))
     loop.run(3.0)
@@ -239,7 +239,12 @@ def test_stale_odometry_brings_one_braking_plan_that_stops_an_effort_driven_robo
     print(f'\n{model}: {speed:.3f} -> {np.linalg.norm(rest.v[-1]):.4f} (m/s, rad/s) over '
           f'{plan.t[-1] - plan.t[0]:.1f} s')
     assert np.linalg.norm(rest.v[-1]) < 0.05 * speed
-    again = loop.session.replan()
-    assert again.outcome is None and 'stale' in again.reason  # once per stale episode
+    sent = []
+    loop.session.start(sent.append)  # what the robot is sent from here on
+    loop.session.stop()
+    for _ in range(3):  # planned once per stale episode, renewed at each replan
+        again = loop.session.replan()
+        assert again.outcome is None and 'stale' in again.reason
+    assert len(sent) == 3 and all(result.outcome is braking.outcome for result in sent)
     loop.odometry()
     assert loop.session.replan().outcome.status is not PlanStatus.BRAKE

@@ -62,20 +62,22 @@ def test_closed_loop_tracks_through_ros_with_inertia_mismatch(graph, kind):
     assert stats.plans > 80 and stats.fallbacks == 0
 
 
-def test_a_second_clock_on_the_domain_is_named_and_the_loaded_loop_keeps_its_track(graph):
+def test_a_second_clock_on_the_domain_is_named_and_the_loaded_loop_gets_back_on_track(graph):
     """Another world's /clock on this domain, both cores busy: it says why its clock jumps.
 
     Issue 36, item 8: the planner's clock reads now one world's time, now the other's (here
-    10 s ahead, ticking just after this one's): odometry looks stale or ahead at times. Given
-    no command, the effort-driven sleigh coasted off its curve (4-15 m); it brakes now
-    (test_following), and stays near its start's error (0.5-0.9 m: it starts off the curve).
+    10 s ahead, ticking just after this one's, for the first 5 s): odometry looks stale at
+    times. Given no command, the effort-driven sleigh coasted off its curve (4-15 m); now it
+    brakes while its state is stale and drives on when it is fresh, behind its timed reference
+    (0.9-4 m off the curve, cutting across to catch up), and is back on it once the other
+    clock is gone.
     """
     loop = ClosedLoop(graph, namespace=unique_namespace())
     logs = []
     loop.feeder.create_subscription(Log, '/rosout', logs.append, 100)
     other_clock = loop.feeder.create_publisher(ClockMsg, '/clock', 10)
 
-    def echo(msg: ClockMsg) -> None:  # the other world ticks just after this one
+    def echo(msg: ClockMsg) -> None:
         if msg.clock.sec < START + 5.0:
             msg.clock.sec += 10
             other_clock.publish(msg)
@@ -87,12 +89,15 @@ def test_a_second_clock_on_the_domain_is_named_and_the_loaded_loop_keeps_its_tra
         loop.start(reference, 'trajectory', time_scale=5.0)
         assert wait_until(lambda: ahead.append(
             loop.planner.get_clock().now().nanoseconds * 1e-9 - loop.sim_time())
-            or loop.sim_time() >= START + 14.0, timeout=120.0)
+            or loop.sim_time() >= START + 20.0, timeout=150.0)
     assert max(ahead) > 5.0  # the planner did read the other world's time
     t, xy = loop.track()
     error = cross_track_error(xy[t >= START], reference.q[:, :2])
-    print(f'\ncross-track: start {error[0]:.3f} m, worst {error.max():.3f} m')
-    assert error.size > 500 and error.max() < 1.5, (error[0], error.max())
+    late = cross_track_error(xy[t >= START + 16.0], reference.q[:, :2])
+    print(f'\ncross-track: start {error[0]:.3f} m, worst {error.max():.3f} m, '
+          f'from {START + 16.0:.0f} s {late.max():.4f} m')
+    assert error.size > 800 and error.max() < 6.0, (error[0], error.max())
+    assert late.size > 150 and late.max() < 0.1
     named = [entry for entry in logs if '2 nodes publish /clock' in entry.msg]
     assert named and all(entry.level == Log.WARN for entry in named), [e.msg for e in logs]
 
@@ -403,12 +408,12 @@ def test_stale_odometry_stops_commanding_and_fresh_odometry_resumes(graph):
     pair.published['cmd_vel'].clear()
     assert wait_until(lambda: len(pair.published['cmd_vel']) > 20, 5.0)
     assert all(m.linear.x == 0.0 and m.angular.z == 0.0 for m in pair.published['cmd_vel'])
-    # no new plan while stale, but one to brake (an effort-driven robot coasts on zero effort)
-    braking = len(pair.published['control_sequence'])
-    assert braking <= sequences + 1
+    # no new plan while stale, but one to brake (an effort-driven robot coasts on zero effort),
+    # renewed at each replan (a driver drops a sequence not renewed within its timeout)
     received = len(pair.published['cmd_vel'])
     assert wait_until(lambda: len(pair.published['cmd_vel']) > received + 20, 5.0)
-    assert len(pair.published['control_sequence']) == braking
+    renewed = pair.published['control_sequence'][sequences:]
+    assert len(renewed) > 3 and all(m == renewed[-1] for m in renewed[-3:])
     assert wait_until(lambda: any(s.level == DiagnosticStatus.STALE for s in statuses), 5.0)
     graph.executor.add_node(pair.sim)  # odometry is back
     assert wait_until(lambda: not pair.planner.live.staleness.now, 5.0)
