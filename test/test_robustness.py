@@ -24,6 +24,7 @@ import nh_tracking as nht
 from nh_tracking.examples.experiments import sleigh_problem
 from nh_tracking.solvers import Variational
 from nh_tracking.solvers.search import random_guess
+from nh_tracking.solvers.variational import proven_minimum
 
 L = 0.5  # the snakeboard's half wheelbase
 
@@ -175,6 +176,27 @@ def test_the_second_look_is_not_drawn_back_to_the_saddle(sideways):
     assert newton.cost == pytest.approx(first.cost, rel=1e-6)  # the saddle again
     globalised = Variational().globalised().solve(problem, perturbed)
     assert globalised.route == 'fatrop' and globalised.cost < 0.5 * first.cost
+
+
+def test_the_inertia_check_tells_a_saddle_from_a_minimum_and_spares_the_second_look(sideways):
+    """A plan the KKT inertia proves a minimum is returned without a second look.
+
+    The saddle is told by a perturbed restart going lower (above); the minimum by no restart
+    from a perturbed copy of it going lower.
+    """
+    problem = sideways('cost')
+    saddle = nht.solve(problem, second_look=False)
+    assert not proven_minimum(problem, saddle)
+    assert proven_minimum(problem, nht.solve(problem))
+    for problem in (sleigh_problem(), sleigh_problem(wrap_angles=True, terminal='cost')):
+        plain = nht.solve(problem, second_look=False)
+        assert proven_minimum(problem, plain)
+        assert nht.solve(problem).cost == plain.cost  # no second look
+        for seed in range(3):
+            guess = random_guess(problem, np.random.default_rng(seed),
+                                 (plain.q, plain.v, plain.u), 0.05)
+            again = Variational().globalised().solve(problem, guess)
+            assert not again.success or again.cost >= plain.cost * (1 - 1e-6)
 
 
 def test_a_reachable_target_from_a_symmetric_start_is_reached(sideways):

@@ -71,9 +71,10 @@ def solve(problem: TrackingProblem, method: str | Method = 'variational', *, sta
 
     Or a :class:`Method`). ``max_time`` [s] bounds the wall time of the call, every route and
     the second look included (it then stops and reports failure). ``second_look`` re-solves
-    once from a perturbed copy of the plan: a stationary point that is not a minimum (a
-    saddle, typical of symmetric starts) is then reported and the better plan returned, and a
-    failure from a degenerate start gets a second chance — about one warm solve more. With
+    once from a perturbed copy of the plan, unless the method proves it a strict local minimum
+    (:meth:`Method.proves_minimum`): a stationary point that is not a minimum (a saddle,
+    typical of symmetric starts) is then reported and the better plan returned, and a failure
+    from a degenerate start gets a second chance — about one warm solve more. With
     ``starts`` > 1, that many initial guesses (``initial_guess`` or the default one, and
     random perturbations of it) run in parallel processes; the best plan is returned with the
     distinct local minima found in ``Solution.minima`` — plans that do not replay on the

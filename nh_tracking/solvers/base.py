@@ -192,6 +192,13 @@ class Method(ABC):
         """
         return self
 
+    def proves_minimum(self, problem: TrackingProblem, plan: Solution) -> bool:
+        """Whether ``plan``, converged, is a strict local minimum (second-order conditions).
+
+        False where the method cannot tell cheaply; a search then looks again.
+        """
+        return False
+
     @abstractmethod
     def solve_until(self, problem: TrackingProblem, guess: Guess | None,
                     stop: float | None) -> Solution:

@@ -47,7 +47,7 @@ from nh_tracking.solvers.midpoint import (BACKENDS, Transcription, transcription
                                           working_set_step, WorkingSetStep)
 from nh_tracking.solvers.newton import newton_steps
 from nh_tracking.solvers.nlp import before, deadline_after, halfway, Outcome
-from nh_tracking.solvers.working_set import working_set_solve
+from nh_tracking.solvers.working_set import working_set_solve, WorkingSet
 from nh_tracking.system import NonholonomicSystem
 
 PAUSE_AFTER, PAUSE = 3, 4  # working-set failures in a row, then one try in this many solves
@@ -246,6 +246,35 @@ def _working_set(step: WorkingSetStep, w0: np.ndarray, p: np.ndarray,
         f'converged ({held.active} limit rows active)' if held.limited else 'converged')
 
 
+def proven_minimum(problem: TrackingProblem, plan: Solution, solver: str = 'fatrop',
+                   compiled: bool = False) -> bool:
+    """Whether the KKT matrix's inertia at ``plan`` proves a strict local minimum.
+
+    One factorisation, with the plan's multipliers and its limit rows at a bound held: the
+    Lagrangian's Hessian curves up on the rows' tangent space. False where it cannot tell (a
+    plan of other rows: soft limits, the domain as bounds; the step not built yet).
+    """
+    if not plan.success:
+        return False
+    tr = transcription(problem.system, problem.steps, problem.terminal, False, solver,
+                       compiled, Shape.of(problem.limits, False, False, False))
+    try:
+        held = working_set_step(problem.system, problem.steps, problem.terminal,
+                                tr.limits.shape)
+    except NotPrepared:
+        return False
+    p = tr.parameters(problem, plan.q)
+    multipliers = carried_multipliers(tr, problem, Guess(plan.q, plan.v, plan.u,
+                                                         plan.multipliers), p)
+    if multipliers is None:
+        return False
+    w = tr.pack(plan.q, plan.v, plan.u)
+    bounds = tr.bounds(problem)
+    rows = WorkingSet(bounds['lbg'], bounds['ubg'])
+    rows.hold_reached(held.constraints(w, p)[0])
+    return held.step.minimum(w, p, *rows.arguments(), multipliers)
+
+
 @dataclass(frozen=True)
 class Variational(Method):
     """The paper's discrete variational (midpoint) transcription.
@@ -287,6 +316,9 @@ class Variational(Method):
         limits = structure.limits
         if self.newton and structure.replanned and not limits.soft:
             working_set_step(system, structure.steps, structure.terminal, limits)
+
+    def proves_minimum(self, problem: TrackingProblem, plan: Solution) -> bool:
+        return proven_minimum(problem, plan, self.backend, self.compiled)
 
     def globalised(self) -> Variational:
         return dataclasses.replace(self, newton=False)
