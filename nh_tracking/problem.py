@@ -247,10 +247,12 @@ class Solution:
     accuracy); where the optimal control is continuous in time (PMP), ``control_law(t)`` is
     that law. ``cost`` is the problem's cost as the method evaluates it (the discrete cost for
     the variational method); ``message`` the outcome in words; ``route`` says how the method
-    got there; ``costates`` holds (lambda (N+1, n), mu (N+1, k)) where the method provides
-    them; ``minima`` lists the distinct local minima (cost, times found) of a multi-start
-    search; ``details`` holds method-specific figures (e.g. the discrete admissibility
-    residual); ``multipliers`` the NLP's multipliers, for a warm start from this plan.
+    got there; ``local_minimum`` is True where the KKT matrix's inertia at the plan proved a
+    strict local minimum (False: not shown, or not one); ``costates`` holds (lambda (N+1, n),
+    mu (N+1, k)) where the method provides them; ``minima`` lists the distinct local minima
+    (cost, times found) of a multi-start search; ``details`` holds method-specific figures
+    (e.g. the discrete admissibility residual); ``multipliers`` the NLP's multipliers, for a
+    warm start from this plan.
     """
 
     t: np.ndarray
@@ -265,6 +267,7 @@ class Solution:
     method: str
     message: str = ''
     route: str = ''
+    local_minimum: bool = False
     costates: tuple[np.ndarray, np.ndarray] | None = None
     minima: list[tuple[float, int]] = field(default_factory=list)
     details: dict[str, float] = field(default_factory=dict)

@@ -315,7 +315,8 @@ class RecedingHorizonPlanner:
         q, v, u, _ = sample_plan(problem, previous)
         return dataclasses.replace(
             previous, t=problem.grid, q=q, v=v, u=cast(np.ndarray, u),  # (sampled: never None)
-            route='shifted', minima=[], terminal_error=terminal_error(problem, q[-1], v[-1]),
+            route='shifted', minima=[], local_minimum=False,
+            terminal_error=terminal_error(problem, q[-1], v[-1]),
             costates=None)
 
 

@@ -186,12 +186,16 @@ def test_the_inertia_check_tells_a_saddle_from_a_minimum_and_spares_the_second_l
     """
     problem = sideways('cost')
     saddle = nht.solve(problem, second_look=False)
-    assert not proven_minimum(problem, saddle)
+    assert not saddle.local_minimum and not proven_minimum(problem, saddle)
     assert proven_minimum(problem, nht.solve(problem))
     for problem in (sleigh_problem(), sleigh_problem(wrap_angles=True, terminal='cost')):
         plain = nht.solve(problem, second_look=False)
         assert proven_minimum(problem, plain)
-        assert nht.solve(problem).cost == plain.cost  # no second look
+        default = nht.solve(problem)
+        assert default.local_minimum and default.cost == plain.cost  # no second look
+        moved = dataclasses.replace(problem, q0=problem.q0 + 1e-2)
+        warm = nht.solve(moved, initial_guess=plain)  # a working set: checked afterwards
+        assert warm.route == 'newton (working set)' and warm.local_minimum
         for seed in range(3):
             guess = random_guess(problem, np.random.default_rng(seed),
                                  (plain.q, plain.v, plain.u), 0.05)

@@ -25,6 +25,7 @@ import numpy as np
 from nh_tracking.examples import peers
 from nh_tracking.examples.experiments import sleigh_problem
 from nh_tracking.problem import TrackingProblem
+from nh_tracking.solvers import solve
 from nh_tracking.solvers.compiled import wait_for_builds
 from nh_tracking.solvers.midpoint import transcription
 from nh_tracking.solvers.variational import solve_variational
@@ -55,8 +56,14 @@ def interleaved(solves: Mapping[str, Callable[[], T]], rounds: int
 
 def _ours(problem: TrackingProblem, solver: str, compiled: bool, newton: bool
           ) -> tuple[float, int | None]:
-    """Run our cold solve: its cost and iterations (a peer says only its objective)."""
+    """Run one NLP route of ours alone: its cost and iterations (a peer says its objective)."""
     solution = solve_variational(problem, solver=solver, compiled=compiled, newton=newton)
+    return solution.cost, solution.iterations
+
+
+def _public(problem: TrackingProblem) -> tuple[float, int | None]:
+    """Run ``nht.solve`` as a user calls it, with its default settings."""
+    solution = solve(problem)
     return solution.cost, solution.iterations
 
 
@@ -68,7 +75,8 @@ def _theirs(solve: Callable[[], float]) -> tuple[float, int | None]:
 def cold_solve(log: Callable[[str], None]) -> dict:
     """Time the paper's sleigh (literal angles, N = 50) from each tool's default guess.
 
-    Ours with default settings (Newton steps with a line search), and the NLP solvers alone:
+    Ours as users call it (``nht.solve`` with default settings), each of its routes alone
+    (Newton steps with a line search) and the NLP solvers alone:
     fatrop interpreted and compiled, IPOPT; the peers as their users write them
     (:mod:`.peers`). Solvers are built once beforehand (set-up reported apart); then
     all of them are timed in the same rounds (:func:`interleaved`) and a peer's speed-up is the
@@ -77,8 +85,13 @@ def cold_solve(log: Callable[[str], None]) -> dict:
     problem = sleigh_problem(wrap_angles=False)
     solves: dict[str, Callable[[], tuple[float, int | None]]] = {}  # -> cost, iterations
     built: dict[str, float] = {}
+    solves['variational'] = partial(_public, problem)  # ours: the public call, defaults
+    start = time.perf_counter()
+    solves['variational']()  # (builds what the first call builds)
+    built['variational'] = time.perf_counter() - start
     for name, solver, compiled, newton in (
-            ('variational', 'fatrop', False, True), ('variational_fatrop', 'fatrop', False, False),
+            ('variational_newton', 'fatrop', False, True),
+            ('variational_fatrop', 'fatrop', False, False),
             ('variational_fatrop_compiled', 'fatrop', True, False),
             ('variational_ipopt', 'ipopt', False, False)):
         start = time.perf_counter()

@@ -153,7 +153,7 @@ def line_search_solve(step: NewtonStep, w: np.ndarray, p: np.ndarray, lower: np.
             if not step.minimum(w, p, *rows.arguments(), new_multipliers):
                 return _unsettled(w, new_multipliers, factorisations, 'a saddle')
             return Outcome({'x': w, 'lam_g': new_multipliers}, True, factorisations,
-                           'converged')
+                           'converged', minimum=True)
         if small and short:  # a second small step that leaves g above: the steps stall
             return _unsettled(w, multipliers, factorisations, 'stalled short of admissible')
         short = small

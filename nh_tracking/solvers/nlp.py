@@ -123,6 +123,7 @@ class Outcome:
     success: bool
     iterations: int
     message: str
+    minimum: bool = False  # the KKT matrix's inertia at x proved a strict local minimum
 
 
 def _paced_nlpsol(name: str, backend: str, source: dict[str, ca.SX] | str,

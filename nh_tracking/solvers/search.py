@@ -71,7 +71,10 @@ def second_look(problem: TrackingProblem, method: Method, first: Solution,
     perturbation is scaled by the extent of the reference's motion (not by where it lies: a
     heading wound several turns, far coordinates) and kept inside the model's domain.
     """
-    if (max_time is not None and max_time <= 0) or method.proves_minimum(problem, first):
+    if max_time is not None and max_time <= 0:
+        return first
+    if method.proves_minimum(problem, first):
+        first.local_minimum = True
         return first
     rng = np.random.default_rng(seed)
     base = Guess(first.q, first.v, first.u) if first.success else None

@@ -211,7 +211,7 @@ def _solve_with(problem: TrackingProblem, initial_guess: Guess | None, stop: flo
         t=problem.grid, q=q, v=v, u=u, cost=float(cost[0]), success=success,
         iterations=outcome.iterations, solve_time=elapsed,
         terminal_error=float(end_error[0]), method='variational',
-        message=message, route=route,
+        message=message, route=route, local_minimum=outcome.minimum,
         costates=(lam, mu), multipliers=multipliers_at(tr, problem, lam_g, p),
         details={'admissibility_residual': max_residual, **details})
 
@@ -243,7 +243,8 @@ def _working_set(step: WorkingSetStep, w0: np.ndarray, p: np.ndarray,
     step.failures = 0 if held is not None else step.failures + 1
     return None if held is None else Outcome(
         {'x': held.w, 'lam_g': held.multipliers}, True, held.factorisations,
-        f'converged ({held.active} limit rows active)' if held.limited else 'converged')
+        f'converged ({held.active} limit rows active)' if held.limited else 'converged',
+        held.minimum)
 
 
 def proven_minimum(problem: TrackingProblem, plan: Solution, solver: str = 'fatrop',
@@ -256,6 +257,8 @@ def proven_minimum(problem: TrackingProblem, plan: Solution, solver: str = 'fatr
     """
     if not plan.success:
         return False
+    if plan.local_minimum:  # the route checked it
+        return True
     tr = transcription(problem.system, problem.steps, problem.terminal, False, solver,
                        compiled, Shape.of(problem.limits, False, False, False))
     try:

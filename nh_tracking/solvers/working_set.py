@@ -76,6 +76,7 @@ class WorkingSetSolution:
     factorisations: int
     active: int  # inequality rows held at a bound
     limited: bool  # whether g has inequality rows at all
+    minimum: bool  # checked a strict local minimum (the KKT matrix's inertia)
 
 
 class WorkingSet:
@@ -272,10 +273,10 @@ def working_set_solve(step: NewtonStep, constraints: NumericFunction, w: np.ndar
             at_w = constraints(w, p)[0]
             converged = rows.residual(at_w) <= FEASIBLE_TOL
         if converged:
-            if (wandered or np.any(nonconvex & rows.held() & ~guessed)) and \
-                    not step.minimum(w, p, *rows.arguments(), multipliers):
+            checked = wandered or bool(np.any(nonconvex & rows.held() & ~guessed))
+            if checked and not step.minimum(w, p, *rows.arguments(), multipliers):
                 return None  # a saddle: the interior point finds the minimum beside it
             return WorkingSetSolution(w, multipliers, factorisations,
                                       int(np.count_nonzero(rows.state)),
-                                      rows.limited)
+                                      rows.limited, checked)
     return None
