@@ -21,7 +21,7 @@ server, which spins a dedicated executor on its own thread.
 from __future__ import annotations
 
 import threading
-from typing import Any
+from typing import Any, Protocol
 
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
@@ -35,10 +35,24 @@ LEAN: dict[str, Any] = {
     'parameter_overrides': [Parameter('start_type_description_service', value=False)]}
 
 
+class Owner(Protocol):
+    """What a companion takes of the node it stands beside."""
+
+    @property
+    def context(self) -> Any:
+        """Return the node's rclpy context."""
+
+    def get_name(self) -> str:
+        """Return the node's name."""
+
+    def get_namespace(self) -> str:
+        """Return the node's namespace."""
+
+
 class CompanionNode:
     """``<owner>_<suffix>``: create its entities on :attr:`node`, then :meth:`start`."""
 
-    def __init__(self, owner: Node, suffix: str, *,
+    def __init__(self, owner: Owner, suffix: str, *,
                  executor: type[SingleThreadedExecutor] = SingleThreadedExecutor,
                  **node_options: object) -> None:
         self.node = Node(f'{owner.get_name()}_{suffix}', namespace=owner.get_namespace(),

@@ -25,7 +25,7 @@ with an executor of its own, so a goal's path is read and timed off the thread t
 """
 from __future__ import annotations
 
-from typing import Any, TYPE_CHECKING
+from typing import Any
 
 from rclpy.action import ActionServer, CancelResponse, GoalResponse
 from rclpy.task import Future
@@ -34,9 +34,7 @@ from nh_tracking.goal_checking import GoalState
 from nh_tracking.ros import conversions as cv
 from nh_tracking.ros.companion import CompanionNode, LEAN
 from nh_tracking.ros.path_input import take_path
-
-if TYPE_CHECKING:
-    from nh_tracking.ros.planner_node import PlannerNode
+from nh_tracking.ros.planner_host import PlannerHost
 
 try:
     from nav2_msgs.action import FollowPath
@@ -63,7 +61,7 @@ def plugin_problem(goal: Any) -> str:
 class FollowPathServer:
     """The action on ``node``, while it is configured; :meth:`close` ends every goal."""
 
-    def __init__(self, node: PlannerNode) -> None:
+    def __init__(self, node: PlannerHost) -> None:
         self.node = node
         self._current: Any = None  # the goal handle in force; older ones are preempted
         self._generation = -1  # the path the last goal made the reference (its generation)
@@ -79,7 +77,7 @@ class FollowPathServer:
         self.companion.start()
 
     @classmethod
-    def serve(cls, node: PlannerNode) -> FollowPathServer | None:
+    def serve(cls, node: PlannerHost) -> FollowPathServer | None:
         """Serve the action on ``node``; None (and one warning) without nav2_msgs."""
         if FollowPath is None:
             node.get_logger().warn('nav2_msgs is not installed: no follow_path action')

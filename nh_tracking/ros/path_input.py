@@ -19,21 +19,17 @@ its stamps. Whatever the session refuses comes back as :class:`~conversions.Inpu
 """
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
-
 from nav_msgs.msg import Path
 import numpy as np
 from trajectory_msgs.msg import MultiDOFJointTrajectory
 
 from nh_tracking.reference_checks import ReferenceRejected
 from nh_tracking.ros import conversions as cv
+from nh_tracking.ros.planner_host import PlannerHost
 from nh_tracking.route import RouteHeadings
 
-if TYPE_CHECKING:
-    from nh_tracking.ros.planner_node import PlannerNode
 
-
-def take_path(node: PlannerNode, msg: Path | bytes, goal: bool = False) -> None:
+def take_path(node: PlannerHost, msg: Path | bytes, goal: bool = False) -> None:
     """Track ``msg``; ``goal``: a follow_path goal (progress is checked for timed ones too)."""
     stamps, poses = cv.path_to_arrays(msg, node.frame, node.now_ns())
     if stamps is not None:
@@ -55,11 +51,11 @@ def take_path(node: PlannerNode, msg: Path | bytes, goal: bool = False) -> None:
         node.live.wake()
 
 
-def take_trajectory(node: PlannerNode, msg: MultiDOFJointTrajectory) -> None:
+def take_trajectory(node: PlannerHost, msg: MultiDOFJointTrajectory) -> None:
     _take(node, *cv.multidof_to_arrays(msg, node.frame, node.now_ns()), goal=False)
 
 
-def _take(node: PlannerNode, stamps: np.ndarray, poses: np.ndarray,
+def _take(node: PlannerHost, stamps: np.ndarray, poses: np.ndarray,
           twists: np.ndarray | None, goal: bool) -> None:
     session = node.live
     try:

@@ -27,7 +27,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 import queue
 import threading
-from typing import Any, TYPE_CHECKING
+from typing import Any
 
 from nav_msgs.msg import Path
 from nav_msgs.srv import GetPlan
@@ -40,9 +40,7 @@ from std_srvs.srv import Trigger
 from nh_tracking.ros import conversions as cv
 from nh_tracking.ros import messages as msgs
 from nh_tracking.ros.companion import CompanionNode
-
-if TYPE_CHECKING:
-    from nh_tracking.ros.planner_node import PlannerNode
+from nh_tracking.ros.planner_host import PlannerHost
 
 BACKLOG = 64  # requests waiting for the worker (~2 s of solves); more are answered busy at once
 SERVICE_QUEUE = 1000  # requests DDS keeps until the executor takes them (a take is quick)
@@ -97,7 +95,7 @@ class TakingExecutor(SingleThreadedExecutor):
 class PlannerServices:
     """``plan`` (nav_msgs/GetPlan) and ``replan`` (std_srvs/Trigger) for one planner."""
 
-    def __init__(self, planner: PlannerNode) -> None:
+    def __init__(self, planner: PlannerHost) -> None:
         self.planner = planner
         self._queue: queue.Queue[_Request | None] = queue.Queue(BACKLOG)
         self._worker = threading.Thread(target=self._work, name='nh_tracking_services',
