@@ -26,7 +26,7 @@ import time
 
 from rclpy.clock import Clock, ClockType
 
-from nh_tracking.ros.safety import guarded, SafeNode
+from nh_tracking.ros.guarded import guarded, GuardedNode
 
 WATCH_PERIOD = 0.1  # [s, steady] how often the clock is looked at
 CLOCK_TIMEOUT = 0.5  # [s, steady] without the node's clock advancing: it has stopped
@@ -76,7 +76,7 @@ def clock_sources(publishers: int) -> str:
             'ROS_DOMAIN_ID?): give each simulated world a domain of its own')
 
 
-class ClockWatchdog(SafeNode):
+class ClockWatchdog(GuardedNode):
     """A node's clock watchdog: :meth:`on_clock_stopped` on every look while its clock stands."""
 
     def watch_clock(self) -> object:

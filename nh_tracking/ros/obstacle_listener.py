@@ -21,14 +21,14 @@ from visualization_msgs.msg import MarkerArray
 
 from nh_tracking.costmap import costmap_discs
 from nh_tracking.limits import nearest_discs
+from nh_tracking.ros.guarded import guarded, GuardedNode
 from nh_tracking.ros.obstacle_messages import MarkerObstacles, occupied_cells
 from nh_tracking.ros.planner_interface import subscribe_latched
-from nh_tracking.ros.safety import guarded, SafeNode
 
 DISC_SIZE = 0.5  # [m] the largest costmap disc; wider groups of cells are cut in pieces
 
 
-class ObstacleListener(SafeNode):
+class ObstacleListener(GuardedNode):
     """Subscribes to both topics; bad messages are rejected and the set in force stays."""
 
     frame: str

@@ -22,12 +22,12 @@ import numpy as np
 from rclpy.publisher import Publisher
 
 from nh_tracking.ros import cdr, messages as msgs
+from nh_tracking.ros.guarded import guarded, GuardedNode
 from nh_tracking.ros.markers import obstacle_markers, plan_markers
-from nh_tracking.ros.safety import guarded, SafeNode
 from nh_tracking.session import PlanResult, TrackingSession
 
 
-class PlanOutputs(SafeNode):
+class PlanOutputs(GuardedNode):
     """The planner node's publishers of plans; it creates them on configure."""
 
     frame: str

@@ -40,6 +40,7 @@ from nh_tracking.receding_horizon import PlannerSettings
 from nh_tracking.ros import conversions as cv, messages as msgs
 from nh_tracking.ros.clock_watch import ClockWatchdog
 from nh_tracking.ros.follow_path import FollowPathServer
+from nh_tracking.ros.guarded import guarded
 from nh_tracking.ros.lifecycle import answer_every_transition
 from nh_tracking.ros.obstacle_listener import DISC_SIZE, ObstacleListener
 from nh_tracking.ros.odometry_receiver import OdometryReceiver
@@ -51,7 +52,6 @@ from nh_tracking.ros.planner_parameters import RuntimeParameters
 from nh_tracking.ros.planner_services import PlannerServices
 from nh_tracking.ros.reference_receiver import ReferenceReceiver
 from nh_tracking.ros.runner import autostart
-from nh_tracking.ros.safety import guarded
 from nh_tracking.session import TrackingSession
 from nh_tracking.session_types import ClockSkew
 

@@ -21,15 +21,15 @@ from rcl_interfaces.msg import SetParametersResult
 
 from nh_tracking.goal_checking import GoalSettings
 from nh_tracking.receding_horizon import PlannerSettings
+from nh_tracking.ros.guarded import guarded, GuardedNode
 from nh_tracking.ros.planner_interface import GOAL, ROUTE, SETTINGS
-from nh_tracking.ros.safety import guarded, SafeNode
 from nh_tracking.route import RouteSettings
 from nh_tracking.session import TrackingSession
 
 _SETTING_NAMES = {s.name for s in SETTINGS}
 
 
-class RuntimeParameters(SafeNode):
+class RuntimeParameters(GuardedNode):
     """The planner node's parameter handling: ``ros2 param set`` never stops the plan in force."""
 
     session: TrackingSession | None

@@ -43,10 +43,10 @@ from nh_tracking.limits import bounds_from_lists
 from nh_tracking.poses import PoseMap
 from nh_tracking.ros import conversions as cv
 from nh_tracking.ros import messages as msgs
+from nh_tracking.ros.guarded import guarded
 from nh_tracking.ros.obstacle_listener import ObstacleListener
 from nh_tracking.ros.parameters import declare, declare_all, declare_model, plain
 from nh_tracking.ros.planner_interface import COSTMAP_THRESHOLD, JOINT_NAMES
-from nh_tracking.ros.safety import guarded
 from nh_tracking.simulate import drive, LeftDomain, simulate
 
 PARAMETERS = (

@@ -43,9 +43,9 @@ from nh_tracking.problem import Solution, terminal_cost, terminal_error, Trackin
 from nh_tracking.solvers.base import Guess, Method, Structure
 from nh_tracking.solvers.hamiltonian import pontryagin_flow
 from nh_tracking.solvers.nlp import DEADLINE, deadline_after
+from nh_tracking.solvers.pmp_shooting import (Diverged, mu_knots, OutOfTime, shoot_arcs,
+                                              shoot_whole, Shooter)
 from nh_tracking.solvers.replay import held_controls
-from nh_tracking.solvers.shooting import (Diverged, mu_knots, multiple_shooting, OutOfTime,
-                                          Shooter, single_shooting)
 from nh_tracking.solvers.variational import Variational
 from nh_tracking.system import NonholonomicSystem
 
@@ -72,13 +72,13 @@ def solve_pmp(problem: TrackingProblem, max_time: float = 60.0,
     try:
         if guess is None or initial_costates is not None:
             attempts.append('zero-costates' if initial_costates is None else 'given-costates')
-            starts, ok = single_shooting(shooter, p0)
+            starts, ok = shoot_whole(shooter, p0)
         if not ok:
             variational = fallback.solve_until(problem, guess, stop)
             assert variational.costates is not None  # the fallback is Variational
             lam, mu = variational.costates
             attempts.append('variational-costates')
-            starts, ok = single_shooting(shooter, np.concatenate([lam[0], mu_knots(mu)[0]]))
+            starts, ok = shoot_whole(shooter, np.concatenate([lam[0], mu_knots(mu)[0]]))
             # a few segments, then one per interval for a strongly unstable flow (between
             # the two, root finding fails slowly: the snakeboard's 20 segments took 45 s)
             for segments in sorted({min(SEGMENTS, problem.steps), problem.steps}):
@@ -86,7 +86,7 @@ def solve_pmp(problem: TrackingProblem, max_time: float = 60.0,
                     break
                 nodes = np.unique(np.linspace(0, problem.steps, segments + 1).round().astype(int))
                 attempts.append(f'multiple-shooting-pmp ({segments} segments)')
-                starts, ok = multiple_shooting(shooter, variational, nodes)
+                starts, ok = shoot_arcs(shooter, variational, nodes)
     except OutOfTime:
         attempts.append(f'{DEADLINE} (after {max_time:g} s)')
         ok = False

@@ -51,7 +51,7 @@ class RepeatCounter:
         return problem + (f' ({held} more like it held back)' if held else '')
 
 
-class SafeNode(Node):
+class GuardedNode(Node):
     """A node that rejects bad input with one log line and counts what went wrong.
 
     A problem repeated is logged (and reported at once) once per :data:`LOG_PERIOD`, with a
@@ -113,10 +113,10 @@ class SafeNode(Node):
 
 
 def guarded(what: str):
-    """Decorate a SafeNode callback: InputRejected -> reject(), anything else -> fail()."""
+    """Decorate a GuardedNode callback: InputRejected -> reject(), anything else -> fail()."""
     def wrap(fn):
         @functools.wraps(fn)
-        def inner(self: SafeNode, *args, **kwargs):
+        def inner(self: GuardedNode, *args, **kwargs):
             try:
                 return fn(self, *args, **kwargs)
             except InputRejected as exc:

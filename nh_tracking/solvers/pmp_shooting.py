@@ -137,7 +137,7 @@ def _solve_root(fun, w0: np.ndarray) -> tuple[np.ndarray, bool]:
         return w0, False
 
 
-def single_shooting(shooter: Shooter, p0: np.ndarray) -> tuple[list[np.ndarray], bool]:
+def shoot_whole(shooter: Shooter, p0: np.ndarray) -> tuple[list[np.ndarray], bool]:
     """Root of the terminal conditions in the initial costates p(t0)."""
     prob = shooter.problem
     x0 = np.concatenate([prob.q0, prob.v0])
@@ -153,8 +153,8 @@ def single_shooting(shooter: Shooter, p0: np.ndarray) -> tuple[list[np.ndarray],
     return [np.concatenate([x0, p])], ok
 
 
-def multiple_shooting(shooter: Shooter, guess: Solution,
-                      nodes: np.ndarray) -> tuple[list[np.ndarray], bool]:
+def shoot_arcs(shooter: Shooter, guess: Solution,
+               nodes: np.ndarray) -> tuple[list[np.ndarray], bool]:
     """PMP boundary-value problem on segments between ``nodes`` (knot indices).
 
     Unknowns are p(t0) and the full z at interior nodes; residuals are the matching and terminal
