@@ -33,10 +33,7 @@ from nh_tracking import regularity
 
 
 def directional_derivative(expr: ca.SX, q: ca.SX, direction: ca.SX) -> ca.SX:
-    """D expr/dq .
-
-    direction, for a matrix-valued ``expr`` (shape kept).
-    """
+    """Return D expr/dq . direction, for a matrix-valued ``expr`` (shape kept)."""
     flat = ca.reshape(expr, -1, 1)
     return ca.reshape(ca.jtimes(flat, q, direction), expr.shape[0], expr.shape[1])
 

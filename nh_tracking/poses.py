@@ -191,9 +191,7 @@ class PoseMap:
     def reference(self, times: np.ndarray, poses: np.ndarray,
                   body_twists: np.ndarray | None = None,
                   hidden0: np.ndarray | None = None) -> Trajectory:
-        """Return a reference Trajectory from timed poses (N, 4) and optionally body twists (N.
-
-        4).
+        """Return a reference Trajectory from timed poses (N, 4) and body twists (N, 4) or None.
 
         Without twists, velocities are the derivatives of a C2 spline through the poses (yaw
         unwrapped first). Either way they are projected onto D. Hidden coordinates the motion

@@ -146,9 +146,9 @@ def wrap(angle: np.ndarray) -> np.ndarray:
 
 
 def _resampled(poses: np.ndarray) -> np.ndarray:
-    """``poses`` with every segment longer than :data:`SPACING` cut into equal parts.
+    """Return ``poses`` with every segment longer than :data:`SPACING` cut into equal parts.
 
-    Or longer than a :data:`MAX_POINTS`-th of the route: the work stays bounded.
+    The parts are at least a :data:`MAX_POINTS`-th of the route: the work stays bounded.
     """
     lengths = np.hypot(*np.diff(poses[:, :2], axis=0).T)
     spacing = max(SPACING, lengths.sum() / MAX_POINTS)

@@ -52,9 +52,9 @@ def described(cls: type) -> list[tuple[str, Any, Setting]]:
 
 
 def check(value: Any, name: str, default: Any, meta: Setting) -> Any:
-    """``value`` as the type of ``default`` within ``meta``'s limits.
+    """Return ``value`` as the type of ``default`` within ``meta``'s limits.
 
-    Or ValueError naming the field (an integer is accepted for a floating-point field).
+    ValueError names the field otherwise (an integer is accepted for a floating-point field).
     """
     kind = type(default)
     if kind is float and isinstance(value, int) and not isinstance(value, bool):

@@ -123,9 +123,9 @@ def plot_energy(system: NonholonomicSystem, solution, fine: Trajectory, path: Pa
 
 def plot_closed_loop(reference: Trajectory, t: np.ndarray, xy: np.ndarray, error: np.ndarray,
                      solve_t: np.ndarray, solve_s: np.ndarray, path: Path) -> Path:
-    """Plot the closed loop: reference vs driven path, cross-track error.
+    """Plot the closed loop: reference vs driven path, cross-track error, solve times.
 
-    And solve times (all times from the start of the run).
+    All times are from the start of the run.
     """
     fig, axes = _subplots(1, 3, figsize=(16, 4.8))
     ax = axes[0]

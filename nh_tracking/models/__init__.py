@@ -48,10 +48,7 @@ ENTRY_POINTS = 'nh_tracking.models'
 
 
 def spec(name: str) -> ModelSpec:
-    """Return the model called ``name``: built-in, from an entry point.
-
-    Or ``package.module:attr``.
-    """
+    """Return the model called ``name``: built-in, an entry point or ``package.module:attr``."""
     if name in MODELS:
         return MODELS[name]
     plugins = {ep.name: ep for ep in entry_points(group=ENTRY_POINTS)}

@@ -12,10 +12,10 @@
 # See the License for the specific language governing permissions and
 # limitations under the License.
 
-"""What the package knows about a model beyond its equations: its physical parameters (range.
+"""What the package knows about a model beyond its equations: its physical parameters.
 
-Unit, meaning), so every front end — ROS parameters, the command line, documentation — reads them
-from one place instead of knowing each robot.
+Their ranges, units and meanings, so every front end — ROS parameters, the command line,
+documentation — reads them from one place instead of knowing each robot.
 """
 from __future__ import annotations
 

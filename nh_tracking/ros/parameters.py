@@ -12,9 +12,10 @@
 # See the License for the specific language governing permissions and
 # limitations under the License.
 
-"""Parameters as data: one table per node gives the declarations, their descriptors (ranges.
+"""Parameters as data: one table per node gives the declarations and their descriptors.
 
-Descriptions), the start-up checks, ``--help`` and the installed parameter file.
+The same table gives the ranges, descriptions, start-up checks, ``--help`` and the installed
+parameter file.
 
 Start-up values are checked before they are declared, so a bad ``-p`` or params file ends the
 process with one line naming the parameter instead of a traceback; an integer given for a

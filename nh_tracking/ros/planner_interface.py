@@ -12,9 +12,10 @@
 # See the License for the specific language governing permissions and
 # limitations under the License.
 
-"""The planner's contract with the ROS graph beyond topic names: the QoS it offers and expects.
+"""The planner's contract with the ROS graph beyond topic names: QoS and parameters.
 
-And its parameters (declared from the settings dataclasses, plus the ROS-only ones).
+The QoS it offers and expects, and its parameters (declared from the settings dataclasses,
+plus the ROS-only ones).
 """
 from __future__ import annotations
 

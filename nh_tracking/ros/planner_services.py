@@ -152,10 +152,10 @@ class PlannerServices:
 
     def on_plan(self, request: GetPlan.Request, response: GetPlan.Response
                 ) -> GetPlan.Response:
-        """Answer with a plan from ``start`` (at rest).
+        """Answer with a plan tracking the active reference, from ``start`` (at rest).
 
-        Or from the latest odometry when start's frame is empty, tracking the active reference; an
-        empty path when there is none to give.
+        From the latest odometry when start's frame is empty; an empty path when there is none
+        to give.
         """
         node = self.planner
         response.plan = Path()

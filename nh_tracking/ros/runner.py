@@ -106,9 +106,10 @@ def _shut_down() -> None:
 
 def run(make_node: Callable[[], Node], usage: Callable[[Sequence[str]], str],
         args: Sequence[str] | None = None) -> int:
-    """Create the node and spin it until Ctrl-C, SIGTERM or an external shutdown; exit code 0.
+    """Create the node and spin it until Ctrl-C, SIGTERM or an external shutdown.
 
-    Or 2 when the node cannot start (bad parameters), with the reason on stderr.
+    Returns the exit code: 0, or 2 when the node cannot start (bad parameters), with the
+    reason on stderr.
     """
     argv = list(sys.argv if args is None else args)
     if _wants_help(argv[1:]):

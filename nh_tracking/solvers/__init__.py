@@ -67,17 +67,17 @@ def solve(problem: TrackingProblem, method: str | Method = 'variational', *, sta
           initial_guess: Solution | Trajectory | None = None, seed: int = 0,
           processes: int | None = None, max_time: float | None = None,
           second_look: bool = True, **options: object) -> Solution:
-    """Solve ``problem`` with ``method`` (a name and its ``options``, e.g. ``compiled=True``.
+    """Solve ``problem`` with ``method``: a name and its ``options``, or a :class:`Method`.
 
-    Or a :class:`Method`). ``max_time`` [s] bounds the wall time of the call, every route and
-    the second look included (it then stops and reports failure). ``second_look`` re-solves
-    once from a perturbed copy of the plan, unless the method proves it a strict local minimum
-    (:meth:`Method.proves_minimum`): a stationary point that is not a minimum (a saddle,
-    typical of symmetric starts) is then reported and the better plan returned, and a failure
-    from a degenerate start gets a second chance — about one warm solve more. With
-    ``starts`` > 1, that many initial guesses (``initial_guess`` or the default one, and
-    random perturbations of it) run in parallel processes; the best plan is returned with the
-    distinct local minima found in ``Solution.minima`` — plans that do not replay on the
+    Options are keywords, e.g. ``compiled=True``. ``max_time`` [s] bounds the wall time of the
+    call, every route and the second look included (it then stops and reports failure).
+    ``second_look`` re-solves once from a perturbed copy of the plan, unless the method proves
+    it a strict local minimum (:meth:`Method.proves_minimum`): a stationary point that is not a
+    minimum (a saddle, typical of symmetric starts) is then reported and the better plan
+    returned, and a failure from a degenerate start gets a second chance — about one warm
+    solve more. With ``starts`` > 1, that many initial guesses (``initial_guess`` or the
+    default one, and random perturbations of it) run in parallel processes; the best plan is
+    returned with the distinct local minima found in ``Solution.minima`` — plans that do not replay on the
     continuous dynamics (time-step artefacts) are not counted as minima. A plan that leaves
     the model's domain, or whose intervals do not replay on the continuous dynamics, is no
     success.

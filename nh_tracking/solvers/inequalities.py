@@ -18,8 +18,8 @@ An NLP is built for a *shape* of limits — which kinds are bounded, how many ob
 each clearance point has — so replanning with new bound values or moving obstacles only changes
 numbers. Each knot and midpoint has slots of its own, filled with the discs nearest it on the
 guess (parameters of the solve): all of them while they fit, the nearest :data:`POINT_SLOTS`
-of more, so past 4 obstacles the NLP's size no longer grows with them (8 discs in every point's
-rows made every replan about 2x a free one, in contact or not). The plan is then checked
+of more, so past 4 obstacles the NLP's size does not grow with them (8 discs in every point's
+rows would make every replan about 2x a free one, in contact or not). The plan is then checked
 against every disc, and re-solved where it touches one it was not given. Clearance is written
 squared, |p - c|^2 - R^2 >= 0, which is smooth.
 
@@ -81,8 +81,9 @@ class Shape:
 class ConstraintStack:
     """An NLP's constraint blocks in order, and the rows they fill: where the next one starts.
 
-    Limits record the rows they occupy; summing the blocks' heights at each use was quadratic
-    in the horizon (the builder's hottest loop, holding the interpreter from the executor).
+    Limits record the rows they occupy: summing the blocks' heights at each use would be
+    quadratic in the horizon (the builder's hottest loop, holding the interpreter from the
+    executor).
     """
 
     def __init__(self) -> None:

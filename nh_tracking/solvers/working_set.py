@@ -25,9 +25,9 @@ held rows whose multipliers have the wrong sign are let go. The steps go on unti
 moving the plan, each starting from the last step's working set, the first from the rows the
 guess (a previous plan within the limits) has at a bound. A local method: from the same guess
 it may settle on other contact points with an obstacle than fatrop does — another local
-minimum (a reviewer's 1 in 17 perturbed guesses ended 1.25 % above fatrop's). Nothing
-globalises it: a budget exceeded, a step twice the last, a non-finite step, the deadline or a
-saddle returns None, and the caller solves by interior point, as before.
+minimum (1 in 17 perturbed guesses ended 1.25 % above fatrop's). Nothing globalises it: a
+budget exceeded, a step twice the last, a non-finite step, the deadline or a saddle returns
+None, and the caller solves by interior point.
 """
 from __future__ import annotations
 
@@ -56,7 +56,7 @@ STATIONARITY_TOL = 1e-4  # |Jᵀr + Gᵀλ|∞ at the step's start with its mult
 # disc: steps of 1e-2, 5e-5, then 3e-9)
 CONTRACTION, NEXT_TOL = 0.1, 1e-9
 FEASIBLE_TOL = 1e-8  # ... and g at the plan within this of the set (equalities, held rows,
-# free rows' bounds): the estimate runs up to 44x optimistic (a reviewer), and this keeps an
+# free rows' bounds): the estimate runs up to 44x optimistic, and this keeps an
 # optimistic one from ending the solve short of admissible (one evaluation of g: 20 us). Past
 # two discs g was within 3.5e-10 in the median where the estimate held, 1.1e-8 at worst; 1e-9
 # here made those replans 1.88x the free ones instead of about 1.6x
