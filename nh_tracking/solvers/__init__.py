@@ -77,10 +77,10 @@ def solve(problem: TrackingProblem, method: str | Method = 'variational', *, sta
     returned, and a failure from a degenerate start gets a second chance — about one warm
     solve more. With ``starts`` > 1, that many initial guesses (``initial_guess`` or the
     default one, and random perturbations of it) run in parallel processes; the best plan is
-    returned with the distinct local minima found in ``Solution.minima`` — plans that do not replay on the
-    continuous dynamics (time-step artefacts) are not counted as minima. A plan that leaves
-    the model's domain, or whose intervals do not replay on the continuous dynamics, is no
-    success.
+    returned with the distinct local minima found in ``Solution.minima`` — plans that do not
+    replay on the continuous dynamics (time-step artefacts) are not counted as minima. A plan
+    that leaves the model's domain, or whose intervals do not replay on the continuous
+    dynamics, is no success.
     """
     solver = make_method(method, **options)
     if isinstance(starts, bool) or not isinstance(starts, (int, np.integer)) or starts < 1:
