@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# The benchmark, with do-mpc (the optional 'bench' extra) as the peer it is compared against.
+# The benchmark, with its peers (do-mpc, rockit-meco) installed into .venv first.
 source "$(dirname "${BASH_SOURCE[0]}")/venv.sh"
-python -m pip install -q --disable-pip-version-check "do-mpc==5.1.2"
+python -m pip install -q --disable-pip-version-check "do-mpc==5.1.2" "rockit-meco==0.6.7"
 exec nh-tracking bench --out results/bench "$@"

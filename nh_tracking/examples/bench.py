@@ -242,6 +242,12 @@ def acceptance(results: dict) -> dict:
         verdicts['cold solve >= 10x faster than do-mpc (default settings)'] = {
             'value': f'{ratio:.1f}x (median of per-round ratios; quartiles {low:.1f}-{high:.1f}x)',
             'pass': ratio >= 10}
+    for section, peer, bar in (('cold', 'rockit_fatrop', 3), ('warm', 'do_mpc', 20),
+                               ('warm', 'rockit_fatrop', 3)):
+        measured = (cold if section == 'cold' else cold.get('warm', {})).get(peer)
+        if measured:
+            verdicts[f'{section} solve >= {bar}x faster than {peer} (public API, defaults)'] = {
+                'value': f"{measured['speedup']:.1f}x", 'pass': measured['speedup'] >= bar}
     for mode, warm in results.get('warm_replanning', {}).items():
         verdicts[f'warm p50 <= 0.5 ms, p99 <= 2 ms, no misses at 100 Hz ({mode})'] = {
             'value': f"p50 {warm['p50']:.2f} ms, p99 {warm['p99']:.2f} ms, "

@@ -16,6 +16,7 @@
 from __future__ import annotations
 
 from collections.abc import Callable, Mapping
+import dataclasses
 from functools import partial
 import time
 from typing import Any, TypeVar
@@ -31,6 +32,7 @@ from nh_tracking.solvers.midpoint import transcription
 from nh_tracking.solvers.variational import solve_variational
 
 COLD_ROUNDS = 21  # each round times every tool once
+WARM_OFFSET = 1e-2  # a warm re-solve's start, moved from the last plan's
 T = TypeVar('T')
 
 
@@ -100,18 +102,34 @@ def cold_solve(log: Callable[[str], None]) -> dict:
         solves[name] = partial(_ours, problem, solver, compiled, newton)
         solves[name]()  # (builds what the first solve builds: the Newton step)
         built[name] = time.perf_counter() - start
-    peer_names = []
-    for name, peer in (('do_mpc', peers.dompc), ('opti_ipopt_ms', peers.opti_multiple_shooting)):
-        try:
-            contender = peer(problem)
-        except ImportError:
-            log(f"  {name} not installed (pip install '.[bench]'): comparison skipped")
-            continue
+    contenders = _peers(problem, log)
+    for name, contender in contenders.items():
         solves[name] = partial(_theirs, contender.solve)
         built[name] = contender.build_s
-        peer_names.append(name)
+    out = _compared(solves, built, list(contenders), log)
+    out['warm'] = _warm_resolve(problem, contenders, log)
+    return out
+
+
+def _peers(problem: TrackingProblem, log: Callable[[str], None]) -> dict[str, peers.Contender]:
+    """Return the peers installed, set up for ``problem``."""
+    contenders = {}
+    for name, peer in (('do_mpc', peers.dompc), ('opti_ipopt_ms', peers.opti_multiple_shooting),
+                       ('rockit_fatrop', peers.rockit_fatrop)):
+        try:
+            contenders[name] = peer(problem)
+        except ImportError:
+            log(f'  {name} not installed (scripts/bench.sh installs it): comparison skipped')
+    return contenders
+
+
+def _compared(solves: dict[str, Callable[[], tuple[float, int | None]]],
+              built: dict[str, float], peer_names: list[str], log: Callable[[str], None]
+              ) -> dict[str, Any]:
+    """Time ``solves`` in interleaved rounds; each peer's speed-up against 'variational'."""
     times, results = interleaved(solves, COLD_ROUNDS)
-    out: dict[str, Any] = {'rounds': COLD_ROUNDS, 'do_mpc': None, 'opti_ipopt_ms': None}
+    out: dict[str, Any] = {'rounds': COLD_ROUNDS, 'do_mpc': None, 'opti_ipopt_ms': None,
+                           'rockit_fatrop': None}
     for name, (cost, iterations) in results.items():
         out[name] = {'median_s': float(np.median(times[name])), 'cost': cost,
                      'iterations': iterations, 'build_s': built[name]}
@@ -126,3 +144,37 @@ def cold_solve(log: Callable[[str], None]) -> dict:
             f"(median of {COLD_ROUNDS} rounds' ratios; quartiles "
             f"{out[name]['speedup_quartiles'][0]:.1f}-{out[name]['speedup_quartiles'][1]:.1f}x)")
     return out
+
+
+def _warm_resolve(problem: TrackingProblem, contenders: dict[str, peers.Contender],
+                  log: Callable[[str], None]) -> dict[str, Any]:
+    """Re-solve from each tool's last plan, the start moved by +-1e-2 in turn.
+
+    Ours: ``nht.solve(moved, initial_guess=last)``, default settings.
+    """
+    log('  warm re-solve (start moved by +-1e-2 from the last plan, in turn):')
+    n, last = problem.system.n, [solve(problem)]
+
+    def ours(offset: np.ndarray) -> float:
+        moved = dataclasses.replace(problem, q0=problem.q0 + offset[:n],
+                                    v0=problem.v0 + offset[n:])
+        last[0] = solve(moved, initial_guess=last[0])
+        return last[0].cost
+
+    warm = {'variational': ours, **{name: c.warm for name, c in contenders.items()
+                                    if c.warm is not None}}
+    solves = {name: _alternating(run, n + problem.system.k) for name, run in warm.items()}
+    for run in solves.values():
+        run()  # each from its own last solution from here on
+    return _compared(solves, dict.fromkeys(solves, 0.0), list(solves)[1:], log)
+
+
+def _alternating(warm: Callable[[np.ndarray], float], size: int
+                 ) -> Callable[[], tuple[float, int | None]]:
+    """Call ``warm`` with the start moved by +WARM_OFFSET, then -WARM_OFFSET, and so on."""
+    sign = [1.0]
+
+    def run() -> tuple[float, int | None]:
+        sign[0] = -sign[0]
+        return warm(np.full(size, WARM_OFFSET * sign[0])), None
+    return run

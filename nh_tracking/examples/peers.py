@@ -24,6 +24,12 @@ same function), never handed this package's derived expressions:
   IPOPT; the reference as time-varying parameters; the terminal state fixed by terminal bounds.
 - CasADi Opti + IPOPT, direct multiple shooting with one RK4 step per interval, as MPC tutorials
   write it; its guess is the start state at every knot (do-mpc's default guess).
+- rockit + fatrop: an ``Ocp`` with the same multiple shooting (RK4, one step an interval), the
+  reference and the start as parameters, fatrop with structure detection, called through
+  ``ocp.to_function`` as rockit's MPC examples do.
+
+A warm re-solve (``Contender.warm``) starts from the tool's previous solution with the start
+moved by ``offset``: do-mpc's own warm start, rockit's function fed its last solution.
 """
 from __future__ import annotations
 
@@ -68,6 +74,7 @@ class Contender:
 
     solve: Callable[[], float]
     build_s: float  # set-up [s]: model, solver, and for Opti its first solve
+    warm: Callable[[np.ndarray], float] | None = None  # start offset -> objective
 
 
 def dompc(problem: TrackingProblem) -> Contender:
@@ -88,7 +95,12 @@ def dompc(problem: TrackingProblem) -> Contender:
             mpc.make_step(x0)
         return float(mpc.solver_stats['iterations']['obj'][-1])
 
-    return Contender(solve, build)
+    def warm(offset: np.ndarray) -> float:  # from its previous solution, as make_step does
+        with _legacy_numpy():
+            mpc.make_step(x0 + offset)
+        return float(mpc.solver_stats['iterations']['obj'][-1])
+
+    return Contender(solve, build, warm)
 
 
 @contextmanager
@@ -155,3 +167,40 @@ def opti_multiple_shooting(problem: TrackingProblem) -> Contender:
     opti.solve()  # the first solve builds IPOPT's functions: counted as set-up
     build = time.perf_counter() - start
     return Contender(lambda: float(opti.solve().value(cost)), build)
+
+
+def rockit_fatrop(problem: TrackingProblem) -> Contender:
+    """Set the sleigh up in rockit with fatrop, called through ``ocp.to_function``."""
+    from rockit import MultipleShooting, Ocp  # (rockit-meco: the bench's extra)
+    parameters, reference, x0 = _numbers(problem)
+    start = time.perf_counter()
+    ocp = Ocp(T=problem.horizon)
+    x, u = ocp.state(5), ocp.control(2)
+    x_ref, x_start = ocp.parameter(5, grid='control+'), ocp.parameter(5)
+    ocp.set_der(x, sleigh_rhs(x, u, **parameters))
+    ocp.add_objective(ocp.sum(problem.h * 0.5 * (ca.sumsqr(x - x_ref)
+                                                 + problem.epsilon * ca.sumsqr(u))))
+    ocp.subject_to(ocp.at_t0(x) == x_start)
+    ocp.subject_to(ocp.at_tf(x) == ocp.at_tf(x_ref))
+    ocp.method(MultipleShooting(N=problem.steps, M=1, intg='rk'))
+    ocp.solver('fatrop', {'structure_detection': 'auto', 'expand': True, 'print_time': False,
+                          'fatrop.print_level': 0})
+    ocp.set_value(x_ref, reference.T)
+    ocp.set_value(x_start, x0)
+    ocp.set_initial(x, x0)
+    ocp.solve()  # builds the solver
+    states, controls = ocp.sample(x, grid='control')[1], ocp.sample(u, grid='control-')[1]
+    plan = ocp.to_function('plan', [x_start, ocp.sample(x_ref, grid='control')[1], states,
+                                    controls], [states, controls])
+    build = time.perf_counter() - start
+    cold_guess = (np.tile(x0[:, None], (1, problem.steps + 1)), np.zeros((2, problem.steps)))
+    last = list(cold_guess)
+
+    def run(start_state: np.ndarray, guess: tuple | list) -> float:
+        xs, us = (np.array(a) for a in plan(start_state, reference.T, *guess))
+        last[:] = [xs, us]
+        return problem.h * 0.5 * float(np.sum((xs[:, :-1] - reference[:-1].T) ** 2)
+                                       + problem.epsilon * np.sum(us ** 2))
+
+    return Contender(lambda: run(x0, cold_guess), build,
+                     lambda offset: run(x0 + offset, last))
