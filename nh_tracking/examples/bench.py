@@ -249,10 +249,11 @@ def acceptance(results: dict) -> dict:
             verdicts[f'{section} solve >= {bar}x faster than {peer} (public API, defaults)'] = {
                 'value': f"{measured['speedup']:.1f}x", 'pass': measured['speedup'] >= bar}
     for mode, warm in results.get('warm_replanning', {}).items():
-        verdicts[f'warm p50 <= 0.5 ms, p99 <= 2 ms, no misses at 100 Hz ({mode})'] = {
-            'value': f"p50 {warm['p50']:.2f} ms, p99 {warm['p99']:.2f} ms, "
+        call = warm['plan_call_ms']  # the planner call's wall clock, not the solver's own
+        verdicts[f'warm plan() p50 <= 0.5 ms, p99 <= 2 ms, no misses at 100 Hz ({mode})'] = {
+            'value': f"p50 {call['p50']:.2f} ms, p99 {call['p99']:.2f} ms, "
                      f"{warm['deadline_misses']} misses",
-            'pass': warm['p50'] <= 0.5 and warm['p99'] <= 2 and warm['deadline_misses'] == 0}
+            'pass': call['p50'] <= 0.5 and call['p99'] <= 2 and warm['deadline_misses'] == 0}
     scale = results.get('scaling')
     if scale:
         verdicts['t(N=800)/t(N=50) <= 16'] = {'value': f"{scale['ratio_800_50']:.1f}",
