@@ -96,7 +96,7 @@ def _violation(g: Symbolic, inequality: np.ndarray, lower: Symbolic,
         return ca.fabs(g), type(g)(0, 1)
     equality = np.setdiff1d(np.arange(g.shape[0]), inequality)
     held = g[inequality.tolist()]
-    return (ca.fabs(g[equality.tolist()]),
+    return (ca.fabs(g[equality.tolist()]) if len(equality) else type(g)(0, 1),
             ca.fmax(ca.fmax(lower - held, held - upper), 0))
 
 

@@ -60,6 +60,7 @@ FEASIBLE_TOL = 1e-8  # ... and g at the plan within this of the set (equalities,
 # optimistic one from ending the solve short of admissible (one evaluation of g: 20 us). Past
 # two discs g was within 3.5e-10 in the median where the estimate held, 1.1e-8 at worst; 1e-9
 # here made those replans 1.88x the free ones instead of about 1.6x
+CONTRADICTION_TOL = 1e-6  # settled steps with g further off the set: limits that cannot all hold
 NEAR_BOUND = 1e-6  # a row this close to a bound (or beyond) at a step's start is held there
 ACTIVE_TOL = 1e-9  # a free row a step takes further beyond its bound than this stops it
 TOGETHER = 1e-9  # rows reached within this fraction of a step of the first are held with it
@@ -272,6 +273,12 @@ def working_set_solve(step: NewtonStep, constraints: NumericFunction, w: np.ndar
         if not (converged or changed) and quadratic:  # (quadratic: a second step at least)
             at_w = constraints(w, p)[0]
             converged = rows.residual(at_w) <= FEASIBLE_TOL
+        if converged and rows.limited and at_w is None:
+            # held rows that cannot all hold (contradictory limits) still let the steps settle,
+            # the regularised multipliers growing without bound: g tells
+            converged = rows.residual(constraints(w, p)[0]) <= CONTRADICTION_TOL
+            if not converged:
+                return None
         if converged:
             checked = wandered or bool(np.any(nonconvex & rows.held() & ~guessed))
             if checked and not step.minimum(w, p, *rows.arguments(), multipliers):
