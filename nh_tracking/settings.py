@@ -15,8 +15,8 @@
 """Settings as data: each field of a settings dataclass carries its meaning, unit and limits.
 
 One declaration gives the check (:func:`check`), the ROS parameter descriptors and ``--help``
-(:mod:`nh_tracking.ros.parameters`) and the README's parameter table (:func:`markdown_table`),
-so the three cannot disagree. The pattern of do-mpc's settings dataclasses, with the limits
+(:mod:`nh_tracking.ros.parameters`) and the parameter tables of docs/ros.md
+(:func:`markdown_table`), so the three cannot disagree. The pattern of do-mpc's settings dataclasses, with the limits
 machine-readable.
 """
 from __future__ import annotations
@@ -114,7 +114,7 @@ def _type_name(kind: type) -> str:
 
 
 def markdown_table(rows: list[tuple[str, Any, Setting]]) -> str:
-    """Return a README table: name, default, unit, range or choices, meaning."""
+    """Return a parameter table (docs/ros.md): name, default, unit, range or choices, meaning."""
     lines = ['| parameter | default | unit | range | meaning |', '|---|---|---|---|---|']
     for name, default, meta in rows:
         limits = (f'{meta.bounds[0]:g} – {meta.bounds[1]:g}' if meta.bounds else

@@ -139,13 +139,14 @@ def test_the_rviz_configuration_shows_what_the_nodes_publish_in_the_odom_frame()
     assert all(d['Topic']['Durability Policy'] == 'Transient Local' for d in latched)
 
 
-def test_readme_parameter_tables_are_the_declared_ones():
-    """The README's tables are generated from the same declarations as the ROS descriptors.
+def test_ros_reference_parameter_tables_are_the_declared_ones():
+    """The parameter tables of docs/ros.md are generated from the ROS descriptors' declarations.
 
-    The checks and --help: regenerate them when a setting changes.
+    The same declarations give the checks and --help: regenerate the tables when a setting
+    changes.
     """
     from nh_tracking.ros.parameters import parameter_table
 
-    readme = (ROOT / 'README.md').read_text()
+    reference = (ROOT / 'docs' / 'ros.md').read_text()
     for specs in (planner_node.PARAMETERS, simulator_node.PARAMETERS):
-        assert parameter_table(specs) in readme
+        assert parameter_table(specs) in reference

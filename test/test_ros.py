@@ -492,7 +492,7 @@ def test_an_underactuated_snakeboard_runs_through_the_nodes(graph):
     The reference is a path the snakeboard makes with its own rotor and steering torques. The
     shape (psi, phi) is in neither a Path nor Odometry, so the planner cannot see the steering
     angle it drives: over seconds phi drifts to the edge of its domain (a known limit, noted in
-    the README). Checked over the first plans: the torques go through and move the robot.
+    the user guide). Checked over the first plans: the torques go through and move the robot.
     """
     import nh_tracking as nht
 

@@ -219,7 +219,7 @@ def _line(spec: ParameterSpec) -> str:
 
 
 def parameter_table(specs: tuple[ParameterSpec, ...]) -> str:
-    """Return the README's table of a node's parameters (``model`` first), from the same specs."""
+    """Return docs/ros.md's table of a node's parameters (``model`` first), from the same specs."""
     rows = [(s.name, s.default, s.meta if not s.read_only else Setting(
         s.meta.description + ' (read-only)', s.meta.unit, s.meta.bounds, s.meta.choices))
         for s in (MODEL, *specs)]

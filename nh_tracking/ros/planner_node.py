@@ -61,7 +61,7 @@ AT_REST = 0.01  # [m/s, rad/s] slower than this, a robot being stopped is at res
 
 class PlannerNode(RuntimeParameters, PlanOutputs, ObstacleListener, ClockWatchdog,
                   LifecycleNode):
-    """``nh_tracking_planner``: topics, services and parameters in the README's table."""
+    """``nh_tracking_planner``: topics, services and parameters in docs/ros.md."""
 
     def __init__(self, **kwargs) -> None:
         super().__init__('nh_tracking_planner', **kwargs)

@@ -75,7 +75,7 @@ PARAMETERS = (
 
 
 class SimulatorNode(ObstacleListener):
-    """``nh_tracking_sim``: topics and parameters in the README's table."""
+    """``nh_tracking_sim``: topics and parameters in docs/ros.md."""
 
     def __init__(self, **kwargs) -> None:
         super().__init__('nh_tracking_sim', **kwargs)
