@@ -16,8 +16,8 @@
 
 One declaration gives the check (:func:`check`), the ROS parameter descriptors and ``--help``
 (:mod:`nh_tracking.ros.parameters`) and the parameter tables of docs/ros.md
-(:func:`markdown_table`), so the three cannot disagree. The pattern of do-mpc's settings dataclasses, with the limits
-machine-readable.
+(:func:`markdown_table`), so the three cannot disagree. The pattern of do-mpc's settings
+dataclasses, with the limits machine-readable.
 """
 from __future__ import annotations
 
