@@ -31,6 +31,7 @@ from typing import ClassVar, NamedTuple
 
 import numpy as np
 
+from nh_tracking.detours import detour_guesses
 from nh_tracking.problem import Multipliers, Solution, Terminal, TrackingProblem
 from nh_tracking.solvers.cache import builds_until, NotPrepared
 from nh_tracking.solvers.inequalities import Shape
@@ -172,17 +173,47 @@ class Method(ABC):
               deadline: float | None = None) -> Solution:
         """Solve ``problem`` from ``guess`` (default: the reference).
 
-        ``deadline`` [s, > 0] bounds the solve's wall time, every route and NLP build
-        included (it then stops and reports failure; a build goes on in the background, ready
-        for a later call). A plan that leaves the model's domain is no success.
+        Without a guess, where the reference runs through obstacles, from the reference pushed
+        round them each way (:mod:`nh_tracking.detours`): the cheapest plan found. ``deadline``
+        [s, > 0] bounds the solve's wall time, every route and NLP build included (it then
+        stops and reports failure; a build goes on in the background, ready for a later call).
+        A plan that leaves the model's domain is no success.
         """
         stop, started = deadline_after(deadline), time.perf_counter()
         try:
             with builds_until(stop):
-                solution = self.solve_until(problem, guess, stop)
+                solution, spent = (None, 0.0) if guess is not None else \
+                    self._round_obstacles(problem, stop)
+                if solution is None:
+                    solution = self.solve_until(problem, guess, stop)
+                    solution.solve_time += spent
         except NotPrepared as exc:
             solution = unsolved(problem, self.name, str(exc), time.perf_counter() - started)
         return inside_domain(problem, solution)
+
+    def _round_obstacles(self, problem: TrackingProblem, stop: float | None
+                         ) -> tuple[Solution | None, float]:
+        """Return the cheapest plan from a detour guess (None: none, or none succeeded).
+
+        And the solve time spent on the detours.
+        """
+        q, v = (a.copy() for a in problem.reference_samples[:2])
+        q[0], v[0] = problem.q0, problem.v0
+        best, spent = None, 0.0
+        for knots, sides in detour_guesses(problem, q):
+            plan = self.globalised().solve_until(problem, Guess(knots, v, None), stop)
+            spent += plan.solve_time
+            if plan.success and (best is None or plan.cost < best[0].cost):
+                best = plan, sides
+            if not before(stop):
+                break
+        if best is None:
+            return None, spent
+        plan, sides = best
+        ways = ', '.join('left' if side > 0 else 'right' for side in sides)
+        plan.route = f'{plan.route} (the cheapest way round the obstacles: {ways})'
+        plan.solve_time = spent
+        return plan, spent
 
     def globalised(self) -> Method:
         """Return this method without local shortcuts, for guesses that are not near a minimum.

@@ -1,0 +1,97 @@
+# Copyright 2026 nh_tracking maintainers
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+
+"""Guesses that go round the obstacles a reference runs through, one per way round.
+
+A cold solve started from a reference that runs through a disc sits on the disc's symmetry
+line: the interior point then spends its iteration limit there (2 s for a unicycle on a line
+through a disc's centre) or slides round the side the start leans to, which need not be the
+cheaper one. The reference pushed round each blocking disc on a chosen side, onto the circle
+of its clearance, is a guess near one local minimum per side: solved from each in a few
+milliseconds, the cheaper plan is kept (:meth:`.solvers.base.Method.solve`).
+"""
+from __future__ import annotations
+
+from itertools import product
+
+import numpy as np
+
+from nh_tracking.problem import TrackingProblem
+
+MARGIN = 0.1  # of a disc's (grown) radius: how far outside it a detour guess passes
+MAX_COMBINATIONS = 8  # sides tried for the blocking discs: every combination of up to three
+SAME_DIRECTION = 1e-9  # a reference slower than this along a disc has no direction there
+
+
+def blocking_discs(problem: TrackingProblem, q: np.ndarray) -> np.ndarray:
+    """Return the indices of the discs the knots ``q`` (N+1, n) pass inside, in passing order."""
+    clearance = problem.limits.clearance(q)
+    inside = clearance < 0.0
+    if not inside.any():
+        return np.zeros(0, dtype=int)
+    hit = np.flatnonzero(inside.any(axis=0))
+    first = np.argmax(inside[:, hit], axis=0)
+    return hit[np.argsort(first, kind='stable')]
+
+
+def detour_guesses(problem: TrackingProblem, q: np.ndarray
+                   ) -> list[tuple[np.ndarray, tuple[int, ...]]]:
+    """Return ``q`` pushed round the discs it runs through: (knots, side per disc) per way round.
+
+    Side +1 passes a disc on the left of the direction of travel, -1 on the right. Every
+    combination of sides for up to three blocking discs; past that, all on one side and all on
+    the other. None where ``q`` runs through no disc (or the model has no plane).
+    """
+    limits = problem.limits
+    if limits.plane is None or not len(limits.obstacles):
+        return []
+    blocking = blocking_discs(problem, q)
+    if not len(blocking):
+        return []
+    if 2 ** len(blocking) <= MAX_COMBINATIONS:
+        sides = list(product((1, -1), repeat=len(blocking)))
+    else:
+        sides = [(1,) * len(blocking), (-1,) * len(blocking)]
+    return [(_pushed(problem, q, blocking, choice), choice) for choice in sides]
+
+
+def _pushed(problem: TrackingProblem, q: np.ndarray, blocking: np.ndarray,
+            sides: tuple[int, ...]) -> np.ndarray:
+    """Return ``q`` with its positions moved sideways out of each blocking disc, on its side."""
+    axes = list(problem.limits.plane or ())
+    guess = q.copy()
+    for disc, side in zip(blocking, sides):
+        centre, radius = problem.limits.obstacles[disc, :2], problem.limits.obstacles[disc, 2]
+        position = guess[:, axes]
+        along = _direction_past(position, centre)
+        normal = side * np.array([-along[1], along[0]])
+        offset = position - centre
+        a, b = offset @ along, offset @ normal
+        reach = radius * (1.0 + MARGIN)
+        need = np.sqrt(np.maximum(reach**2 - a**2, 0.0))
+        lift = np.where(np.abs(a) < reach, np.maximum(need - b, 0.0), 0.0)
+        guess[:, axes] = position + lift[:, None] * normal
+    guess[0] = q[0]  # the start is the robot's
+    return guess
+
+
+def _direction_past(position: np.ndarray, centre: np.ndarray) -> np.ndarray:
+    """Return the unit direction in which the path passes ``centre`` (nearest point's chord)."""
+    nearest = int(np.argmin(np.linalg.norm(position - centre, axis=1)))
+    before, after = position[max(nearest - 1, 0)], position[min(nearest + 1, len(position) - 1)]
+    chord = after - before
+    if np.linalg.norm(chord) <= SAME_DIRECTION:  # at rest there: the whole path's direction
+        chord = position[-1] - position[0]
+    length = float(np.linalg.norm(chord))
+    return chord / length if length > SAME_DIRECTION else np.array([1.0, 0.0])
