@@ -66,6 +66,20 @@ def detour_guesses(problem: TrackingProblem, q: np.ndarray
     return [(_pushed(problem, q, blocking, choice), choice) for choice in sides]
 
 
+def held_up(problem: TrackingProblem, q: np.ndarray, plan: np.ndarray) -> bool:
+    """Whether a plan's knots stop short of a disc that the knots ``q`` run through.
+
+    Short: its last knot not past the disc's centre in the direction ``q`` passes it (a plan
+    pressed against the disc's near side, where a warm start keeps it).
+    """
+    axes = list(problem.limits.plane or ())
+    for disc in blocking_discs(problem, q):
+        centre = problem.limits.obstacles[disc, :2]
+        if (plan[-1, axes] - centre) @ _direction_past(q[:, axes], centre) < 0.0:
+            return True
+    return False
+
+
 def _pushed(problem: TrackingProblem, q: np.ndarray, blocking: np.ndarray,
             sides: tuple[int, ...]) -> np.ndarray:
     """Return ``q`` with its positions moved sideways out of each blocking disc, on its side."""

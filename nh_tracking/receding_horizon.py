@@ -32,6 +32,7 @@ from typing import Any, cast
 import numpy as np
 
 from nh_tracking.avoidance import Avoidance, MAX_OBSTACLES
+from nh_tracking.detours import held_up
 from nh_tracking.fallback import braking_plan, fallback, stop_plan
 from nh_tracking.limits import bounds_from_lists, in_the_plane, Limits
 from nh_tracking.problem import Solution, Terminal, terminal_error, TrackingProblem
@@ -40,9 +41,12 @@ from nh_tracking.solvers import Guess, make_method, Method, METHODS, sample_plan
 from nh_tracking.solvers.cache import builds_deferred, builds_inline
 from nh_tracking.solvers.inequalities import (obstacle_slots, Shape, start_violation,
                                               VIOLATION_TOL)
+from nh_tracking.solvers.nlp import deadline_after
 from nh_tracking.system import NonholonomicSystem
 from nh_tracking.trajectory import Trajectory
 
+DETOUR_EVERY = 5  # replans: while the reference runs through a disc, the ways round are tried
+SWITCH_MARGIN = 0.05  # of the warm plan's cost: another way round must be this much cheaper
 HISTORY = 10_000  # recent solves kept for statistics: a long-running node must not grow
 
 
@@ -243,6 +247,9 @@ class RecedingHorizonPlanner:
                     if sol.success and avoidance.hits_one_left_out(nearest, sol, discs):
                         sol.success = False  # (more obstacles about it than an NLP takes)
                         sol.message = f'{sol.message}; the plan touches an obstacle left out'
+                if guess is not None and len(problem.limits.obstacles) and \
+                        self.stats.plans % DETOUR_EVERY == 0:
+                    sol = self._other_way_round(problem, sol)
             error = '' if sol.success else f'solver: {sol.message}'
         except (ArithmeticError, RuntimeError, ValueError) as exc:  # a numerical failure
             sol, error = None, f'solver raised {type(exc).__name__}: {exc}'
@@ -286,6 +293,27 @@ class RecedingHorizonPlanner:
         self.previous = plan  # the plan in force: shifted if the next solve fails too
         self.stats.fallbacks += 1
         return PlanOutcome(plan, status, solve_time, missed, f'{what} ({error})', reference)
+
+    def _other_way_round(self, problem: TrackingProblem, warm: Solution) -> Solution:
+        """Return the plan round the obstacles another way if it is cheaper by SWITCH_MARGIN.
+
+        Tried where the warm plan stops short of a disc the reference runs through: a warm
+        start stays in its local minimum, and pressed against the disc's near side a robot
+        would wait there for good. The margin keeps it from dithering between two ways of
+        about the same cost.
+        """
+        left = self.settings.max_solve_time - warm.solve_time
+        q = problem.reference_samples[0].copy()
+        q[0] = problem.q0
+        if left <= 0.0 or not held_up(problem, q, warm.q):
+            return warm
+        other, spent = self.method.round_obstacles(problem, deadline_after(left))
+        if other is None or not (not warm.success
+                                 or other.cost < (1.0 - SWITCH_MARGIN) * warm.cost):
+            warm.solve_time += spent
+            return warm
+        other.solve_time += warm.solve_time
+        return other
 
     def brake(self, t: float, q: np.ndarray, v: np.ndarray, why: str) -> PlanOutcome:
         """Plan braking to rest from the last state known, (q, v) at t.

@@ -19,13 +19,16 @@ an independent way of finding the minima; clearance at knots, midpoints and betw
 """
 import numpy as np
 import pytest
+from test_following import Loop, polyline
 
 import nh_tracking as nht
 from nh_tracking.detours import blocking_discs, detour_guesses
+from nh_tracking.goal_checking import GoalState
+import nh_tracking.receding_horizon as rh
 
 
 def _straight(system, speed_row, q0, v0, disc, duration=10.0):
-    """A straight reference along x from the origin, and a problem with ``disc`` on it."""
+    """Return a problem with ``disc`` on a straight reference along x from the origin."""
     reference = nht.simulate(system, np.zeros(system.n), speed_row, np.linspace(0, duration, 101))
     return nht.TrackingProblem(system, reference, np.asarray(q0, float), np.asarray(v0, float),
                                6.0, 60, terminal='cost', omega=10.0, obstacles=[disc],
@@ -76,3 +79,38 @@ def test_detour_guesses_pass_each_disc_on_either_side():
                                robot_radius=0.1)
     assert [s for _, s in detour_guesses(many, many.reference_samples[0])] == [
         (1, 1, 1, 1), (-1, -1, -1, -1)]  # past three discs: all on one side, then the other
+
+
+def _follow(model, discs, seconds=30.0):
+    """Follow a 6 m route with ``discs`` on it; rows (t, x, y, ...) until arrived or blocked."""
+    loop = Loop(model, epsilon=0.05, robot_radius=0.2)
+    loop.session.set_obstacles(np.array(discs, dtype=float).reshape(-1, 3))
+    loop.session.following.set_route(polyline((0, 0), (6, 0)))
+    rows = []
+    for _ in range(int(seconds / loop.dt)):
+        rows.append(loop.run(loop.dt)[-1])
+        if loop.session.following.status.state is GoalState.ARRIVED:
+            break
+    return loop.session.following.status.state, np.array(rows)
+
+
+@pytest.mark.parametrize('model', ['unicycle', 'rolling_disk'])
+def test_replanning_goes_round_a_disc_centred_on_the_route(model, monkeypatch):
+    """Warm replans pressed against a disc's near side stopped there; the other way is tried.
+
+    Every fifth replan, while the plan stops short of a disc the reference runs through.
+    """
+    disc = (3.0, 0.0, 0.3)
+    free, rows_free = _follow(model, [])
+    state, rows = _follow(model, [disc])
+    assert free is GoalState.ARRIVED and state is GoalState.ARRIVED
+    print(f'\n{model}: arrived after {rows[-1, 0]:.1f} s ({rows_free[-1, 0]:.1f} s without '
+          'the disc)')
+    assert rows[-1, 0] <= 1.5 * rows_free[-1, 0]
+    gaps = np.hypot(rows[:, 1] - disc[0], rows[:, 2] - disc[1]) - disc[2] - 0.2
+    assert gaps.min() >= -1e-3
+    beside = np.abs(rows[:, 1] - disc[0]) < disc[2]
+    assert len(set(np.sign(rows[beside, 2]))) == 1  # one way round, no dithering
+    monkeypatch.setattr(rh, 'DETOUR_EVERY', 10**9)  # warm replans alone
+    state, rows = _follow(model, [disc], seconds=20.0)
+    assert state is GoalState.BLOCKED and rows[-1, 1] < disc[0] - disc[2]

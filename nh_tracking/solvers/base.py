@@ -183,7 +183,7 @@ class Method(ABC):
         try:
             with builds_until(stop):
                 solution, spent = (None, 0.0) if guess is not None else \
-                    self._round_obstacles(problem, stop)
+                    self.round_obstacles(problem, stop)
                 if solution is None:
                     solution = self.solve_until(problem, guess, stop)
                     solution.solve_time += spent
@@ -191,11 +191,11 @@ class Method(ABC):
             solution = unsolved(problem, self.name, str(exc), time.perf_counter() - started)
         return inside_domain(problem, solution)
 
-    def _round_obstacles(self, problem: TrackingProblem, stop: float | None
-                         ) -> tuple[Solution | None, float]:
+    def round_obstacles(self, problem: TrackingProblem, stop: float | None
+                        ) -> tuple[Solution | None, float]:
         """Return the cheapest plan from a detour guess (None: none, or none succeeded).
 
-        And the solve time spent on the detours.
+        And the solve time spent on the detours. Against an absolute ``stop`` or None.
         """
         q, v = (a.copy() for a in problem.reference_samples[:2])
         q[0], v[0] = problem.q0, problem.v0
