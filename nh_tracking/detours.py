@@ -67,15 +67,17 @@ def detour_guesses(problem: TrackingProblem, q: np.ndarray
 
 
 def held_up(problem: TrackingProblem, q: np.ndarray, plan: np.ndarray) -> bool:
-    """Whether a plan's knots stop short of a disc that the knots ``q`` run through.
+    """Whether a plan's knots stop short of a disc that the knots ``q`` run through and pass.
 
-    Short: its last knot not past the disc's centre in the direction ``q`` passes it (a plan
-    pressed against the disc's near side, where a warm start keeps it).
+    Short: its last knot not past the disc's centre in the direction ``q`` passes it, where
+    the last of ``q`` is past it (a plan pressed against the disc's near side, where a warm
+    start keeps it; not one whose horizon ends before the disc).
     """
     axes = list(problem.limits.plane or ())
     for disc in blocking_discs(problem, q):
         centre = problem.limits.obstacles[disc, :2]
-        if (plan[-1, axes] - centre) @ _direction_past(q[:, axes], centre) < 0.0:
+        along = _direction_past(q[:, axes], centre)
+        if (plan[-1, axes] - centre) @ along < 0.0 < (q[-1, axes] - centre) @ along:
             return True
     return False
 

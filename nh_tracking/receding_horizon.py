@@ -46,6 +46,7 @@ from nh_tracking.system import NonholonomicSystem
 from nh_tracking.trajectory import Trajectory
 
 DETOUR_EVERY = 5  # replans: while the reference runs through a disc, the ways round are tried
+DETOUR_BUDGET = 0.5  # of what a replan has left: the most its detour solves may take
 SWITCH_MARGIN = 0.05  # of the warm plan's cost: another way round must be this much cheaper
 HISTORY = 10_000  # recent solves kept for statistics: a long-running node must not grow
 
@@ -302,7 +303,7 @@ class RecedingHorizonPlanner:
         would wait there for good. The margin keeps it from dithering between two ways of
         about the same cost.
         """
-        left = self.settings.max_solve_time - warm.solve_time
+        left = DETOUR_BUDGET * (self.settings.max_solve_time - warm.solve_time)
         q = problem.reference_samples[0].copy()
         q[0] = problem.q0
         if left <= 0.0 or not held_up(problem, q, warm.q):
