@@ -50,8 +50,9 @@ def detour_guesses(problem: TrackingProblem, q: np.ndarray
     """Return ``q`` pushed round the discs it runs through: (knots, side per disc) per way round.
 
     Side +1 passes a disc on the left of the direction of travel, -1 on the right. Every
-    combination of sides for up to three blocking discs; past that, all on one side and all on
-    the other. None where ``q`` runs through no disc (or the model has no plane).
+    combination of sides for up to three blocking discs; past that, each on the side ``q``
+    leans to, all on the left and all on the right. None where ``q`` runs through no disc (or
+    the model has no plane).
     """
     limits = problem.limits
     if limits.plane is None or not len(limits.obstacles):
@@ -62,7 +63,8 @@ def detour_guesses(problem: TrackingProblem, q: np.ndarray
     if 2 ** len(blocking) <= MAX_COMBINATIONS:
         sides = list(product((1, -1), repeat=len(blocking)))
     else:
-        sides = [(1,) * len(blocking), (-1,) * len(blocking)]
+        sides = list(dict.fromkeys([_leaning(problem, q, blocking), (1,) * len(blocking),
+                                    (-1,) * len(blocking)]))
     return [(_pushed(problem, q, blocking, choice), choice) for choice in sides]
 
 
@@ -80,6 +82,19 @@ def held_up(problem: TrackingProblem, q: np.ndarray, plan: np.ndarray) -> bool:
         if (plan[-1, axes] - centre) @ along < 0.0 < (q[-1, axes] - centre) @ along:
             return True
     return False
+
+
+def _leaning(problem: TrackingProblem, q: np.ndarray, blocking: np.ndarray
+             ) -> tuple[int, ...]:
+    """Return the side of each blocking disc that the knots ``q`` pass nearer (left if on it)."""
+    axes = list(problem.limits.plane or ())
+    position, sides = q[:, axes], []
+    for disc in blocking:
+        centre = problem.limits.obstacles[disc, :2]
+        along = _direction_past(position, centre)
+        nearest = position[np.argmin(np.linalg.norm(position - centre, axis=1))]
+        sides.append(-1 if (nearest - centre) @ np.array([-along[1], along[0]]) < 0.0 else 1)
+    return tuple(sides)
 
 
 def _pushed(problem: TrackingProblem, q: np.ndarray, blocking: np.ndarray,

@@ -227,6 +227,7 @@ class RecedingHorizonPlanner:
             self.stats.plan_durations.append(time.perf_counter() - started)
 
     def _plan(self, t: float, q: np.ndarray, v: np.ndarray) -> PlanOutcome:
+        started = time.perf_counter()
         avoidance = self.avoidance
         discs = avoidance.from_start(q, v)
         problem = self.problem(t, q, v, avoidance.relevant(t, q, discs))
@@ -250,7 +251,7 @@ class RecedingHorizonPlanner:
                         sol.message = f'{sol.message}; the plan touches an obstacle left out'
                 if guess is not None and len(problem.limits.obstacles) and \
                         self.stats.plans % DETOUR_EVERY == 0:
-                    sol = self._other_way_round(problem, sol)
+                    sol = self._other_way_round(problem, sol, discs, started)
             error = '' if sol.success else f'solver: {sol.message}'
         except (ArithmeticError, RuntimeError, ValueError) as exc:  # a numerical failure
             sol, error = None, f'solver raised {type(exc).__name__}: {exc}'
@@ -295,23 +296,26 @@ class RecedingHorizonPlanner:
         self.stats.fallbacks += 1
         return PlanOutcome(plan, status, solve_time, missed, f'{what} ({error})', reference)
 
-    def _other_way_round(self, problem: TrackingProblem, warm: Solution) -> Solution:
+    def _other_way_round(self, problem: TrackingProblem, warm: Solution, discs: np.ndarray,
+                         started: float) -> Solution:
         """Return the plan round the obstacles another way if it is cheaper by SWITCH_MARGIN.
 
         Tried where the warm plan stops short of a disc the reference runs through: a warm
         start stays in its local minimum, and pressed against the disc's near side a robot
         would wait there for good. The margin keeps it from dithering between two ways of
-        about the same cost.
+        about the same cost. Within :data:`DETOUR_BUDGET` of what is left of the replan (from
+        ``started``); a plan not taken keeps its own solve time (its detours' in ``details``).
+        ``discs``: every obstacle, which a plan taken must keep clear of.
         """
-        left = DETOUR_BUDGET * (self.settings.max_solve_time - warm.solve_time)
+        left = DETOUR_BUDGET * (self.settings.max_solve_time - (time.perf_counter() - started))
         q = problem.reference_samples[0].copy()
         q[0] = problem.q0
         if left <= 0.0 or not held_up(problem, q, warm.q):
             return warm
         other, spent = self.method.round_obstacles(problem, deadline_after(left))
-        if other is None or not (not warm.success
-                                 or other.cost < (1.0 - SWITCH_MARGIN) * warm.cost):
-            warm.solve_time += spent
+        if other is None or self.avoidance.hits_one_left_out(problem, other, discs) or not (
+                not warm.success or other.cost < (1.0 - SWITCH_MARGIN) * warm.cost):
+            warm.details['detour_time'] = spent
             return warm
         other.solve_time += warm.solve_time
         return other

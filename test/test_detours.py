@@ -57,7 +57,7 @@ def test_a_cold_solve_goes_round_the_cheaper_side_of_a_disc_on_the_reference(cas
     limits = problem.limits
     assert limits.plan_violation(plan.q, plan.v, plan.u) <= 1e-6  # knots and midpoints
     assert limits.swept(np.vstack([plan.q[:1], 0.5 * (plan.q[1:] + plan.q[:-1])])) == 0.0
-    search = nht.solve(problem, starts=8)
+    search = nht.solve(problem, starts=8, initial_guess=problem.reference)  # no detours
     print(f'\n{case}: {plan.cost:.4f} ({plan.route}); starts=8: {search.minima}')
     assert plan.cost <= search.cost * 1.01
 
@@ -75,10 +75,12 @@ def test_detour_guesses_pass_each_disc_on_either_side():
     clear = _straight(nht.models.unicycle(), [0.5, 0.0], [0, 0, 0], [0.5, 0], (1.5, 2.0, 0.3))
     assert detour_guesses(clear, clear.reference_samples[0]) == []
     many = nht.TrackingProblem(problem.system, problem.reference, problem.q0, problem.v0, 6.0,
-                               60, obstacles=[(x, 0.0, 0.1) for x in (0.6, 1.2, 1.8, 2.4)],
+                               60, obstacles=[(x, 0.06 * (-1) ** i, 0.1) for i, x in
+                                              enumerate((0.6, 1.2, 1.8, 2.4))],
                                robot_radius=0.1)
     assert [s for _, s in detour_guesses(many, many.reference_samples[0])] == [
-        (1, 1, 1, 1), (-1, -1, -1, -1)]  # past three discs: all on one side, then the other
+        (-1, 1, -1, 1), (1, 1, 1, 1), (-1, -1, -1, -1)]  # past three: the nearer sides, all
+    # on one side, all on the other
 
 
 def _follow(model, discs, seconds=30.0):

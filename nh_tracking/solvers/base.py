@@ -197,11 +197,15 @@ class Method(ABC):
 
         And the solve time spent on the detours. Against an absolute ``stop`` or None.
         """
+        if problem.limits.plane is None or \
+                problem.limits.clearance(problem.q0[None]).min(initial=0.0) < 0.0:
+            return None, 0.0  # (from inside a disc: only the least-violating plan exists)
         q, v = (a.copy() for a in problem.reference_samples[:2])
         q[0], v[0] = problem.q0, problem.v0
         best, spent = None, 0.0
         for knots, sides in detour_guesses(problem, q):
-            plan = self.globalised().solve_until(problem, Guess(knots, v, None), stop)
+            plan = inside_domain(problem, self.globalised().solve_until(
+                problem, Guess(knots, v, None), stop))
             spent += plan.solve_time
             if plan.success and (best is None or plan.cost < best[0].cost):
                 best = plan, sides
@@ -223,10 +227,12 @@ class Method(ABC):
         """
         return self
 
-    def proves_minimum(self, problem: TrackingProblem, plan: Solution) -> bool:
+    def proves_minimum(self, problem: TrackingProblem, plan: Solution,
+                       stop: float | None = None) -> bool:
         """Whether ``plan``, converged, is a strict local minimum (second-order conditions).
 
-        False where the method cannot tell cheaply; a search then looks again.
+        False where the method cannot tell cheaply, or not before ``stop`` (an absolute
+        perf_counter time, or None); a search then looks again.
         """
         return False
 

@@ -33,6 +33,7 @@ import numpy as np
 from nh_tracking.problem import Solution, TrackingProblem
 from nh_tracking.simulate import simulate
 from nh_tracking.solvers.base import Guess, Method, Structure
+from nh_tracking.solvers.nlp import deadline_after
 from nh_tracking.solvers.replay import interval_gap, REPLAY_RTOL
 
 DISTINCT_RTOL = 1e-4  # two local minima are the same when their costs agree to this
@@ -73,7 +74,7 @@ def second_look(problem: TrackingProblem, method: Method, first: Solution,
     """
     if max_time is not None and max_time <= 0:
         return first
-    if method.proves_minimum(problem, first):
+    if method.proves_minimum(problem, first, deadline_after(max_time)):
         first.local_minimum = True
         return first
     rng = np.random.default_rng(seed)

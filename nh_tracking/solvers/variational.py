@@ -39,7 +39,7 @@ from nh_tracking.limits import plan_path
 from nh_tracking.problem import Solution, TrackingProblem
 from nh_tracking.solvers.base import (clear_of_every_disc, Guess, Method, next_route, Structure,
                                       time_left, unsolved)
-from nh_tracking.solvers.cache import NotPrepared
+from nh_tracking.solvers.cache import builds_until, NotPrepared
 from nh_tracking.solvers.duals import carried_multipliers, multipliers_at
 from nh_tracking.solvers.inequalities import judged, Shape, start_violation, VIOLATION_TOL
 from nh_tracking.solvers.line_search import line_search_solve
@@ -248,7 +248,7 @@ def _working_set(step: WorkingSetStep, w0: np.ndarray, p: np.ndarray,
 
 
 def proven_minimum(problem: TrackingProblem, plan: Solution, solver: str = 'fatrop',
-                   compiled: bool = False) -> bool:
+                   compiled: bool = False, bounded: bool = False) -> bool:
     """Whether the KKT matrix's inertia at ``plan`` proves a strict local minimum.
 
     One factorisation, with the plan's multipliers and its limit rows at a bound held: the
@@ -259,7 +259,7 @@ def proven_minimum(problem: TrackingProblem, plan: Solution, solver: str = 'fatr
         return False
     if plan.local_minimum:  # the route checked it
         return True
-    tr = transcription(problem.system, problem.steps, problem.terminal, False, solver,
+    tr = transcription(problem.system, problem.steps, problem.terminal, bounded, solver,
                        compiled, Shape.of(problem.limits, False, False, False))
     try:
         held = working_set_step(problem.system, problem.steps, problem.terminal,
@@ -320,8 +320,16 @@ class Variational(Method):
         if self.newton and structure.replanned and not limits.soft:
             working_set_step(system, structure.steps, structure.terminal, limits)
 
-    def proves_minimum(self, problem: TrackingProblem, plan: Solution) -> bool:
-        return proven_minimum(problem, plan, self.backend, self.compiled)
+    def proves_minimum(self, problem: TrackingProblem, plan: Solution,
+                       stop: float | None = None) -> bool:
+        if self.iterations:  # a real-time iteration's plan is not converged
+            return False
+        try:
+            with builds_until(stop):
+                return proven_minimum(problem, plan, self.backend, self.compiled,
+                                      stop is not None)
+        except NotPrepared:
+            return False
 
     def globalised(self) -> Variational:
         return dataclasses.replace(self, newton=False)
