@@ -51,6 +51,7 @@ class Robot:
 
     def __init__(self, peer: Peer) -> None:
         node = self.node = peer.node
+        self.graph = peer.graph
         self.odometry: list[tuple[float, float, float, float, float]] = []  # t, x, y, yaw, v
         self.goal_states: list[str] = []
         self.blocked: list[float] = []
@@ -80,8 +81,9 @@ class Robot:
 
     def send_goal(self, poses: np.ndarray, **ids: str):
         """Send a follow_path goal; its goal handle once accepted."""
-        sent = self.action.send_goal_async(
-            FollowPath.Goal(path=route_msg(poses), **ids), feedback_callback=lambda f: (
+        sent = self.graph.call(
+            self.action.send_goal_async, FollowPath.Goal(path=route_msg(poses), **ids),
+            feedback_callback=lambda f: (
                 self.feedback.append((time.monotonic(), f.feedback.distance_to_goal,
                                       f.feedback.speed))))
         assert wait_until(sent.done, 30.0)
@@ -89,12 +91,11 @@ class Robot:
         assert handle.accepted
         return handle
 
-
-def result_of(handle, timeout: float):
-    """(status, result) of a goal, waited for."""
-    future = handle.get_result_async()
-    assert wait_until(future.done, timeout), 'no result'
-    return future.result().status, future.result().result
+    def result_of(self, handle, timeout: float):
+        """(status, result) of a goal, waited for."""
+        future = self.graph.call(handle.get_result_async)
+        assert wait_until(future.done, timeout), 'no result'
+        return future.result().status, future.result().result
 
 
 @contextmanager
@@ -142,7 +143,7 @@ def test_an_untimed_route_is_driven_at_its_speed_and_ends_at_rest_in_the_goal(mo
             robot.reference.publish(route_msg(L_TURN, time.time_ns()))
             assert wait_until(lambda: 'arrived' in robot.goal_states, 40.0), planner.output
         else:
-            status, result = result_of(robot.send_goal(L_TURN), 40.0)
+            status, result = robot.result_of(robot.send_goal(L_TURN), 40.0)
             assert status == GoalStatus.STATUS_SUCCEEDED
             assert result.error_code == FollowPath.Result.NONE
         arrived = time.monotonic() - start
@@ -177,7 +178,7 @@ def test_a_goal_every_second_to_the_same_end_never_slows_the_robot():
             # what a planner replanning at 1 Hz sends: from the robot along its plan to the end
             ahead = base[along > along[i] + np.hypot(*(foot - base[i, :2])) + 0.1]
             handles.append(robot.send_goal(np.vstack([np.r_[here, 0, 0], ahead])))
-            future = handles[-1].get_result_async()
+            future = robot.graph.call(handles[-1].get_result_async)
             if wait_until(future.done, 1.0):
                 status, result = future.result().status, future.result().result
                 break
@@ -201,19 +202,19 @@ def test_cancel_brings_the_robot_to_rest_and_bad_goals_are_refused_with_the_reas
         handle = robot.send_goal(polyline((0, 0), (5, 0)))
         assert wait_until(lambda: robot.odometry[-1][4] > 0.4, 20.0)
         cancelled = time.monotonic()
-        assert wait_until(handle.cancel_goal_async().done, 10.0)
-        status, _ = result_of(handle, 10.0)
+        assert wait_until(robot.graph.call(handle.cancel_goal_async).done, 10.0)
+        status, _ = robot.result_of(handle, 10.0)
         assert at_rest(robot, 3.0), robot.odometry[-1]
         print(f'\ncancelled: at rest {time.monotonic() - cancelled:.2f} s after the request')
         assert status == GoalStatus.STATUS_CANCELED
         bad = polyline((0, 0), (5, 0))
         bad[7, 1] = np.nan
-        status, result = result_of(robot.send_goal(bad), 10.0)
+        status, result = robot.result_of(robot.send_goal(bad), 10.0)
         assert status == GoalStatus.STATUS_ABORTED
         assert result.error_code == FollowPath.Result.INVALID_PATH
         assert 'pose 7' in result.error_msg and 'NaN' in result.error_msg
-        status, result = result_of(robot.send_goal(polyline((0, 0), (1, 0)), controller_id='DWB'),
-                                   10.0)
+        status, result = robot.result_of(
+            robot.send_goal(polyline((0, 0), (1, 0)), controller_id='DWB'), 10.0)
         assert result.error_code == FollowPath.Result.INVALID_CONTROLLER, result
         x = robot.odometry[-1][1]
         # pose stamps relative to a header stamped now: read as 1970, so refused
@@ -232,7 +233,7 @@ def test_a_route_past_an_inflated_block_is_driven_without_collision():
     with nav2_pair() as (robot, planner, sim):
         robot.costmap.publish(nav2_costmap([block], RADIUS))
         time.sleep(0.5)
-        status, result = result_of(robot.send_goal(polyline((0, 0), (4, 0))), 40.0)
+        status, result = robot.result_of(robot.send_goal(polyline((0, 0), (4, 0))), 40.0)
         track = robot.track
         gap = (np.maximum(np.abs(track[:, 1] - 2.0) - 0.15, 0) ** 2
                + np.maximum(0.35 - track[:, 2], 0) ** 2) ** 0.5
@@ -257,7 +258,7 @@ def test_a_wall_across_the_route_fails_to_make_progress_in_time_without_collisio
                        60.0)
             stopped.set()
         threading.Thread(target=watch, daemon=True).start()
-        status, result = result_of(handle, 60.0)
+        status, result = robot.result_of(handle, 60.0)
         ended = time.monotonic()
         assert stopped.wait(1.0)
         stop_time = next(t for t, x, _, _, v in robot.odometry if x > 0.5 and abs(v) < 0.05)
@@ -328,13 +329,14 @@ def test_fuzzed_follow_path_goals_each_get_a_result_and_the_planner_carries_on(g
     assert client.wait_for_server(30.0)
     rng, results = np.random.default_rng(7), []
     for _ in range(60):
-        sent = client.send_goal_async(fuzzed_goal(rng))
+        sent = graph.call(client.send_goal_async, fuzzed_goal(rng))
         assert wait_until(sent.done, 30.0)
         handle = sent.result()
         assert handle.accepted
-        results.append(handle.get_result_async())
+        results.append(graph.call(handle.get_result_async))
         time.sleep(float(rng.uniform(0.0, 0.3)))  # preempted by the next, or ended
-    assert wait_until(handle.cancel_goal_async().done, 10.0)  # (the last one may still run)
+    # (the last one may still run)
+    assert wait_until(graph.call(handle.cancel_goal_async).done, 10.0)
     assert wait_until(lambda: all(r.done() for r in results), 60.0)
     codes = [(r.result().status, r.result().result.error_code) for r in results]
     known = {FollowPath.Result.NONE, FollowPath.Result.INVALID_CONTROLLER,
@@ -376,10 +378,10 @@ def test_deactivation_and_an_invalid_goal_bring_the_robot_to_rest(graph):
     assert client.wait_for_server(30.0)
 
     def goal(poses: np.ndarray):
-        sent = client.send_goal_async(FollowPath.Goal(path=route_msg(poses),
-                                                      goal_checker_id='general_goal_checker'))
+        sent = graph.call(client.send_goal_async, FollowPath.Goal(
+            path=route_msg(poses), goal_checker_id='general_goal_checker'))
         assert wait_until(sent.done, 10.0) and sent.result().accepted
-        return sent.result().get_result_async()
+        return graph.call(sent.result().get_result_async)
 
     def at_rest(timeout: float) -> bool:
         return wait_until(lambda: abs(odometry[-1][1]) < 0.02, timeout)

@@ -119,11 +119,12 @@ def run_nav2_demo(out: Path, log: Callable[[str], None] = print) -> dict:
         assert client.wait_for_server(30.0), 'no follow_path action'
         feedback: list[tuple[float, float]] = []
         start = time.monotonic()
-        sent = client.send_goal_async(
-            FollowPath.Goal(path=route_msg(route)), feedback_callback=lambda f: feedback.append(
+        sent = graph.call(
+            client.send_goal_async, FollowPath.Goal(path=route_msg(route)),
+            feedback_callback=lambda f: feedback.append(
                 (time.monotonic() - start, f.feedback.distance_to_goal)))
         assert wait_until(sent.done, 30.0) and sent.result().accepted
-        result = sent.result().get_result_async()
+        result = graph.call(sent.result().get_result_async)
         while not wait_until(result.done, 1.0) and time.monotonic() - start < 60.0:
             if feedback:
                 log(f't = {feedback[-1][0]:5.1f} s | distance to goal {feedback[-1][1]:.2f} m')

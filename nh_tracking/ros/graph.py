@@ -31,6 +31,7 @@ from rclpy.node import Node
 from rclpy.parameter import Parameter
 
 N = TypeVar('N', bound=Node)
+R = TypeVar('R')
 
 
 def parameters(**values: object) -> list[Parameter]:
@@ -74,6 +75,19 @@ class InProcessGraph:
 
     def plain_node(self, name: str, namespace: str = '') -> Node:
         return self.add(lambda **kw: rclpy.create_node(name, **kw), namespace=namespace)
+
+    def call(self, request: Callable[..., R], *args: object, timeout: float = 10.0,
+             **kwargs: object) -> R:
+        """Run ``request(*args, **kwargs)`` on the executor's thread; what it returns.
+
+        rclpy's ActionClient files a request's future only after sending it: called from
+        another thread while the executor spins, a fast response can arrive first and be
+        dropped ("Ignoring unexpected goal response"). Requests made here cannot race it.
+        """
+        task = self.executor.create_task(request, *args, **kwargs)
+        if not wait_until(task.done, timeout):
+            raise TimeoutError(f'the executor did not run {request} within {timeout} s')
+        return task.result()
 
     def close(self) -> None:
         """Stop spinning first, so no callback runs while nodes are destroyed."""
