@@ -18,7 +18,8 @@ Each knot and midpoint of an NLP keeps clear of the discs nearest it, and its la
 crowd) has a slot for every disc at every point: a bounded number, so each replan takes only
 the discs that can bend its plan; the plan is then checked against every disc the planner
 knows of. A robot already inside a disc's clearance (it drifted, or the disc was redrawn) has
-that disc shrunk for this replan, so the prepared NLP still has a solution.
+that disc shrunk for this replan, so the prepared NLP still has a solution. Discs are
+(x, y, r, vx, vy) where they are at the replan's start (moving ones: see :mod:`.limits`).
 """
 from __future__ import annotations
 
@@ -26,7 +27,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from nh_tracking.limits import (clear_of_start, knots_and_midpoints, Limits, plan_path, plane,
+from nh_tracking.limits import (clear_of_start, Limits, plan_path, plan_times, plane,
                                 relevant_discs)
 from nh_tracking.problem import Solution, TrackingProblem
 from nh_tracking.solvers.inequalities import VIOLATION_TOL
@@ -38,7 +39,7 @@ MAX_OBSTACLES = 8  # nearest obstacles a plan avoids: a bounded NLP
 
 @dataclass(frozen=True)
 class Avoidance:
-    """The obstacles (x, y, r) of one replanning step, for a robot of ``robot_radius``."""
+    """The obstacles (x, y, r, vx, vy) of one replanning step, for a robot of ``robot_radius``."""
 
     system: NonholonomicSystem
     obstacles: np.ndarray
@@ -61,14 +62,15 @@ class Avoidance:
             return discs
         axes = list(plane(self.system))
         path = self.reference.sample(np.linspace(t, t + self.horizon, self.steps + 1))[0]
-        return relevant_discs(discs, q[axes], path[:, axes], self.robot_radius, MAX_OBSTACLES)
+        return relevant_discs(discs, q[axes], path[:, axes], self.robot_radius, MAX_OBSTACLES,
+                              self.horizon)
 
     def nearest(self, plan: Solution, discs: np.ndarray) -> np.ndarray:
         """Return the discs an NLP can take that come nearest a plan (those it touches first).
 
         (Nearest the robot instead, a plan through a crowd of more could touch a ninth.)
         """
-        grown = self.limits(discs).clearance(plan_path(plan.q)).min(axis=0)
+        grown = self.limits(discs).clearance(plan_path(plan.q), self.times).min(axis=0)
         return discs[np.argsort(grown, kind='stable')[:MAX_OBSTACLES]]
 
     def hits_one_left_out(self, problem: TrackingProblem, sol: Solution,
@@ -79,9 +81,9 @@ class Avoidance:
         """
         if len(problem.limits.obstacles) == len(discs):
             return False
-        every = self.limits(discs)
-        return bool(every.clearance(knots_and_midpoints(sol.q)).min() < -VIOLATION_TOL
-                    or every.swept(plan_path(sol.q)) > VIOLATION_TOL)
+        every, path = self.limits(discs), plan_path(sol.q)
+        return bool(every.clearance(path, self.times).min() < -VIOLATION_TOL
+                    or every.swept(path, self.times) > VIOLATION_TOL)
 
     def no_deeper(self, problem: TrackingProblem, sol: Solution, discs: np.ndarray) -> bool:
         """Whether a plan from a start that breaks a limit breaks none more than the start does.
@@ -91,14 +93,18 @@ class Avoidance:
         least-violating plan minimises the summed violation, and driving through an obstacle
         and out can sum to less than braking inside it.
         """
-        every = self.limits(discs)
-        after = knots_and_midpoints(sol.q, first=1)
-        start = max(problem.limits.violation(problem.q0[None], problem.v0[None]),
-                    float(np.max(-every.clearance(problem.q0[None]), initial=0.0)))
-        worst = max(problem.limits.violation(after, sol.v[1:], sol.u),
-                    float(np.max(-every.clearance(after), initial=0.0)),
-                    every.swept(plan_path(sol.q)))  # (nor through one between its points)
+        every, path, t = self.limits(discs), plan_path(sol.q), self.times
+        start = max(problem.limits.violation(problem.q0[None], problem.v0[None], t=t[:1]),
+                    float(np.max(-every.clearance(problem.q0[None], t[:1]), initial=0.0)))
+        worst = max(problem.limits.violation(path[1:], sol.v[1:], sol.u, t[1:]),
+                    float(np.max(-every.clearance(path[1:], t[1:]), initial=0.0)),
+                    every.swept(path, t))  # (nor through one between its points)
         return worst <= start + VIOLATION_TOL
+
+    @property
+    def times(self) -> np.ndarray:
+        """Return the times of a plan's knots and midpoints from the replan's start."""
+        return plan_times(self.steps, self.horizon / self.steps)
 
     def limits(self, discs: np.ndarray) -> Limits:
         """Return ``discs`` grown by the robot's radius, to check plans against."""

@@ -19,7 +19,8 @@ line: the interior point then spends its iteration limit there (2 s for a unicyc
 through a disc's centre) or slides round the side the start leans to, which need not be the
 cheaper one. The reference pushed round each blocking disc on a chosen side, onto the circle
 of its clearance, is a guess near one local minimum per side: solved from each in a few
-milliseconds, the cheaper plan is kept (:meth:`.solvers.base.Method.solve`).
+milliseconds, the cheaper plan is kept (:meth:`.solvers.base.Method.solve`). A moving disc is
+gone round in its own frame: relative to it the reference runs past a disc at rest.
 """
 from __future__ import annotations
 
@@ -36,7 +37,7 @@ SAME_DIRECTION = 1e-9  # a reference slower than this along a disc has no direct
 
 def blocking_discs(problem: TrackingProblem, q: np.ndarray) -> np.ndarray:
     """Return the indices of the discs the knots ``q`` (N+1, n) pass inside, in passing order."""
-    clearance = problem.limits.clearance(q)
+    clearance = problem.limits.clearance(q, problem.grid - problem.grid[0])
     inside = clearance < 0.0
     if not inside.any():
         return np.zeros(0, dtype=int)
@@ -75,11 +76,10 @@ def held_up(problem: TrackingProblem, q: np.ndarray, plan: np.ndarray) -> bool:
     the last of ``q`` is past it (a plan pressed against the disc's near side, where a warm
     start keeps it; not one whose horizon ends before the disc).
     """
-    axes = list(problem.limits.plane or ())
     for disc in blocking_discs(problem, q):
-        centre = problem.limits.obstacles[disc, :2]
-        along = _direction_past(q[:, axes], centre)
-        if (plan[-1, axes] - centre) @ along < 0.0 < (q[-1, axes] - centre) @ along:
+        position = _relative(problem, q, disc)
+        along = _direction_past(position)
+        if _relative(problem, plan, disc)[-1] @ along < 0.0 < position[-1] @ along:
             return True
     return False
 
@@ -87,13 +87,12 @@ def held_up(problem: TrackingProblem, q: np.ndarray, plan: np.ndarray) -> bool:
 def _leaning(problem: TrackingProblem, q: np.ndarray, blocking: np.ndarray
              ) -> tuple[int, ...]:
     """Return the side of each blocking disc that the knots ``q`` pass nearer (left if on it)."""
-    axes = list(problem.limits.plane or ())
-    position, sides = q[:, axes], []
+    sides = []
     for disc in blocking:
-        centre = problem.limits.obstacles[disc, :2]
-        along = _direction_past(position, centre)
-        nearest = position[np.argmin(np.linalg.norm(position - centre, axis=1))]
-        sides.append(-1 if (nearest - centre) @ np.array([-along[1], along[0]]) < 0.0 else 1)
+        position = _relative(problem, q, disc)
+        along = _direction_past(position)
+        nearest = position[np.argmin(np.linalg.norm(position, axis=1))]
+        sides.append(-1 if nearest @ np.array([-along[1], along[0]]) < 0.0 else 1)
     return tuple(sides)
 
 
@@ -103,23 +102,32 @@ def _pushed(problem: TrackingProblem, q: np.ndarray, blocking: np.ndarray,
     axes = list(problem.limits.plane or ())
     guess = q.copy()
     for disc, side in zip(blocking, sides):
-        centre, radius = problem.limits.obstacles[disc, :2], problem.limits.obstacles[disc, 2]
-        position = guess[:, axes]
-        along = _direction_past(position, centre)
+        radius = problem.limits.obstacles[disc, 2]
+        offset = _relative(problem, guess, disc)
+        along = _direction_past(offset)
         normal = side * np.array([-along[1], along[0]])
-        offset = position - centre
         a, b = offset @ along, offset @ normal
         reach = radius * (1.0 + MARGIN)
         need = np.sqrt(np.maximum(reach**2 - a**2, 0.0))
         lift = np.where(np.abs(a) < reach, np.maximum(need - b, 0.0), 0.0)
-        guess[:, axes] = position + lift[:, None] * normal
+        guess[:, axes] += lift[:, None] * normal
     guess[0] = q[0]  # the start is the robot's
     return guess
 
 
-def _direction_past(position: np.ndarray, centre: np.ndarray) -> np.ndarray:
-    """Return the unit direction in which the path passes ``centre`` (nearest point's chord)."""
-    nearest = int(np.argmin(np.linalg.norm(position - centre, axis=1)))
+def _relative(problem: TrackingProblem, q: np.ndarray, disc: int) -> np.ndarray:
+    """Return the positions of knots ``q`` relative to a disc's centre at their times."""
+    limits = problem.limits
+    centres = limits.centres(problem.grid - problem.grid[0])[:, disc]
+    return q[:, list(limits.plane or ())] - centres
+
+
+def _direction_past(position: np.ndarray) -> np.ndarray:
+    """Return the unit direction in which a path (relative to a centre) passes it.
+
+    The chord at its point nearest the centre.
+    """
+    nearest = int(np.argmin(np.linalg.norm(position, axis=1)))
     before, after = position[max(nearest - 1, 0)], position[min(nearest + 1, len(position) - 1)]
     chord = after - before
     if np.linalg.norm(chord) <= SAME_DIRECTION:  # at rest there: the whole path's direction

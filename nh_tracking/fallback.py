@@ -29,7 +29,7 @@ from dataclasses import dataclass
 import casadi as ca
 import numpy as np
 
-from nh_tracking.limits import knots_and_midpoints, Limits, plan_path
+from nh_tracking.limits import Limits, plan_path, plan_times
 from nh_tracking.poses import PoseMap, wrap_angle
 from nh_tracking.problem import Solution, terminal_error, TrackingProblem
 from nh_tracking.simulate import held_rk4
@@ -138,24 +138,25 @@ def fallback(problem: TrackingProblem, clear_of: Limits) -> tuple[Solution, str]
     """
     try:
         plan, what = _finite(fallback_plan(problem)), 'tracking law fallback'
-        tracking = _closest(plan, clear_of) if len(clear_of.obstacles) else (0.0, 0.0)
+        tracking = _closest(plan, clear_of, problem.h) if len(clear_of.obstacles) else (0.0, 0.0)
         if tracking[0] < 0.0:
             brake = braking_plan(problem)
-            if _closest(brake, clear_of) > tracking:
+            if _closest(brake, clear_of, problem.h) > tracking:
                 plan, what = brake, 'braking: the tracking law would come closer to an obstacle'
         return plan, what
     except (ArithmeticError, RuntimeError, ValueError) as exc:
         return stop_plan(problem, str(exc)), f'stopping, tracking law failed: {exc}'
 
 
-def _closest(plan: Solution, clear_of: Limits) -> tuple[float, float]:
+def _closest(plan: Solution, clear_of: Limits, h: float) -> tuple[float, float]:
     """(closest approach after the start at knots and midpoints, clearance at the end), mm.
 
-    A path through a disc between its points comes as close as it cuts in (negative).
+    Knots ``h`` apart. A path through a disc between its points comes as close as it cuts in
+    (negative).
     """
-    closest = min(float(clear_of.clearance(knots_and_midpoints(plan.q, first=1)).min()),
-                  -clear_of.swept(plan_path(plan.q)))
-    return round(closest, 3), round(float(clear_of.clearance(plan.q[-1:]).min()), 3)
+    path, t = plan_path(plan.q), plan_times(len(plan.q) - 1, h)
+    closest = min(float(clear_of.clearance(path[1:], t[1:]).min()), -clear_of.swept(path, t))
+    return round(closest, 3), round(float(clear_of.clearance(path[-1:], t[-1:]).min()), 3)
 
 
 def _finite(plan: Solution) -> Solution:

@@ -15,12 +15,13 @@
 """What a plan may not do: actuator and velocity bounds, and discs it must keep clear of.
 
 Bounds are (lo, hi) pairs, scalars or one value per channel, +-inf allowed; obstacles are discs
-(x, y, r) in the plane of the model's pose position, to be cleared by the robot's radius. Each
-input is checked once, here, and a ValueError names the argument.
+(x, y, r) in the plane of the model's pose position, to be cleared by the robot's radius, or
+moving discs (x, y, r, vx, vy): where they are at the plan's start and their constant velocity
+over the horizon. Each input is checked once, here, and a ValueError names the argument.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 import functools
 
 import numpy as np
@@ -57,17 +58,35 @@ def _unbounded(size: int) -> np.ndarray:
 
 
 def obstacle_discs(value: ArrayLike, name: str = 'obstacles') -> np.ndarray:
-    """(M, 3) array of discs (x, y, r): finite centres, finite radii >= 0."""
-    discs = np.asarray(value, dtype=float)
-    if discs.size == 0:
-        return np.zeros((0, 3))
-    if discs.ndim != 2 or discs.shape[1] != 3:
-        raise ValueError(f'{name} must be a list of (x, y, r) discs, got shape {discs.shape}')
+    """(M, 5) array of discs (x, y, r, vx, vy) from rows of (x, y, r) (at rest) or all five.
+
+    Finite centres and velocities, finite radii >= 0.
+    """
+    if isinstance(value, np.ndarray) and value.size == 0:
+        return np.zeros((0, 5))
+    try:
+        arrays = [np.asarray(row, dtype=float) for row in value]  # type: ignore[union-attr]
+    except (TypeError, ValueError):
+        raise ValueError(f'{name} must be a list of (x, y, r) or (x, y, r, vx, vy) discs, got '
+                         f'{value!r:.80}') from None
+    if not arrays:
+        return np.zeros((0, 5))
+    if any(a.shape not in ((3,), (5,)) for a in arrays):
+        raise ValueError(f'{name} must be a list of (x, y, r) or (x, y, r, vx, vy) discs, got '
+                         f'rows of {sorted({a.size for a in arrays})} values')
+    discs = np.array([np.concatenate([a, np.zeros(5 - a.size)]) for a in arrays])
     if not np.isfinite(discs).all():
-        raise ValueError(f'{name} must have finite centres and radii')
+        raise ValueError(f'{name} must have finite centres, radii and velocities')
     if (discs[:, 2] < 0).any():
         raise ValueError(f'{name} radii must be >= 0, got {discs[:, 2].tolist()}')
     return discs
+
+
+def moved(discs: np.ndarray, by: float) -> np.ndarray:
+    """Return discs (x, y, r, vx, vy) where their velocities take them in ``by`` seconds."""
+    out = np.array(discs, dtype=float)
+    out[:, :2] += by * out[:, 3:5]
+    return out
 
 
 def in_the_plane(system: NonholonomicSystem) -> bool:
@@ -94,8 +113,9 @@ class Limits:
 
     controls: np.ndarray  # (2, r)
     velocities: np.ndarray  # (2, k)
-    obstacles: np.ndarray  # (M, 3): x, y, and r + the robot's radius
+    obstacles: np.ndarray  # (M, 3): x, y at the start, and r + the robot's radius
     plane: tuple[int, int] | None
+    motion: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))  # (M, 2): vx, vy
 
     @classmethod
     def of(cls, system: NonholonomicSystem, control_bounds: BoundsLike,
@@ -107,11 +127,11 @@ class Limits:
         discs = obstacle_discs(obstacles)
         if control_bounds is None and velocity_bounds is None and not len(discs):
             return _no_limits(system.r, system.k)
-        discs = discs.copy()
-        discs[:, 2] += robot_radius
+        grown = discs[:, :3].copy()
+        grown[:, 2] += robot_radius
         return cls(bounds(control_bounds, system.r, 'control_bounds'),
-                   bounds(velocity_bounds, system.k, 'velocity_bounds'), discs,
-                   plane(system) if len(discs) else None)
+                   bounds(velocity_bounds, system.k, 'velocity_bounds'), grown,
+                   plane(system) if len(discs) else None, discs[:, 3:5].copy())
 
     @functools.cached_property
     def bounded_controls(self) -> bool:
@@ -126,59 +146,87 @@ class Limits:
         """Whether anything is limited (these are asked several times per replan: cached)."""
         return self.bounded_controls or self.bounded_velocities or len(self.obstacles) > 0
 
-    def clearance(self, q: np.ndarray) -> np.ndarray:
-        """Distance to each obstacle's edge (grown by the robot's radius) at configurations q."""
+    @functools.cached_property
+    def moving(self) -> bool:
+        """Whether a disc moves: then where a plan keeps clear of it depends on when."""
+        return bool(np.any(self.motion))
+
+    def centres(self, t: ArrayLike | None = None) -> np.ndarray:
+        """Return the discs' centres at times ``t`` from the start: (T, M, 2), (1, M, 2) at rest.
+
+        Raises ValueError for moving discs without times (a caller that forgot them).
+        """
+        if not self.moving:
+            return self.obstacles[None, :, :2]
+        if t is None:
+            raise ValueError('moving obstacles: clearance needs the times of the configurations')
+        return self.obstacles[None, :, :2] + np.reshape(t, (-1, 1, 1)) * self.motion[None]
+
+    def clearance(self, q: np.ndarray, t: ArrayLike | None = None) -> np.ndarray:
+        """Distance to each obstacle's edge (grown by the robot's radius) at configurations q.
+
+        ``t``: the configurations' times from the start (needed only if a disc moves).
+        """
         if self.plane is None:
             return np.zeros((len(np.atleast_2d(q)), 0))
         p = np.atleast_2d(q)[:, list(self.plane)]
-        gaps = p[:, None, :] - self.obstacles[None, :, :2]
+        gaps = p[:, None, :] - self.centres(t)
         return np.linalg.norm(gaps, axis=2) - self.obstacles[None, :, 2]
 
-    def violation(self, q: np.ndarray, v: np.ndarray, u: np.ndarray | None = None) -> float:
-        """Largest amount by which states q (., n), v (., k) and controls u break a limit."""
+    def violation(self, q: np.ndarray, v: np.ndarray, u: np.ndarray | None = None,
+                  t: ArrayLike | None = None) -> float:
+        """Largest amount by which states q (., n), v (., k) and controls u break a limit.
+
+        ``t``: q's times from the start (needed only if a disc moves).
+        """
         if not self.active:
             return 0.0
-        worst = [0.0, float(np.max(-self.clearance(q), initial=0.0))]
+        worst = [0.0, float(np.max(-self.clearance(q, t), initial=0.0))]
         for value, (lo, hi) in ((v, self.velocities), (u, self.controls)):
             if value is not None and len(value):
                 worst.append(float(np.max(np.maximum(lo - value, value - hi), initial=0.0)))
         return max(worst)
 
-    def swept(self, path: np.ndarray) -> float:
+    def swept(self, path: np.ndarray, t: ArrayLike | None = None) -> float:
         """Return how far a path's straight segments cut into a disc beyond what is allowed.
 
-        ``path``: configurations in time order (a plan's knots and midpoints). A segment
-        between two points on a disc's edge cuts in by its chord's sagitta; more than that, or
-        than :data:`SWEPT_DEPTH` of the radius, and the path went through the disc between
-        its points (a plan so fast that its points are farther apart than the disc is wide).
-        Points inside a disc are :meth:`clearance`'s to report (short segments are not looked
-        at: theirs can cut in deeper only from a point inside). A path that curves between
-        its points is judged by its chords (a replay may go a little deeper).
+        ``path``: configurations in time order (a plan's knots and midpoints), at times ``t``
+        (needed only if a disc moves: each segment is then judged relative to the disc, in
+        which it is straight too). A segment between two points on a disc's edge cuts in by
+        its chord's sagitta; more than that, or than :data:`SWEPT_DEPTH` of the radius, and
+        the path went through the disc between its points (a plan so fast that its points are
+        farther apart than the disc is wide). Points inside a disc are :meth:`clearance`'s to
+        report (short segments are not looked at: theirs can cut in deeper only from a point
+        inside). A path that curves between its points is judged by its chords (a replay may
+        go a little deeper).
         """
         if self.plane is None or len(path) < 2:
             return 0.0
-        p = np.asarray(path)[:, list(self.plane)]
-        a, ab = p[:-1, None, :], (p[1:] - p[:-1])[:, None, :]
+        relative = np.asarray(path)[:, None, list(self.plane)] - self.centres(t)
+        a, ab = relative[:-1], relative[1:] - relative[:-1]
         length2 = np.maximum(np.sum(ab**2, axis=2), 1e-300)
         if length2.max() <= (SHORT_CHORD * self.obstacles[:, 2].min())**2:
             return 0.0  # (a segment this short cuts in by less, if its ends are outside)
-        centre, radius = self.obstacles[None, :, :2], self.obstacles[None, :, 2]
-        along = np.clip(np.sum((centre - a) * ab, axis=2) / length2, 0.0, 1.0)
-        depth = radius - np.linalg.norm(a + along[..., None] * ab - centre, axis=2)
+        radius = self.obstacles[None, :, 2]
+        along = np.clip(-np.sum(a * ab, axis=2) / length2, 0.0, 1.0)
+        depth = radius - np.linalg.norm(a + along[..., None] * ab, axis=2)
         sagitta = radius - np.sqrt(np.maximum(radius**2 - length2 / 4, 0.0))
         return float(np.max(depth - np.minimum(sagitta, SWEPT_DEPTH * radius), initial=0.0))
 
-    def plan_violation(self, q: np.ndarray, v: np.ndarray, u: np.ndarray | None) -> float:
-        """:meth:`violation` of a plan's knots q, v and controls u, midpoints included."""
-        return self.violation(knots_and_midpoints(q), v, u) if self.active else 0.0
+    def plan_violation(self, q: np.ndarray, v: np.ndarray, u: np.ndarray | None,
+                       h: float) -> float:
+        """:meth:`violation` of a plan's knots q (``h`` apart), v and controls u, and midpoints."""
+        if not self.active:
+            return 0.0
+        return self.violation(plan_path(q), v, u, plan_times(len(q) - 1, h))
 
 
 @functools.lru_cache(maxsize=None)
 def _no_limits(controls: int, velocities: int) -> Limits:
     """Return the limits of a problem that has none: one per size, shared (answers cached)."""
-    none = np.zeros((0, 3))
-    none.flags.writeable = False
-    return Limits(_unbounded(controls), _unbounded(velocities), none, None)
+    none, still = np.zeros((0, 3)), np.zeros((0, 2))
+    none.flags.writeable = still.flags.writeable = False
+    return Limits(_unbounded(controls), _unbounded(velocities), none, None, still)
 
 
 def bounds_from_lists(lo: tuple, hi: tuple, size: int, name: str) -> tuple | None:
@@ -198,21 +246,25 @@ def bounds_from_lists(lo: tuple, hi: tuple, size: int, name: str) -> tuple | Non
 
 
 def relevant_discs(discs: np.ndarray, robot: np.ndarray, path: np.ndarray,
-                   robot_radius: float, count: int) -> np.ndarray:
+                   robot_radius: float, count: int, horizon: float = 0.0) -> np.ndarray:
     """Return at most ``count`` discs, nearest the robot first, that can bend a plan on ``path``.
 
-    ``robot``: the robot's (x, y); ``path``: (., 2) the reference's positions over the horizon.
-    A plan runs from the robot to the path and swerves around the obstacles near it, so a disc
-    farther from the path than the robot's offset from it plus 0.5 m, plus twice the largest
-    disc near the path, cannot touch it: leaving it out keeps the last-resort NLP (every disc
-    at every point) small. The caller checks the plan against every disc all the same.
+    ``discs``: (x, y, r) or (x, y, r, vx, vy) at the start; ``robot``: the robot's (x, y);
+    ``path``: (., 2) the reference's positions, evenly over the ``horizon`` (seconds: where
+    moving discs are when the reference is there). A plan runs from the robot to the path and
+    swerves around the obstacles near it, so a disc farther from the path than the robot's
+    offset from it plus 0.5 m, plus twice the largest disc near the path, cannot touch it:
+    leaving it out keeps the last-resort NLP (every disc at every point) small. The caller
+    checks the plan against every disc all the same.
     """
     if not len(discs):
         return discs
     points = np.vstack([np.asarray(robot, dtype=float)[None, :2], path[:, :2]])
+    t = np.r_[0.0, np.linspace(0.0, horizon, len(path))]
+    rates = obstacle_discs(discs)[:, 3:5]
+    centres = discs[None, :, :2] + t[:, None, None] * rates[None]  # (points, M, 2)
     grown = discs[:, 2] + robot_radius
-    to_path = np.hypot(discs[:, None, 0] - points[None, :, 0],
-                       discs[:, None, 1] - points[None, :, 1]).min(axis=1) - grown
+    to_path = np.linalg.norm(points[:, None, :] - centres, axis=2).min(axis=0) - grown
     margin = 0.5 + float(np.hypot(*(points[0] - points[1])))
     near = to_path < margin
     margin += 2.0 * float(np.max(grown[near], initial=0.0))
@@ -223,9 +275,10 @@ def nearest_discs(discs: np.ndarray, point: np.ndarray, count: int,
                   reach: float = np.inf) -> np.ndarray:
     """Return the ``count`` discs whose edges are nearest ``point`` (x, y), nearest first.
 
-    Only those whose edges are within ``reach`` of it.
+    Only those whose edges are within ``reach`` of it. ``discs``: rows of (x, y, r, ...).
     """
-    discs = np.asarray(discs, dtype=float).reshape(-1, 3)
+    discs = np.asarray(discs, dtype=float)
+    discs = discs.reshape(-1, discs.shape[-1] if discs.ndim == 2 else 3)
     to_point = np.hypot(*(discs[:, :2] - np.asarray(point, dtype=float)[:2]).T) - discs[:, 2]
     order = np.argsort(to_point, kind='stable')
     return discs[order[to_point[order] <= reach][:max(count, 0)]]
@@ -247,9 +300,9 @@ def plan_path(q: np.ndarray) -> np.ndarray:
     return np.vstack([q[:1], clearance_points(q)])
 
 
-def knots_and_midpoints(q: np.ndarray, first: int = 0) -> np.ndarray:
-    """Return the configurations where a plan's limits hold: knots from ``first``, midpoints."""
-    return np.vstack([q[first:], 0.5 * (q[1:] + q[:-1])])
+def plan_times(steps: int, h: float) -> np.ndarray:
+    """Return the times of :func:`plan_path`'s points from the start, for knots ``h`` apart."""
+    return 0.5 * h * np.arange(2 * steps + 1)
 
 
 def clear_of_start(discs: np.ndarray, point: np.ndarray, velocity: np.ndarray,
@@ -264,12 +317,13 @@ def clear_of_start(discs: np.ndarray, point: np.ndarray, velocity: np.ndarray,
     disc when its clearance became 0.5 m stopped at 0.36 m). At rest nothing is given away, so
     replans cannot ratchet a stopped robot in. A disc the robot is within
     its radius of is shrunk to a point and still breaks the limit: the least-violating plan's.
+    ``discs``: (x, y, r, vx, vy), the approach is the robot's relative to the disc.
     """
-    discs = np.array(discs, dtype=float).reshape(-1, 3)
+    discs = obstacle_discs(discs)
     offset = np.asarray(point, dtype=float)[:2] - discs[:, :2]
     distance = np.hypot(*offset.T)
-    approach = np.maximum(-(offset @ np.asarray(velocity, dtype=float)[:2])
-                          / np.maximum(distance, 1e-12), 0.0)
+    closing = np.asarray(velocity, dtype=float)[None, :2] - discs[:, 3:5]
+    approach = np.maximum(-np.sum(offset * closing, axis=1) / np.maximum(distance, 1e-12), 0.0)
     allowed = np.maximum(distance - robot_radius - approach * interval, 0.0)
     discs[:, 2] = np.minimum(discs[:, 2], allowed)
     return discs

@@ -54,7 +54,9 @@ class TrackingProblem:
     pairs (scalars or one value per control/velocity, +-inf allowed) held on every interval's
     control and every knot's velocity; ``obstacles`` are discs (x, y, r) in the plane of the
     pose's position that the robot, a disc of ``robot_radius``, keeps clear of at every knot
-    and interval midpoint. A problem is immutable: ``dataclasses.replace(problem, steps=100)``
+    and interval midpoint, or moving discs (x, y, r, vx, vy): at (x, y) at the start, moving
+    at a constant velocity (m/s), kept clear of where they are at each knot's and midpoint's
+    time. A problem is immutable: ``dataclasses.replace(problem, steps=100)``
     makes a changed copy.
     """
 

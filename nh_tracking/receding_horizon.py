@@ -34,7 +34,8 @@ import numpy as np
 from nh_tracking.avoidance import Avoidance, MAX_OBSTACLES
 from nh_tracking.detours import held_up
 from nh_tracking.fallback import braking_plan, fallback, stop_plan
-from nh_tracking.limits import bounds_from_lists, in_the_plane, Limits
+from nh_tracking.limits import (bounds_from_lists, in_the_plane, Limits, moved,
+                                obstacle_discs)
 from nh_tracking.problem import Solution, Terminal, terminal_error, TrackingProblem
 from nh_tracking.settings import check_fields, setting
 from nh_tracking.solvers import Guess, make_method, Method, METHODS, sample_plan, Structure
@@ -151,7 +152,8 @@ class RecedingHorizonPlanner:
         self.system = system
         self.settings = settings
         self.reference: Trajectory | None = None
-        self.obstacles = np.zeros((0, 3))  # discs (x, y, r), set by the front end
+        self.obstacles = np.zeros((0, 3))  # discs (x, y, r) or (x, y, r, vx, vy): front end's
+        self.obstacles_time = 0.0  # when (planner clock) the discs are where they say
         self.previous: Solution | None = None
         self.limits = settings.limits(system)
         self.stats = PlannerStatistics()
@@ -197,12 +199,15 @@ class RecedingHorizonPlanner:
         self.prepared = False
         return self.settings
 
-    @property
-    def avoidance(self) -> Avoidance:
-        """Return the obstacles of this replanning step, with what to do with them."""
+    def avoidance(self, t: float) -> Avoidance:
+        """Return the obstacles of a replanning step at t, with what to do with them.
+
+        Moving discs where they will be at t.
+        """
         s = self.settings
-        return Avoidance(self.system, self.obstacles, self.limits['robot_radius'],
-                         self.reference, s.horizon, s.steps)
+        discs = moved(obstacle_discs(self.obstacles), t - self.obstacles_time)
+        return Avoidance(self.system, discs, self.limits['robot_radius'], self.reference,
+                         s.horizon, s.steps)
 
     def problem(self, t: float, q: np.ndarray, v: np.ndarray,
                 obstacles: np.ndarray | None = None) -> TrackingProblem:
@@ -211,7 +216,7 @@ class RecedingHorizonPlanner:
             raise ValueError('no reference to track yet')
         s = self.settings
         if obstacles is None:
-            avoidance = self.avoidance
+            avoidance = self.avoidance(t)
             obstacles = avoidance.relevant(t, q, avoidance.from_start(q, v))
         return TrackingProblem(self.system, self.reference, q, v, horizon=s.horizon,
                                steps=s.steps, epsilon=s.epsilon, terminal=s.terminal,
@@ -228,7 +233,7 @@ class RecedingHorizonPlanner:
 
     def _plan(self, t: float, q: np.ndarray, v: np.ndarray) -> PlanOutcome:
         started = time.perf_counter()
-        avoidance = self.avoidance
+        avoidance = self.avoidance(t)
         discs = avoidance.from_start(q, v)
         problem = self.problem(t, q, v, avoidance.relevant(t, q, discs))
         reference = problem.reference_samples[0]
@@ -251,7 +256,7 @@ class RecedingHorizonPlanner:
                         sol.message = f'{sol.message}; the plan touches an obstacle left out'
                 if guess is not None and len(problem.limits.obstacles) and \
                         self.stats.plans % DETOUR_EVERY == 0:
-                    sol = self._other_way_round(problem, sol, discs, started)
+                    sol = self._other_way_round(problem, sol, avoidance, discs, started)
             error = '' if sol.success else f'solver: {sol.message}'
         except (ArithmeticError, RuntimeError, ValueError) as exc:  # a numerical failure
             sol, error = None, f'solver raised {type(exc).__name__}: {exc}'
@@ -296,8 +301,8 @@ class RecedingHorizonPlanner:
         self.stats.fallbacks += 1
         return PlanOutcome(plan, status, solve_time, missed, f'{what} ({error})', reference)
 
-    def _other_way_round(self, problem: TrackingProblem, warm: Solution, discs: np.ndarray,
-                         started: float) -> Solution:
+    def _other_way_round(self, problem: TrackingProblem, warm: Solution, avoidance: Avoidance,
+                         discs: np.ndarray, started: float) -> Solution:
         """Return the plan round the obstacles another way if it is cheaper by SWITCH_MARGIN.
 
         Tried where the warm plan stops short of a disc the reference runs through: a warm
@@ -313,7 +318,7 @@ class RecedingHorizonPlanner:
         if left <= 0.0 or not held_up(problem, q, warm.q):
             return warm
         other, spent = self.method.round_obstacles(problem, deadline_after(left))
-        if other is None or self.avoidance.hits_one_left_out(problem, other, discs) or not (
+        if other is None or avoidance.hits_one_left_out(problem, other, discs) or not (
                 not warm.success or other.cost < (1.0 - SWITCH_MARGIN) * warm.cost):
             warm.details['detour_time'] = spent
             return warm

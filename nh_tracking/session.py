@@ -30,7 +30,7 @@ import numpy as np
 
 from nh_tracking import models
 from nh_tracking.following import checked_reference, Following
-from nh_tracking.limits import obstacle_discs
+from nh_tracking.limits import moved, obstacle_discs
 from nh_tracking.poses import PoseMap
 from nh_tracking.problem import Solution
 from nh_tracking.receding_horizon import (PlannerSettings, PlanOutcome, PlanStatus,
@@ -74,7 +74,7 @@ class TrackingSession:
         # (odometry receipt -> plan published, of which the numerical planner, of which the
         # NLP solver) [s], for the recent plans
         self.latencies: deque[tuple[float, float, float]] = deque(maxlen=2000)
-        self._obstacles = np.zeros((0, 3))
+        self._obstacles, self._obstacles_time = np.zeros((0, 5)), 0.0
         self._lock = threading.Lock()  # the fields above shared between threads
         self._solve_lock = threading.Lock()  # one solve at a time; swaps happen between them
         self._pending: _Build | None = None
@@ -168,15 +168,23 @@ class TrackingSession:
 
     @property
     def obstacles(self) -> np.ndarray:
-        """Return the discs (x, y, r) the plans keep clear of."""
+        """Return the discs (x, y, r, vx, vy) the plans keep clear of."""
         with self._lock:
             return self._obstacles
 
-    def set_obstacles(self, discs: np.ndarray) -> None:
-        """Keep clear of ``discs`` (x, y, r) from the next plan on."""
+    def obstacles_at(self, t: float) -> np.ndarray:
+        """Return the discs (x, y, r, vx, vy) where they will be at t (planner clock)."""
+        with self._lock:
+            return moved(self._obstacles, t - self._obstacles_time)
+
+    def set_obstacles(self, discs: np.ndarray, at: float = 0.0) -> None:
+        """Keep clear of ``discs`` (x, y, r) or (x, y, r, vx, vy) from the next plan on.
+
+        ``at``: when (seconds on the planner's clock) they are where they are said to be.
+        """
         discs = obstacle_discs(discs)
         with self._lock:
-            self._obstacles = discs
+            self._obstacles, self._obstacles_time = discs, at
 
     # reconfiguration --------------------------------------------------------------------------
     def reconfigure(self, physical: Mapping[str, float], settings: PlannerSettings) -> None:
@@ -225,7 +233,7 @@ class TrackingSession:
             if reason or state is None:
                 return self._brake_if_stale(state, reason)
             planner = self.planner
-            planner.obstacles = self._obstacles
+            planner.obstacles, planner.obstacles_time = self._obstacles, self._obstacles_time
             outcome = planner.plan(self.seconds(state.ns), state.q, state.v)
             result = PlanResult(outcome, state, f'{outcome.status}: {outcome.message} '
                                                 f'({outcome.solve_time * 1e3:.1f} ms)')
@@ -298,6 +306,7 @@ class TrackingSession:
             t, v = self.seconds(self.clock()), np.zeros(self.system.k)
         with self._solve_lock:
             self.planner.obstacles = self._obstacles
+            self.planner.obstacles_time = self._obstacles_time
             solution = self.planner.preview(t, q, v)
         if not solution.success:
             return None, f'solver failed ({solution.message})'

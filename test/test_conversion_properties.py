@@ -266,6 +266,8 @@ def marker_arrays(draw):
                         action=draw(st.sampled_from([Marker.ADD, Marker.DELETE,
                                                      Marker.DELETEALL])))
         marker.header.frame_id = draw(frames)
+        marker.header.stamp.sec = draw(st.integers(0, 3))  # repeated, backwards, jumps
+        marker.header.stamp.nanosec = draw(st.integers(0, 999_999_999))
         marker.pose = draw(poses())
         marker.scale.x = draw(value)
         markers.append(marker)
@@ -277,15 +279,18 @@ def marker_arrays(draw):
 def test_obstacle_markers_give_finite_discs_or_a_rejection(messages):
     from nh_tracking.ros.obstacle_messages import MarkerObstacles
 
+    from nh_tracking.disc_tracks import MAX_SPEED
+
     obstacles = MarkerObstacles('odom')
     for msg in messages:
-        before = obstacles.discs
+        before = obstacles.discs()
         try:
             obstacles.apply(msg)
         except cv.InputRejected:
-            assert np.array_equal(obstacles.discs, before)  # the set in force stays
-        discs = obstacles.discs
-        assert discs.shape[1] == 3 and np.all(np.isfinite(discs)) and np.all(discs[:, 2] >= 0)
+            assert np.array_equal(obstacles.discs(), before)  # the set in force stays
+        discs = obstacles.discs(5 * 10**9)
+        assert discs.shape[1] == 5 and np.all(np.isfinite(discs)) and np.all(discs[:, 2] >= 0)
+        assert np.all(np.hypot(discs[:, 3], discs[:, 4]) <= MAX_SPEED * (1 + 1e-12))
 
 
 @given(resolution=value, width=st.integers(0, 6), height=st.integers(0, 6),

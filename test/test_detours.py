@@ -55,7 +55,7 @@ def test_a_cold_solve_goes_round_the_cheaper_side_of_a_disc_on_the_reference(cas
     assert plan.success, plan.message
     assert 'way round the obstacles' in plan.route
     limits = problem.limits
-    assert limits.plan_violation(plan.q, plan.v, plan.u) <= 1e-6  # knots and midpoints
+    assert limits.plan_violation(plan.q, plan.v, plan.u, problem.h) <= 1e-6  # knots and midpoints
     assert limits.swept(np.vstack([plan.q[:1], 0.5 * (plan.q[1:] + plan.q[:-1])])) == 0.0
     search = nht.solve(problem, starts=8, initial_guess=problem.reference)  # no detours
     print(f'\n{case}: {plan.cost:.4f} ({plan.route}); starts=8: {search.minima}')

@@ -198,7 +198,7 @@ def test_carried_multipliers_save_factorisations_past_discs(model_name, discs):
         previous = planner.previous
         plan = planner.plan(t, q, v).plan
         if plan.route == 'newton (working set)' and previous is not None:
-            avoidance = planner.avoidance
+            avoidance = planner.avoidance(t)
             discs = avoidance.relevant(t, q, avoidance.from_start(q, v))
             problem = planner.problem(t, q, v, discs)
             guess = sample_plan(problem, previous)

@@ -462,5 +462,5 @@ def test_a_previous_plan_that_breaks_the_limits_now_in_force_is_not_kept(change)
     assert outcome.status in ('fallback', 'stop'), outcome.message
     assert 'breaks the limits in force' in outcome.message
     if change != 'u_max tightens':
-        grown = planner.avoidance.limits(planner.obstacles)
+        grown = planner.avoidance(0.1).limits(planner.obstacles)
         assert grown.clearance(outcome.plan.q).min() > 0.0  # it brakes short of the disc

@@ -42,10 +42,10 @@ def plan_markers(frame: str, stamp: int, plan_poses: np.ndarray,
 
 
 def obstacle_markers(frame: str, stamp: int, discs: np.ndarray) -> list[Marker]:
-    """Discs as flat cylinders for RViz (namespace ``obstacles``), after a DELETEALL."""
+    """Discs (x, y, r, ...) as flat cylinders for RViz (namespace ``obstacles``), after a clear."""
     header = Header(frame_id=frame, stamp=time_msg(stamp))
     markers = [Marker(header=header, ns='obstacles', action=Marker.DELETEALL)]
-    for i, (x, y, r) in enumerate(discs):
+    for i, (x, y, r) in enumerate(discs[:, :3]):
         marker = Marker(header=header, ns='obstacles', id=i, type=Marker.CYLINDER,
                         action=Marker.ADD, scale=Vector3(x=2 * r, y=2 * r, z=0.05),
                         color=ColorRGBA(r=0.8, g=0.2, b=0.2, a=0.6))

@@ -38,7 +38,7 @@ class ObstacleListener(GuardedNode):
         """Create the subscriptions (returned, for the node to release)."""
         self.marker_obstacles = MarkerObstacles(self.frame)
         self.costmap: tuple[np.ndarray, float] = (np.zeros((0, 2)), 0.0)
-        self._costmap_discs = np.zeros((0, 3))  # drawn once per costmap
+        self._costmap_discs = np.zeros((0, 5))  # drawn once per costmap, at rest
         return (subscribe_latched(self, MarkerArray, 'obstacles', self.on_obstacles)
                 + subscribe_latched(self, OccupancyGrid, 'costmap', self.on_costmap))
 
@@ -50,12 +50,18 @@ class ObstacleListener(GuardedNode):
     @guarded('costmap')
     def on_costmap(self, msg: OccupancyGrid) -> None:
         cells, size = occupied_cells(msg, self.frame, self.costmap_threshold)
-        self.costmap, self._costmap_discs = (cells, size), costmap_discs(cells, size, DISC_SIZE)
+        discs = costmap_discs(cells, size, DISC_SIZE)
+        self.costmap = (cells, size)
+        self._costmap_discs = np.c_[discs, np.zeros((len(discs), 2))]
         self.obstacles_changed()
 
-    def obstacle_discs(self, centre: np.ndarray, reach: float, count: int) -> np.ndarray:
-        """Return the marker discs and up to ``count`` discs covering the costmap near centre."""
-        return np.vstack([self.marker_obstacles.discs,
+    def obstacle_discs(self, centre: np.ndarray, reach: float, count: int,
+                       now_ns: int) -> np.ndarray:
+        """Return the marker discs and up to ``count`` discs covering the costmap near centre.
+
+        (M, 5): x, y, r, vx, vy, where they will be at ``now_ns``.
+        """
+        return np.vstack([self.marker_obstacles.discs(now_ns),
                           nearest_discs(self._costmap_discs, centre, count, reach)])
 
     def obstacles_changed(self) -> None:

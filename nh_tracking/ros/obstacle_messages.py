@@ -15,8 +15,10 @@
 """Obstacles as ROS sends them: RViz-style marker arrays and Nav2-style occupancy grids.
 
 ``obstacles`` (visualization_msgs/MarkerArray): CYLINDER and SPHERE markers are discs of radius
-scale.x / 2 at their pose; ADD/MODIFY replace the marker of the same (ns, id), DELETE removes
-it, DELETEALL clears the set; other marker types (labels, arrows) are ignored. ``costmap``
+scale.x / 2 at their pose; ADD/MODIFY move the marker of the same (ns, id), DELETE removes
+it, DELETEALL clears the set; other marker types (labels, arrows) are ignored. A marker seen
+again at a later header stamp moves: its velocity is estimated from its last positions
+(:mod:`nh_tracking.disc_tracks`); one stamped 0 is at rest. ``costmap``
 (nav_msgs/OccupancyGrid): cells at or above a threshold are occupied — by default Nav2's
 lethal cost, 100, so the inflation a Nav2 costmap carries (99 inscribed, 1-98 inflated) is not
 taken for obstacle and then inflated again by the robot's radius; -1 (unknown) is free. A
@@ -29,6 +31,7 @@ from nav_msgs.msg import OccupancyGrid
 import numpy as np
 from visualization_msgs.msg import Marker, MarkerArray
 
+from nh_tracking.disc_tracks import DiscTracks
 from nh_tracking.ros import conversions as cv
 
 LETHAL = 100  # Nav2's lethal cost, and map_server's occupied cells
@@ -36,25 +39,25 @@ DISCS = (Marker.CYLINDER, Marker.SPHERE)
 
 
 class MarkerObstacles:
-    """The set of discs a stream of MarkerArray messages describes."""
+    """The set of discs a stream of MarkerArray messages describes, moving ones with velocity."""
 
     def __init__(self, frame: str) -> None:
         self.frame = frame
-        self._discs: dict[tuple[str, int], tuple[float, float, float]] = {}
+        self._tracks = DiscTracks()
 
-    @property
-    def discs(self) -> np.ndarray:
-        return np.array(list(self._discs.values())).reshape(-1, 3)
+    def discs(self, now_ns: int | None = None) -> np.ndarray:
+        """Return where the discs will be at ``now_ns`` (None: last seen): x, y, r, vx, vy rows."""
+        return self._tracks.discs(None if now_ns is None else now_ns * 1e-9)
 
     def apply(self, msg: MarkerArray) -> None:
         """Apply a message, or raise InputRejected (and keep the set) if any marker is bad."""
-        discs = dict(self._discs)
+        tracks = self._tracks.copy()
         for marker in msg.markers:
             key = (marker.ns, marker.id)
             if marker.action == Marker.DELETEALL:
-                discs.clear()
+                tracks.forget()
             elif marker.action == Marker.DELETE:
-                discs.pop(key, None)
+                tracks.forget(key)
             elif marker.type in DISCS:
                 cv.check_frame(marker.header.frame_id, self.frame, f'obstacle {key}')
                 x, y = marker.pose.position.x, marker.pose.position.y
@@ -63,8 +66,9 @@ class MarkerObstacles:
                     raise cv.InputRejected(
                         f'obstacle {key} needs a finite position and a diameter scale.x >= 0, '
                         f'got ({x}, {y}), {marker.scale.x}')
-                discs[key] = (x, y, radius)
-        self._discs = discs
+                stamp = cv.stamp_ns(marker.header.stamp)
+                tracks.seen(key, stamp * 1e-9 if stamp else None, x, y, radius)
+        self._tracks = tracks
 
 
 def occupied_cells(msg: OccupancyGrid, frame: str, threshold: int = LETHAL

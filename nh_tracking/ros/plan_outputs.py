@@ -37,7 +37,6 @@ class PlanOutputs(GuardedNode):
     pub_markers: Publisher
     pub_cmd: Publisher
     _displayed: object  # the outcome last shown on planned_path
-    _discs: np.ndarray
     now_ns: Callable[[], int]
 
     @property
@@ -72,7 +71,8 @@ class PlanOutputs(GuardedNode):
         if self.pub_markers.get_subscription_count() > 0:
             reference = np.array([pose(q) for q in outcome.reference])
             markers = plan_markers(self.frame, stamps[0], poses[:, :3], reference[:, :3])
-            markers.markers += obstacle_markers(self.frame, stamps[0], self._discs)
+            markers.markers += obstacle_markers(self.frame, stamps[0],
+                                                session.obstacles_at(plan.t[0]))
             self.pub_markers.publish(markers)
 
     @guarded('cmd_vel')

@@ -137,7 +137,7 @@ class PlannerNode(RuntimeParameters, PlanOutputs, ObstacleListener, ClockWatchdo
         self._references = ReferenceReceiver(self, self.on_reference_path,
                                              self.on_reference_trajectory)
         self._entities += self.listen_for_obstacles()
-        self._discs, self._discs_centre, self._displayed = np.zeros((0, 3)), np.zeros(2), None
+        self._discs_centre, self._displayed = np.zeros(2), None
         self._service_host = PlannerServices(self)
         self._follow_path = FollowPathServer.serve(self)
         session.start(self._publish_plan)
@@ -262,9 +262,9 @@ class PlannerNode(RuntimeParameters, PlanOutputs, ObstacleListener, ClockWatchdo
             state, session = self.live.state, self.live
             centre = np.zeros(2) if state is None else session.pose_map.pose(state.q)[:2]
             self._discs_centre = centre
-            self._discs = self.obstacle_discs(centre, self.params['costmap_reach'],
-                                              MAX_OBSTACLES)
-            session.set_obstacles(self._discs)
+            now = self.now_ns()
+            session.set_obstacles(self.obstacle_discs(centre, self.params['costmap_reach'],
+                                                      MAX_OBSTACLES, now), session.seconds(now))
 
     # diagnostics ------------------------------------------------------------------------------
     def on_problem(self) -> None:

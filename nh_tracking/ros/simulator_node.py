@@ -254,7 +254,8 @@ class SimulatorNode(ObstacleListener):
     def _check_clearance(self, pose: np.ndarray, stamp: int) -> None:
         """Count a step that ends closer than robot_radius to an obstacle, and report it."""
         cells, size = self.costmap
-        clearance = gap(pose, self.marker_obstacles.discs, cells, size) - self.robot_radius
+        discs = self.marker_obstacles.discs(stamp)
+        clearance = gap(pose, discs, cells, size) - self.robot_radius
         if clearance >= 0:
             return
         self.collisions += 1

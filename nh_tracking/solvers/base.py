@@ -198,7 +198,7 @@ class Method(ABC):
         And the solve time spent on the detours. Against an absolute ``stop`` or None.
         """
         if problem.limits.plane is None or \
-                problem.limits.clearance(problem.q0[None]).min(initial=0.0) < 0.0:
+                problem.limits.clearance(problem.q0[None], [0.0]).min(initial=0.0) < 0.0:
             return None, 0.0  # (from inside a disc: only the least-violating plan exists)
         q, v = (a.copy() for a in problem.reference_samples[:2])
         q[0], v[0] = problem.q0, problem.v0

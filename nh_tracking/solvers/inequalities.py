@@ -34,7 +34,7 @@ from dataclasses import dataclass, field
 import casadi as ca
 import numpy as np
 
-from nh_tracking.limits import Limits
+from nh_tracking.limits import Limits, plan_times
 from nh_tracking.problem import TrackingProblem
 from nh_tracking.regularity import Domain
 
@@ -156,10 +156,11 @@ class Rows:
         if self.shape.slots and self.plane is not None and self._point != self.points:
             raise RuntimeError(f'{self._point} clearance points built for {self.points}')
 
-    def parameters(self, limits: Limits, points: np.ndarray) -> np.ndarray:
+    def parameters(self, limits: Limits, points: np.ndarray, h: float) -> np.ndarray:
         """Return each clearance point's discs: the nearest its configuration on the guess.
 
-        ``points``: (points, n) the guess's configurations at the clearance rows, in g's order.
+        ``points``: (points, n) the guess's configurations at the clearance rows, in g's order
+        (half an interval ``h`` apart from the first midpoint: where moving discs are then).
         (points, slots, 4): x, y, R and 1 per disc, in the order of ``limits``' discs (a disc
         keeps its slot while it stays among the point's nearest: its multiplier is carried);
         0 (off) where there are fewer discs than slots. All of them at every point while they
@@ -169,14 +170,17 @@ class Rows:
         discs, slots = limits.obstacles, self.shape.slots
         if not slots or self.plane is None or not len(discs):
             return values.ravel()
+        centres = np.broadcast_to(limits.centres(plan_times(self.points // 2, h)[1:]),
+                                  (self.points, len(discs), 2))
         if len(discs) <= slots:
-            values[:, :len(discs), :3], values[:, :len(discs), 3] = discs, 1.0
+            values[:, :len(discs), :2], values[:, :len(discs), 2] = centres, discs[:, 2]
+            values[:, :len(discs), 3] = 1.0
             return values.ravel()
-        at = points[:, list(self.plane)]
-        edge = np.hypot(at[:, None, 0] - discs[None, :, 0],
-                        at[:, None, 1] - discs[None, :, 1]) - discs[None, :, 2]
+        at = points[:, None, list(self.plane)]
+        edge = np.linalg.norm(at - centres, axis=2) - discs[None, :, 2]
         nearest = np.sort(np.argpartition(edge, slots - 1, axis=1)[:, :slots], axis=1)
-        values[:, :, :3], values[:, :, 3] = discs[nearest], 1.0
+        values[:, :, :2] = np.take_along_axis(centres, nearest[..., None], axis=1)
+        values[:, :, 2], values[:, :, 3] = discs[nearest, 2], 1.0
         return values.ravel()
 
     def bounds(self, rows: int, limits: Limits,
@@ -243,26 +247,28 @@ def soft_bounds(lower: np.ndarray, upper: np.ndarray,
 
 def start_violation(problem: TrackingProblem) -> float:
     """How much the start itself breaks a limit: then only a soft NLP has a solution."""
-    return problem.limits.violation(problem.q0[None], problem.v0[None])
+    return problem.limits.violation(problem.q0[None], problem.v0[None], t=[0.0])
 
 
 def judged(rows: Rows, limits: Limits, soft: bool, converged: bool, path: np.ndarray,
-           v: np.ndarray, u: np.ndarray | None,
+           v: np.ndarray, u: np.ndarray | None, h: float,
            message: str) -> tuple[bool, str, dict[str, float]]:
     """Return whether a plan succeeded within its limits, why not, and the details.
 
-    ``path``: its configurations at the start and the clearance points, in time order. A soft
+    ``path``: its configurations at the start and the clearance points, in time order (knots
+    ``h`` apart: :func:`.limits.plan_path`). A soft
     NLP's plan is the least-violating one (its start breaks a limit); a hard NLP's plan that
     converged into a disc went into one its clearance points were not given (``other_disc``:
     solved again, :func:`.base.clear_of_every_disc`), and one clear at its points may still
     pass through a disc between two of them (:meth:`.Limits.swept`: ``through_disc``, which a
     soft NLP, blind to it as well, does not mend).
     """
-    at_points, swept = limits.violation(path, v, u), limits.swept(path)
+    t = plan_times(len(path) // 2, h)
+    at_points, swept = limits.violation(path, v, u, t), limits.swept(path, t)
     violation = max(at_points, swept)
     success = converged and violation <= VIOLATION_TOL
     if soft and not success:
-        message = f'{message}; least-violating plan: {_broken(limits, path, v, u)}'
+        message = f'{message}; least-violating plan: {_broken(limits, path, v, u, t)}'
     elif converged and swept > max(at_points, VIOLATION_TOL):
         message = (f'{message}; but the plan passes through a disc between its knots and '
                    f'midpoints (by {swept:.3g} m: they are too far apart for its speed; more '
@@ -274,10 +280,11 @@ def judged(rows: Rows, limits: Limits, soft: bool, converged: bool, path: np.nda
         'through_disc': converged and at_points <= VIOLATION_TOL < swept}
 
 
-def _broken(limits: Limits, path: np.ndarray, v: np.ndarray, u: np.ndarray | None) -> str:
+def _broken(limits: Limits, path: np.ndarray, v: np.ndarray, u: np.ndarray | None,
+            t: np.ndarray) -> str:
     """Say by how much the start, which no plan can change, and the rest break the limits."""
-    start = limits.violation(path[:1], v[:1])
-    rest = max(limits.violation(path[1:], v[1:], u), limits.swept(path[1:]))
+    start = limits.violation(path[:1], v[:1], t=t[:1])
+    rest = max(limits.violation(path[1:], v[1:], u, t[1:]), limits.swept(path[1:], t[1:]))
     if start <= VIOLATION_TOL:
         return f'limits broken by {rest:.3g}'
     after = (f'the plan after it by {rest:.3g}' if rest > VIOLATION_TOL

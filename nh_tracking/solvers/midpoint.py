@@ -92,7 +92,7 @@ class Transcription:
             problem.q0, problem.v0, q_mid.ravel(), v_mid.ravel(), q_knots[-1], v_knots[-1],
             [problem.h, problem.epsilon, problem.omega],
             self.limits.parameters(problem.limits,
-                                   clearance_points(q_knots if q is None else q)),
+                                   clearance_points(q_knots if q is None else q), problem.h),
         ])
 
     def bounds(self, problem: TrackingProblem) -> dict[str, np.ndarray]:

@@ -61,7 +61,7 @@ class ShootingTranscription:
         q_ref, v_ref = problem.reference_at(fine)
         return np.concatenate([q_ref.ravel(), v_ref.ravel(),
                                [problem.h, problem.epsilon, problem.omega],
-                               self.limits.parameters(problem.limits, points)])
+                               self.limits.parameters(problem.limits, points, problem.h)])
 
 
 _CACHE: PerSystemCache[ShootingTranscription] = PerSystemCache(group=by_steps)
@@ -195,7 +195,7 @@ def _solve_once(problem: TrackingProblem, initial_guess: Guess | None,
         tr.limits, problem.limits, tr.soft_index is not None,
         outcome.success and bool(np.all(np.isfinite(w))),
         np.vstack([q[:1], np.array(tr.clearance_at(w, p))]), v, u,  # knots, RK4 midpoints
-        outcome.message)
+        problem.h, outcome.message)
     return Solution(
         t=problem.grid, q=q, v=v, u=u, cost=cost, success=success,
         iterations=outcome.iterations, solve_time=elapsed,

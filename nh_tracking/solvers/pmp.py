@@ -129,7 +129,7 @@ def _solution(problem: TrackingProblem, shooter: Shooter, starts: list[np.ndarra
         message=' -> '.join(attempts), route=attempts[-1] if ok else 'failed',
         costates=(z[:, n + k:2 * n + k], z[:, 2 * n + k:]),
         details={'shooting_residual': residual,
-                 'violation': problem.limits.violation(q, v, u)},
+                 'violation': problem.limits.violation(q, v, u, grid - grid[0])},
         control_law=law,
     )
 

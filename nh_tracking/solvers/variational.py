@@ -152,7 +152,7 @@ def _solve_with(problem: TrackingProblem, initial_guess: Guess | None, stop: flo
     p = tr.parameters(problem, q_g)  # each knot and midpoint keeps clear of the discs nearest it
     # a guess within the limits (a previous plan) is warm: near the optimum and its active set
     warm = initial_guess is not None and problem.limits.plan_violation(
-        q_g, v_g, u_g) <= VIOLATION_TOL
+        q_g, v_g, u_g, problem.h) <= VIOLATION_TOL
     # Newton steps first (built outside the timing): a working set from a warm guess, a line
     # search from a cold one without obstacles (only the interpreted fatrop's: :mod:`.line_search`)
     searched = (newton and not warm and not len(problem.limits.obstacles)
@@ -206,7 +206,8 @@ def _solve_with(problem: TrackingProblem, initial_guess: Guess | None, stop: flo
           else -lam_g[tr.dynamics_rows].reshape(problem.steps, sys.k))
     success, message, details = judged(
         tr.limits, problem.limits, tr.soft_index is not None,
-        outcome.success and bool(np.isfinite(w).all()), plan_path(q), v, u, outcome.message)
+        outcome.success and bool(np.isfinite(w).all()), plan_path(q), v, u, problem.h,
+        outcome.message)
     return Solution(
         t=problem.grid, q=q, v=v, u=u, cost=float(cost[0]), success=success,
         iterations=outcome.iterations, solve_time=elapsed,
