@@ -32,7 +32,21 @@ from nh_tracking.problem import TrackingProblem
 
 MARGIN = 0.1  # of a disc's (grown) radius: how far outside it a detour guess passes
 MAX_COMBINATIONS = 8  # sides tried for the blocking discs: every combination of up to three
+PASSES = 4  # pushes round the discs a pushed guess runs into, at most
 SAME_DIRECTION = 1e-9  # a reference slower than this along a disc has no direction there
+
+
+def joined(problem: TrackingProblem) -> tuple[np.ndarray, np.ndarray]:
+    """Return knots and velocities from the start onto the reference, its offset fading out.
+
+    q_i = r_i + (1 - i / N) (q0 - r_0): the reference where the robot is on it; where the
+    reference has run ahead (a robot held up, a route ended), the way from the robot to it,
+    which a plan takes and which meets the discs in between.
+    """
+    q, v = (a.copy() for a in problem.reference_samples[:2])
+    q += np.linspace(1.0, 0.0, len(q))[:, None] * (problem.q0 - q[0])
+    v[0] = problem.v0
+    return q, v
 
 
 def blocking_discs(problem: TrackingProblem, q: np.ndarray) -> np.ndarray:
@@ -98,10 +112,37 @@ def _leaning(problem: TrackingProblem, q: np.ndarray, blocking: np.ndarray
 
 def _pushed(problem: TrackingProblem, q: np.ndarray, blocking: np.ndarray,
             sides: tuple[int, ...]) -> np.ndarray:
-    """Return ``q`` with its positions moved sideways out of each blocking disc, on its side."""
+    """Return ``q`` with its positions moved sideways out of each blocking disc, on its side.
+
+    A disc the pushed guess then runs into (a neighbour too close to pass between) is gone
+    round on the side of the nearest disc already pushed round: a cluster on one side.
+    """
+    side_of = {int(d): s for d, s in zip(blocking, sides)}
+    centres = problem.limits.obstacles[:, :2]
+    for _ in range(PASSES):
+        order = sorted(side_of, key=lambda d: _passing_knot(problem, q, d))
+        guess = _pushed_once(problem, q, [(d, side_of[d]) for d in order])
+        more = [int(d) for d in blocking_discs(problem, guess) if int(d) not in side_of]
+        if not more:
+            break
+        for disc in more:
+            known = np.array(list(side_of))
+            nearest = known[np.argmin(np.linalg.norm(centres[known] - centres[disc], axis=1))]
+            side_of[disc] = side_of[int(nearest)]
+    return guess
+
+
+def _passing_knot(problem: TrackingProblem, q: np.ndarray, disc: int) -> int:
+    """Return the knot of ``q`` nearest a disc: the order in which a path passes discs."""
+    return int(np.argmin(np.linalg.norm(_relative(problem, q, disc), axis=1)))
+
+
+def _pushed_once(problem: TrackingProblem, q: np.ndarray,
+                 sides: list[tuple[int, int]]) -> np.ndarray:
+    """Return ``q`` pushed out of each disc on its side, (disc, side) in the order given."""
     axes = list(problem.limits.plane or ())
     guess = q.copy()
-    for disc, side in zip(blocking, sides):
+    for disc, side in sides:
         radius = problem.limits.obstacles[disc, 2]
         offset = _relative(problem, guess, disc)
         along = _direction_past(offset)

@@ -19,7 +19,8 @@ it moves. Its velocity is the least-squares slope of its positions over the last
 :data:`WINDOW` seconds (at most :data:`HISTORY` of them), no faster than :data:`MAX_SPEED`. A
 position farther from the last than :data:`JUMP_SPEED` allows, or a time earlier than the last
 (a replayed log, a reset simulation), starts the disc's history again, at rest; a disc seen
-without a time is at rest. Plans then keep clear of where each disc will be
+without a time is at rest; one not seen again is predicted no further than
+:data:`.limits.PREDICTION`. Plans then keep clear of where each disc will be
 (:mod:`nh_tracking.limits`: discs (x, y, r, vx, vy)).
 """
 from __future__ import annotations
@@ -28,6 +29,8 @@ from collections.abc import Hashable
 from dataclasses import dataclass
 
 import numpy as np
+
+from nh_tracking.limits import moved
 
 WINDOW = 1.0  # [s] positions older than this (before the last) do not count
 HISTORY = 5  # positions a velocity is fitted to, at most
@@ -67,10 +70,12 @@ class DiscTrack:
         return slope * (MAX_SPEED / speed) if speed > MAX_SPEED else slope
 
     def disc(self, t: float | None) -> np.ndarray:
-        """Return (x, y, r, vx, vy): where the disc will be at t (its last position if None)."""
-        velocity = self.velocity
-        ahead = 0.0 if t is None else t - self.times[-1]
-        return np.r_[np.asarray(self.positions[-1]) + ahead * velocity, self.radius, velocity]
+        """Return (x, y, r, vx, vy): where the disc will be at t (its last position if None).
+
+        No more than :data:`.limits.PREDICTION` ahead of its last position.
+        """
+        seen = np.r_[self.positions[-1], self.radius, self.velocity]
+        return moved(seen[None], 0.0 if t is None else t - self.times[-1])[0]
 
 
 @dataclass(frozen=True)

@@ -82,10 +82,19 @@ def obstacle_discs(value: ArrayLike, name: str = 'obstacles') -> np.ndarray:
     return discs
 
 
+PREDICTION = 2.0  # [s] a moving disc not seen again for longer is held where it would be then
+
+
 def moved(discs: np.ndarray, by: float) -> np.ndarray:
-    """Return discs (x, y, r, vx, vy) where their velocities take them in ``by`` seconds."""
+    """Return discs (x, y, r, vx, vy) where their velocities take them in ``by`` seconds.
+
+    At most :data:`PREDICTION` seconds on: told nothing newer for longer, a disc is held
+    there, at rest (a tracker that stopped must not fling its last discs across the map).
+    """
     out = np.array(discs, dtype=float)
-    out[:, :2] += by * out[:, 3:5]
+    out[:, :2] += min(by, PREDICTION) * out[:, 3:5]
+    if by > PREDICTION:
+        out[:, 3:5] = 0.0
     return out
 
 

@@ -32,7 +32,7 @@ from typing import Any, cast
 import numpy as np
 
 from nh_tracking.avoidance import Avoidance, MAX_OBSTACLES
-from nh_tracking.detours import held_up
+from nh_tracking.detours import held_up, joined
 from nh_tracking.fallback import braking_plan, fallback, stop_plan
 from nh_tracking.limits import (bounds_from_lists, in_the_plane, Limits, moved,
                                 obstacle_discs)
@@ -313,8 +313,7 @@ class RecedingHorizonPlanner:
         ``discs``: every obstacle, which a plan taken must keep clear of.
         """
         left = DETOUR_BUDGET * (self.settings.max_solve_time - (time.perf_counter() - started))
-        q = problem.reference_samples[0].copy()
-        q[0] = problem.q0
+        q, _ = joined(problem)
         if left <= 0.0 or not held_up(problem, q, warm.q):
             return warm
         other, spent = self.method.round_obstacles(problem, deadline_after(left))

@@ -117,17 +117,22 @@ def test_malformed_moving_discs_are_refused_naming_the_argument(bad, message):
 
 
 def test_a_replanning_robot_crosses_behind_a_disc_crossing_its_way():
-    """A RecedingHorizonPlanner replanning every 0.1 s on the continuous dynamics."""
+    """A RecedingHorizonPlanner replanning every 0.1 s on the continuous dynamics.
+
+    Told where the disc is at each replan, as a tracker would (told nothing newer, the
+    planner holds a disc where it would be :data:`.limits.PREDICTION` seconds on).
+    """
     system, v0 = SYSTEMS['unicycle']
     problem = _crossing(system, v0)
     planner = RecedingHorizonPlanner(system, PlannerSettings(
         horizon=3.0, steps=30, omega=10.0, terminal='cost', robot_radius=ROBOT_RADIUS))
     planner.set_reference(problem.reference)
-    planner.obstacles, planner.obstacles_time = np.array(problem.obstacles), 0.0
     q, v, closest = problem.q0, problem.v0, np.inf
     disc = obstacle_discs(problem.obstacles)[0]
     for k in range(80):
         t = 0.1 * k
+        planner.obstacles = np.r_[disc[:2] + t * disc[3:5], disc[2:]][None]
+        planner.obstacles_time = t
         outcome = planner.plan(t, q, v)
         step = nht.simulate(system, q, v, [t, t + 0.1], outcome.plan.u[:1])
         for s in np.linspace(0.0, 0.1, 11)[1:]:
@@ -143,6 +148,7 @@ def test_a_replanning_robot_crosses_behind_a_disc_crossing_its_way():
 
 def test_a_disc_seen_moving_gets_its_velocity_and_loses_it_where_it_jumps_or_time_goes_back():
     from nh_tracking.disc_tracks import DiscTracks, MAX_SPEED
+    from nh_tracking.limits import PREDICTION
 
     rng = np.random.default_rng(3)
     tracks, velocity = DiscTracks(), np.array([0.3, -0.2])
@@ -157,7 +163,9 @@ def test_a_disc_seen_moving_gets_its_velocity_and_loses_it_where_it_jumps_or_tim
     tracks.seen('person', 102.0, 5.0, 5.0, 0.3)  # 7 m in 0.1 s: a jump, not a speed
     assert tracks.discs(103.0)[0].tolist() == [5.0, 5.0, 0.3, 0.0, 0.0]
     assert np.allclose(before.discs(101.9)[0, 3:5], velocity, atol=0.05)  # the copy kept
-    tracks.seen('person', 102.1, 5.1, 5.0, 0.3)
+    tracks.seen('person', 102.1, 5.1, 5.0, 0.3)  # 1 m/s along x
+    held = tracks.discs(102.1 + PREDICTION + 1.0)[0]  # not seen again: held, at rest
+    assert held == pytest.approx([5.1 + PREDICTION, 5.0, 0.3, 0.0, 0.0])
     tracks.seen('person', 50.0, 0.0, 0.0, 0.3)  # time went back: a new history
     assert tracks.discs(51.0)[0].tolist() == [0.0, 0.0, 0.3, 0.0, 0.0]
     tracks.seen('person', 50.0, 0.1, 0.0, 0.3)  # the same moment told again

@@ -31,7 +31,7 @@ from typing import ClassVar, NamedTuple
 
 import numpy as np
 
-from nh_tracking.detours import detour_guesses
+from nh_tracking.detours import detour_guesses, joined
 from nh_tracking.problem import Multipliers, Solution, Terminal, TrackingProblem
 from nh_tracking.solvers.cache import builds_until, NotPrepared
 from nh_tracking.solvers.inequalities import Shape
@@ -200,8 +200,7 @@ class Method(ABC):
         if problem.limits.plane is None or \
                 problem.limits.clearance(problem.q0[None], [0.0]).min(initial=0.0) < 0.0:
             return None, 0.0  # (from inside a disc: only the least-violating plan exists)
-        q, v = (a.copy() for a in problem.reference_samples[:2])
-        q[0], v[0] = problem.q0, problem.v0
+        q, v = joined(problem)
         best, spent = None, 0.0
         for knots, sides in detour_guesses(problem, q):
             plan = inside_domain(problem, self.globalised().solve_until(
