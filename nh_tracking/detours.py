@@ -118,16 +118,17 @@ def _pushed(problem: TrackingProblem, q: np.ndarray, blocking: np.ndarray,
     round on the side of the nearest disc already pushed round: a cluster on one side.
     """
     side_of = {int(d): s for d, s in zip(blocking, sides)}
-    centres = problem.limits.obstacles[:, :2]
+    centres = problem.limits.centres(problem.grid - problem.grid[0])  # (knots or 1, M, 2)
     for _ in range(PASSES):
         order = sorted(side_of, key=lambda d: _passing_knot(problem, q, d))
         guess = _pushed_once(problem, q, [(d, side_of[d]) for d in order])
         more = [int(d) for d in blocking_discs(problem, guess) if int(d) not in side_of]
         if not more:
             break
-        for disc in more:
+        for disc in more:  # (where the discs are when the guess passes the new one)
+            at = centres[min(_passing_knot(problem, guess, disc), len(centres) - 1)]
             known = np.array(list(side_of))
-            nearest = known[np.argmin(np.linalg.norm(centres[known] - centres[disc], axis=1))]
+            nearest = known[np.argmin(np.linalg.norm(at[known] - at[disc], axis=1))]
             side_of[disc] = side_of[int(nearest)]
     return guess
 

@@ -17,11 +17,11 @@
 An obstacle tracker (a person detector, another robot) republishes a disc under the same key as
 it moves. Its velocity is the least-squares slope of its positions over the last
 :data:`WINDOW` seconds (at most :data:`HISTORY` of them), no faster than :data:`MAX_SPEED`. A
-position farther from the last than :data:`JUMP_SPEED` allows, or a time earlier than the last
-(a replayed log, a reset simulation), starts the disc's history again, at rest; a disc seen
-without a time is at rest; one not seen again is predicted no further than
-:data:`.limits.PREDICTION`. Plans then keep clear of where each disc will be
-(:mod:`nh_tracking.limits`: discs (x, y, r, vx, vy)).
+position farther from the last than :data:`JUMP_SPEED` allows, a time earlier than the last (a
+replayed log, a reset simulation) or another position at the same time starts the disc's
+history again, at rest; a disc seen without a time is at rest. A disc is moved on from where
+it was last seen by at most :data:`.limits.PREDICTION` seconds (:func:`.limits.moved`); plans
+keep clear of where each disc will be (:mod:`nh_tracking.limits`: discs (x, y, r, vx, vy)).
 """
 from __future__ import annotations
 
@@ -49,9 +49,9 @@ class DiscTrack:
     def seen(self, t: float, x: float, y: float, radius: float) -> DiscTrack:
         """Return the track with a new position; a new history where it jumped or t went back."""
         last_t, last = self.times[-1], self.positions[-1]
-        if t == last_t:  # the same moment told again: the newer word on it
-            return DiscTrack(radius, self.times, self.positions[:-1] + ((x, y),))
-        if t < last_t or np.hypot(x - last[0], y - last[1]) > JUMP_SPEED * (t - last_t):
+        if t == last_t and (x, y) == last:
+            return DiscTrack(radius, self.times, self.positions)
+        if t <= last_t or np.hypot(x - last[0], y - last[1]) > JUMP_SPEED * (t - last_t):
             return DiscTrack(radius, (t,), ((x, y),))
         keep = [i for i, s in enumerate(self.times) if t - s <= WINDOW][-(HISTORY - 1):]
         return DiscTrack(radius, tuple(self.times[i] for i in keep) + (t,),
@@ -89,6 +89,10 @@ class SeenWithout:
     def disc(self, t: float | None) -> np.ndarray:
         return np.array([self.x, self.y, self.radius, 0.0, 0.0])
 
+    @property
+    def times(self) -> tuple[float, ...]:
+        return (-np.inf,)  # (seen at no time: at rest whenever it is asked of)
+
 
 class DiscTracks:
     """The discs by key, each with its velocity; changed by :meth:`seen` and :meth:`forget`."""
@@ -120,3 +124,7 @@ class DiscTracks:
     def discs(self, t: float | None = None) -> np.ndarray:
         """Return where the discs will be at t (None: last seen), as (M, 5) x, y, r, vx, vy."""
         return np.array([track.disc(t) for track in self._tracks.values()]).reshape(-1, 5)
+
+    def last_seen(self) -> np.ndarray:
+        """Return when each disc of :meth:`discs` was last seen (-inf: seen without a time)."""
+        return np.array([track.times[-1] for track in self._tracks.values()], dtype=float)

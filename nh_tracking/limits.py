@@ -64,6 +64,9 @@ def obstacle_discs(value: ArrayLike, name: str = 'obstacles') -> np.ndarray:
     """
     if isinstance(value, np.ndarray) and value.size == 0:
         return np.zeros((0, 5))
+    if isinstance(value, np.ndarray) and value.ndim == 2 and value.shape[1] in (3, 5):
+        rows = value.astype(float)  # (the common case, several times a replan: no loop)
+        return _checked_discs(np.c_[rows, np.zeros((len(rows), 5 - rows.shape[1]))], name)
     try:
         arrays = [np.asarray(row, dtype=float) for row in value]  # type: ignore[union-attr]
     except (TypeError, ValueError):
@@ -74,7 +77,12 @@ def obstacle_discs(value: ArrayLike, name: str = 'obstacles') -> np.ndarray:
     if any(a.shape not in ((3,), (5,)) for a in arrays):
         raise ValueError(f'{name} must be a list of (x, y, r) or (x, y, r, vx, vy) discs, got '
                          f'rows of {sorted({a.size for a in arrays})} values')
-    discs = np.array([np.concatenate([a, np.zeros(5 - a.size)]) for a in arrays])
+    return _checked_discs(np.array([np.concatenate([a, np.zeros(5 - a.size)]) for a in arrays]),
+                          name)
+
+
+def _checked_discs(discs: np.ndarray, name: str) -> np.ndarray:
+    """Return ``discs`` (M, 5) if finite with radii >= 0, else raise ValueError naming them."""
     if not np.isfinite(discs).all():
         raise ValueError(f'{name} must have finite centres, radii and velocities')
     if (discs[:, 2] < 0).any():
@@ -85,16 +93,18 @@ def obstacle_discs(value: ArrayLike, name: str = 'obstacles') -> np.ndarray:
 PREDICTION = 2.0  # [s] a moving disc not seen again for longer is held where it would be then
 
 
-def moved(discs: np.ndarray, by: float) -> np.ndarray:
+def moved(discs: np.ndarray, by: ArrayLike) -> np.ndarray:
     """Return discs (x, y, r, vx, vy) where their velocities take them in ``by`` seconds.
 
-    At most :data:`PREDICTION` seconds on: told nothing newer for longer, a disc is held
-    there, at rest (a tracker that stopped must not fling its last discs across the map).
+    ``by``: one time for all, or one per disc (since each was seen). Between 0 and
+    :data:`PREDICTION` seconds on: told nothing newer for longer, a disc is held there, at rest
+    (a tracker that stopped must not fling its last discs across the map); never back (a
+    stamp ahead of the planner's clock leaves a disc where it was seen).
     """
-    out = np.array(discs, dtype=float)
-    out[:, :2] += min(by, PREDICTION) * out[:, 3:5]
-    if by > PREDICTION:
-        out[:, 3:5] = 0.0
+    out = obstacle_discs(discs)
+    ahead = np.broadcast_to(np.asarray(by, dtype=float), (len(out),))
+    out[:, :2] += np.clip(ahead, 0.0, PREDICTION)[:, None] * out[:, 3:5]
+    out[ahead > PREDICTION, 3:5] = 0.0
     return out
 
 

@@ -153,7 +153,9 @@ class RecedingHorizonPlanner:
         self.settings = settings
         self.reference: Trajectory | None = None
         self.obstacles = np.zeros((0, 3))  # discs (x, y, r) or (x, y, r, vx, vy): front end's
-        self.obstacles_time = 0.0  # when (planner clock) the discs are where they say
+        # when (planner clock; one for all, or one each) the discs were where they are said to
+        # be; None: at every plan's start (moving ones move on over its horizon only)
+        self.obstacles_time: float | np.ndarray | None = None
         self.previous: Solution | None = None
         self.limits = settings.limits(system)
         self.stats = PlannerStatistics()
@@ -202,10 +204,11 @@ class RecedingHorizonPlanner:
     def avoidance(self, t: float) -> Avoidance:
         """Return the obstacles of a replanning step at t, with what to do with them.
 
-        Moving discs where they will be at t.
+        Moving discs where they will be at t (:func:`.limits.moved`).
         """
         s = self.settings
-        discs = moved(obstacle_discs(self.obstacles), t - self.obstacles_time)
+        seen = t if self.obstacles_time is None else self.obstacles_time
+        discs = moved(obstacle_discs(self.obstacles), t - np.asarray(seen))
         return Avoidance(self.system, discs, self.limits['robot_radius'], self.reference,
                          s.horizon, s.steps)
 

@@ -27,6 +27,7 @@ import threading
 import time
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from nh_tracking import models
 from nh_tracking.following import checked_reference, Following
@@ -74,7 +75,7 @@ class TrackingSession:
         # (odometry receipt -> plan published, of which the numerical planner, of which the
         # NLP solver) [s], for the recent plans
         self.latencies: deque[tuple[float, float, float]] = deque(maxlen=2000)
-        self._obstacles, self._obstacles_time = np.zeros((0, 5)), 0.0
+        self._obstacles = (np.zeros((0, 5)), np.zeros(0))  # discs, when seen (planner clock)
         self._lock = threading.Lock()  # the fields above shared between threads
         self._solve_lock = threading.Lock()  # one solve at a time; swaps happen between them
         self._pending: _Build | None = None
@@ -168,23 +169,28 @@ class TrackingSession:
 
     @property
     def obstacles(self) -> np.ndarray:
-        """Return the discs (x, y, r, vx, vy) the plans keep clear of."""
+        """Return the discs (x, y, r, vx, vy) the plans keep clear of, where they were seen."""
         with self._lock:
-            return self._obstacles
+            return self._obstacles[0]
 
     def obstacles_at(self, t: float) -> np.ndarray:
         """Return the discs (x, y, r, vx, vy) where they will be at t (planner clock)."""
         with self._lock:
-            return moved(self._obstacles, t - self._obstacles_time)
+            discs, seen = self._obstacles
+        return moved(discs, t - seen)
 
-    def set_obstacles(self, discs: np.ndarray, at: float = 0.0) -> None:
+    def set_obstacles(self, discs: np.ndarray, seen_ns: ArrayLike | None = None) -> None:
         """Keep clear of ``discs`` (x, y, r) or (x, y, r, vx, vy) from the next plan on.
 
-        ``at``: when (seconds on the planner's clock) they are where they are said to be.
+        ``seen_ns``: when they were where they are said to be, one stamp for all or one each
+        (0: no stamp, at rest); None: now.
         """
         discs = obstacle_discs(discs)
+        stamps = np.broadcast_to(np.asarray(self.clock() if seen_ns is None else seen_ns,
+                                            dtype=np.int64), (len(discs),))
+        seen = np.where(stamps == 0, -np.inf, self.seconds(stamps))  # type: ignore[arg-type]
         with self._lock:
-            self._obstacles, self._obstacles_time = discs, at
+            self._obstacles = (discs, seen)
 
     # reconfiguration --------------------------------------------------------------------------
     def reconfigure(self, physical: Mapping[str, float], settings: PlannerSettings) -> None:
@@ -233,7 +239,8 @@ class TrackingSession:
             if reason or state is None:
                 return self._brake_if_stale(state, reason)
             planner = self.planner
-            planner.obstacles, planner.obstacles_time = self._obstacles, self._obstacles_time
+            with self._lock:
+                planner.obstacles, planner.obstacles_time = self._obstacles
             outcome = planner.plan(self.seconds(state.ns), state.q, state.v)
             result = PlanResult(outcome, state, f'{outcome.status}: {outcome.message} '
                                                 f'({outcome.solve_time * 1e3:.1f} ms)')
@@ -305,8 +312,8 @@ class TrackingSession:
             q = self.pose_map.configuration(pose, None if state is None else state.q)
             t, v = self.seconds(self.clock()), np.zeros(self.system.k)
         with self._solve_lock:
-            self.planner.obstacles = self._obstacles
-            self.planner.obstacles_time = self._obstacles_time
+            with self._lock:
+                self.planner.obstacles, self.planner.obstacles_time = self._obstacles
             solution = self.planner.preview(t, q, v)
         if not solution.success:
             return None, f'solver failed ({solution.message})'

@@ -178,3 +178,13 @@ def test_a_disc_seen_moving_gets_its_velocity_and_loses_it_where_it_jumps_or_tim
     assert len(tracks.discs()) == 2
     tracks.forget()
     assert tracks.discs().shape == (0, 5)
+
+
+def test_discs_move_on_from_when_each_was_seen_never_back_and_at_most_the_prediction():
+    from nh_tracking.limits import moved, PREDICTION
+
+    discs = np.tile([0.0, 0.0, 0.2, 1.0, 0.5], (3, 1))
+    out = moved(discs, [-5.0, 1.0, 10.0])  # stamped ahead of the clock, 1 s ago, long ago
+    assert out[:, :2].tolist() == [[0.0, 0.0], [1.0, 0.5], [PREDICTION, PREDICTION / 2]]
+    assert out[:, 3:].tolist() == [[1.0, 0.5], [1.0, 0.5], [0.0, 0.0]]  # held, at rest
+    assert np.array_equal(discs[:, 3:], np.tile([1.0, 0.5], (3, 1)))  # (a copy)

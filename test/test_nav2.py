@@ -275,6 +275,12 @@ def test_a_wall_across_the_route_fails_to_make_progress_in_time_without_collisio
         assert wait_until(lambda: robot.blocked and robot.blocked[-1] > sent, 6.0 + 4.0)
         print(f'reference_path route into it: blocked {robot.blocked[-1] - sent:.1f} s after '
               'it was sent')
+        removed = time.monotonic()  # the way clears: the kept route is driven on
+        robot.costmap.publish(nav2_costmap([], RADIUS))
+        assert wait_until(lambda: robot.odometry[-1][4] > 0.1, 3.0), robot.odometry[-1]
+        print(f'wall removed: moving again after {time.monotonic() - removed:.1f} s')
+        assert wait_until(lambda: robot.odometry[-1][1] > 4.0 - TOLERANCE, 20.0)
+        assert 'collision' not in sim.output
 
 
 def fuzzed_goal(rng: np.random.Generator) -> FollowPath.Goal:

@@ -55,14 +55,17 @@ class ObstacleListener(GuardedNode):
         self._costmap_discs = np.c_[discs, np.zeros((len(discs), 2))]
         self.obstacles_changed()
 
-    def obstacle_discs(self, centre: np.ndarray, reach: float, count: int,
-                       now_ns: int) -> np.ndarray:
+    def obstacle_discs(self, centre: np.ndarray, reach: float, count: int
+                       ) -> tuple[np.ndarray, np.ndarray]:
         """Return the marker discs and up to ``count`` discs covering the costmap near centre.
 
-        (M, 5): x, y, r, vx, vy, where they will be at ``now_ns``.
+        (M, 5) x, y, r, vx, vy where each was seen, and when (ns; 0 for the costmap's, at
+        rest, and for markers without a stamp).
         """
-        return np.vstack([self.marker_obstacles.discs(now_ns),
-                          nearest_discs(self._costmap_discs, centre, count, reach)])
+        markers, stamps = self.marker_obstacles.sightings()
+        costmap = nearest_discs(self._costmap_discs, centre, count, reach)
+        return (np.vstack([markers, costmap]),
+                np.concatenate([stamps, np.zeros(len(costmap), dtype=np.int64)]))
 
     def obstacles_changed(self) -> None:
         """React to a new obstacle set (the node's own business)."""

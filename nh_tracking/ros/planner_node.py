@@ -262,9 +262,8 @@ class PlannerNode(RuntimeParameters, PlanOutputs, ObstacleListener, ClockWatchdo
             state, session = self.live.state, self.live
             centre = np.zeros(2) if state is None else session.pose_map.pose(state.q)[:2]
             self._discs_centre = centre
-            now = self.now_ns()
-            session.set_obstacles(self.obstacle_discs(centre, self.params['costmap_reach'],
-                                                      MAX_OBSTACLES, now), session.seconds(now))
+            session.set_obstacles(*self.obstacle_discs(centre, self.params['costmap_reach'],
+                                                       MAX_OBSTACLES))
 
     # diagnostics ------------------------------------------------------------------------------
     def on_problem(self) -> None:

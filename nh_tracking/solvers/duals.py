@@ -34,6 +34,8 @@ from nh_tracking.problem import Multipliers, TrackingProblem
 from nh_tracking.solvers.base import Guess
 from nh_tracking.solvers.midpoint import Transcription
 
+SAME_DISC = 1e-9  # [m] a point's disc as carried, to rounding (a moving one's centre is computed)
+
 
 def _layout(tr: Transcription, problem: TrackingProblem) -> Hashable:
     """Return what fixes the rows of g and their order: equal layouts, the same rows.
@@ -83,8 +85,8 @@ def carried_multipliers(tr: Transcription, problem: TrackingProblem, guess: Gues
         _shift(carried, old.values, clearance, 2 * stages)
         discs = tr.limits.assigned(p)
         other = np.zeros(len(discs), dtype=bool)
-        for moved in _moved(old.obstacles, 2 * stages):
-            other |= np.any(moved != discs, axis=1)
+        for moved in _moved(old.obstacles, 2 * stages):  # (moving discs: to rounding)
+            other |= ~np.all(np.isclose(moved, discs, rtol=0.0, atol=SAME_DISC), axis=1)
         carried[clearance[other]] = 0.0
     return carried
 
