@@ -83,6 +83,8 @@ def test_a_second_clock_on_the_domain_is_named_and_the_loaded_loop_gets_back_on_
             other_clock.publish(msg)
 
     loop.feeder.create_subscription(ClockMsg, '/clock', echo, 10)
+    # its window is 1 s of wall time: the planner must hear it from the first tick
+    assert wait_until(lambda: other_clock.get_subscription_count() >= 2, 10.0)
     reference = sleigh_reference(60.0)
     ahead = []
     with busy_cores(2):

@@ -89,6 +89,7 @@ def cmd_demo(args: argparse.Namespace) -> int:
     Scenario sleigh: planner + simulator (10 % heavier) on the paper's sleigh. Scenario
     obstacles: a differential-drive robot on a line through two obstacles, torques limited.
     Scenario nav2: a differential-drive robot given a follow_path goal as Nav2 sends it.
+    Scenario crossing: a differential-drive robot on a line that ten moving discs cross.
     """
     def log(line: str) -> None:
         print(line, flush=True)
@@ -98,6 +99,11 @@ def cmd_demo(args: argparse.Namespace) -> int:
 
         result = run_nav2_demo(Path(args.out), log=log)
         return 0 if result['error_code'] == 0 else 1
+    if args.scenario == 'crossing':
+        from nh_tracking.examples.crossing import run_crossing_demo
+
+        result = run_crossing_demo(Path(args.out), log=log)
+        return 0 if result['arrived'] and result['collisions'] == 0 else 1
     if args.scenario == 'obstacles':
         from nh_tracking.examples.obstacles import run_obstacle_demo
 
@@ -146,9 +152,11 @@ def build_parser() -> argparse.ArgumentParser:
     demo = sub.add_parser('demo', help='closed-loop tracking through ROS (the main job)',
                           description=cmd_demo.__doc__)
     demo.add_argument('--out', default='results/demo')
-    demo.add_argument('--scenario', choices=('sleigh', 'obstacles', 'nav2'), default='sleigh',
+    demo.add_argument('--scenario', choices=('sleigh', 'obstacles', 'nav2', 'crossing'),
+                      default='sleigh',
                       help="the paper's sleigh, a line through two obstacles with torque "
-                           'limits, or a follow_path goal with an untimed route')
+                           'limits, a follow_path goal with an untimed route, or discs '
+                           'crossing a line')
     demo.add_argument('--obstacles', choices=('markers', 'costmap'), default='markers',
                       help='obstacles scenario: send them as MarkerArray or OccupancyGrid')
     demo.add_argument('--duration', type=float, default=None,

@@ -20,6 +20,7 @@ module neither picks a GUI backend nor changes the one a user's program has chos
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Protocol
 
 from matplotlib.figure import Figure
 import numpy as np
@@ -226,6 +227,46 @@ def plot_obstacles(reference: Trajectory, obstacles: np.ndarray, robot_radius: f
     for bound in (-limit, limit):
         ax.axhline(bound, color='r', ls=':')
     ax.set(xlabel='t [s]', ylabel='u (first of each plan)', title='controls and their limit')
+    ax.legend(fontsize=8)
+    return _finish(fig, path)
+
+
+class MovingDiscs(Protocol):
+    """Discs whose centres are known at any time."""
+
+    radius: np.ndarray
+
+    def at(self, t: float) -> np.ndarray:
+        """Return the centres (M, 2) at time t."""
+
+
+def plot_crossing(track: np.ndarray, discs: MovingDiscs, robot_radius: float,
+                  path: Path) -> Path:
+    """Plot the robot's path among discs crossing it, and its gap to the nearest over time.
+
+    ``track``: (T, 3) t, x, y.
+    """
+    from matplotlib.patches import Circle
+
+    fig, axes = _subplots(2, 1, figsize=(11, 6.5))
+    centres = np.array([discs.at(t) for t in track[:, 0]])  # (T, M, 2)
+    gaps = np.linalg.norm(centres - track[:, None, 1:], axis=2) - discs.radius - robot_radius
+    ax = axes[0]
+    for j in range(centres.shape[1]):
+        nearest = int(np.argmin(gaps[:, j]))
+        ax.plot(centres[:, j, 0], centres[:, j, 1], ':', color='tab:red', lw=0.8)
+        ax.add_patch(Circle(tuple(centres[nearest, j]), discs.radius[j], color='tab:red',
+                            alpha=0.4, label='disc when the robot is nearest' if j == 0 else None))
+        ax.add_patch(Circle(tuple(track[nearest, 1:]), robot_radius, fill=False,
+                            color='tab:blue', label='robot then' if j == 0 else None))
+    ax.plot(track[:, 1], track[:, 2], '-', lw=2, label='robot (closed loop through ROS)')
+    ax.set(xlabel='x [m]', ylabel='y [m]', aspect='equal', ylim=(-2.0, 2.0),
+           title='discs crossing the route at their own speed')
+    ax.legend(loc='upper right', fontsize=8)
+    ax = axes[1]
+    ax.plot(track[:, 0] - track[0, 0], gaps.min(axis=1), label='gap to the nearest disc')
+    ax.axhline(0.0, color='r', ls=':', label='contact')
+    ax.set(xlabel='t [s]', ylabel='gap [m]', ylim=(-0.1, 1.5), title='clearance over time')
     ax.legend(fontsize=8)
     return _finish(fig, path)
 
