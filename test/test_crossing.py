@@ -53,3 +53,31 @@ def test_the_crossing_demo_draws_it(tmp_path):
     summary = run_crossing_demo(tmp_path, log=lambda line: None, seed=5)
     assert summary['arrived'] and summary['collisions'] == 0
     assert (tmp_path / 'crossing.png').stat().st_size > 10_000
+
+
+def test_random_scenes_of_discs_on_and_near_the_route_through_ros(graph):
+    """Ten seeded scenes of 3-6 discs within 0.5 m of a 6 m route: at least 9 arrive.
+
+    The scenes of ``test_detours``' session loop, through the nodes; no collision in any.
+    """
+    import numpy as np
+
+    from nh_tracking.examples.crossing import drive, Standing
+    from test_ros import unique_namespace
+
+    rng, arrived, collisions, closest, took = np.random.default_rng(0), 0, 0, np.inf, []
+    for _ in range(10):
+        count = rng.integers(3, 7)
+        discs = np.c_[rng.uniform(1.0, 5.0, count), rng.uniform(-0.5, 0.5, count),
+                      rng.uniform(0.1, 0.3, count)]
+        run = drive(graph, lambda start: Standing(discs.tolist()), 6.0, unique_namespace(),
+                    patience=10.0)
+        arrived += run.arrived
+        collisions += run.sim.collisions
+        closest = min(closest, float(run.closest.min()))
+        took.append(run.took)
+        assert run.planner.errors == 0 and run.sim.errors == 0
+        graph.remove(run.planner, run.sim, run.probe)
+    print(f'\n10 scenes of 3-6 discs through ROS: {arrived} arrived (in {np.round(took, 1)} s), '
+          f'closest approach {closest:+.3f} m, {collisions} collision steps')
+    assert arrived >= 9 and collisions == 0 and closest >= 0.0

@@ -30,7 +30,7 @@ from typing import Any, TypeVar
 import numpy as np
 
 from nh_tracking import models
-from nh_tracking.examples.cold import cold_solve, interleaved
+from nh_tracking.examples.cold import cold_past_a_disc, cold_solve, interleaved
 from nh_tracking.examples.experiments import (particle_problem, sleigh_problem,
                                               SLEIGH_REFERENCE_START, SLEIGH_START)
 from nh_tracking.metrics import cross_track_error, percentiles_ms
@@ -213,6 +213,7 @@ def run_bench(out: Path, log: Callable[[str], None] = print, ros: bool = True) -
         ('scaling', lambda: scaling(log)),
         ('pmp_shooting', lambda: pmp_shooting(log)),
         ('limits', lambda: limits_cost(log)),
+        ('cold_disc', lambda: cold_past_a_disc(log)),
     ]
     if ros:
         from nh_tracking.examples.fleet import fleet
@@ -254,6 +255,11 @@ def acceptance(results: dict) -> dict:
             'value': f"p50 {call['p50']:.2f} ms, p99 {call['p99']:.2f} ms, "
                      f"{warm['deadline_misses']} misses",
             'pass': call['p50'] <= 0.5 and call['p99'] <= 2 and warm['deadline_misses'] == 0}
+    disc = results.get('cold_disc', {}).get('rockit_fatrop')
+    if disc:
+        verdicts['cold solve past a disc on the reference <= 0.1x rockit + fatrop'] = {
+            'value': f"{1 / disc['speedup']:.2f}x its time ({disc['speedup']:.1f}x faster)",
+            'pass': disc['speedup'] >= 10}
     scale = results.get('scaling')
     if scale:
         verdicts['t(N=800)/t(N=50) <= 16'] = {'value': f"{scale['ratio_800_50']:.1f}",

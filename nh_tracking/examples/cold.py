@@ -23,9 +23,11 @@ from typing import Any, TypeVar
 
 import numpy as np
 
+from nh_tracking import models
 from nh_tracking.examples import peers
 from nh_tracking.examples.experiments import sleigh_problem
 from nh_tracking.problem import TrackingProblem
+from nh_tracking.simulate import simulate
 from nh_tracking.solvers import solve
 from nh_tracking.solvers.compiled import wait_for_builds
 from nh_tracking.solvers.midpoint import transcription
@@ -109,6 +111,45 @@ def cold_solve(log: Callable[[str], None]) -> dict:
     out = _compared(solves, built, list(contenders), log)
     out['warm'] = _warm_resolve(problem, contenders, log)
     return out
+
+
+DISC = (1.5, 0.0, 0.3)  # x, y, r [m]: centred on the unicycle's line
+
+
+def cold_past_a_disc(log: Callable[[str], None]) -> dict:
+    """Time cold solves whose reference runs through a disc; which way round each tool goes.
+
+    A unicycle on a straight line at 0.5 m/s through a 0.3 m disc centred on it (robot radius
+    0.2 m, 6 s, N = 60, terminal cost): ours as users call it (``nht.solve``, defaults), the
+    peers from their default guesses, timed in the same rounds.
+    """
+    unicycle = models.unicycle()
+    line = simulate(unicycle, np.zeros(3), [0.5, 0.0], np.linspace(0.0, 10.0, 101))
+    problem = TrackingProblem(unicycle, line, np.zeros(3), np.array([0.5, 0.0]), 6.0, 60,
+                              terminal='cost', omega=10.0, obstacles=[DISC], robot_radius=0.2)
+    plans = [solve(problem)]  # (builds what the first call builds)
+
+    def ours() -> tuple[float, int | None]:
+        plans[0] = solve(problem)
+        return plans[0].cost, plans[0].iterations
+
+    contenders = _peers(problem, log)
+    solves: dict[str, Callable[[], tuple[float, int | None]]] = {'variational': ours}
+    solves.update({name: partial(_theirs, c.solve) for name, c in contenders.items()})
+    out = _compared(solves, {'variational': 0.0, **{n: c.build_s for n, c in contenders.items()}},
+                    list(contenders), log)
+    paths = {'variational': lambda: plans[0].q[:, :2],
+             **{n: c.positions for n, c in contenders.items() if c.positions is not None}}
+    for name, path in paths.items():
+        out[name]['side'] = _side(path())
+        log(f"  {name} goes round the disc on the {out[name]['side']}")
+    return out
+
+
+def _side(positions: np.ndarray) -> str:
+    """Say on which side of the direction of travel (+x) a plan passes DISC."""
+    beside = positions[np.argmin(np.abs(positions[:, 0] - DISC[0])), 1] - DISC[1]
+    return 'left' if beside > 0 else 'right'
 
 
 def _peers(problem: TrackingProblem, log: Callable[[str], None]) -> dict[str, peers.Contender]:

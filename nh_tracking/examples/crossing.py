@@ -29,6 +29,7 @@ import threading
 
 from nav_msgs.msg import Odometry, Path as PathMsg
 import numpy as np
+from rclpy.node import Node
 from visualization_msgs.msg import Marker, MarkerArray
 
 from nh_tracking import models
@@ -100,6 +101,7 @@ class Drive:
     arrived: bool
     planner: PlannerNode
     sim: SimulatorNode
+    probe: Node
 
     @property
     def closest(self) -> np.ndarray:
@@ -114,11 +116,11 @@ class Drive:
 
 
 def drive(graph: InProcessGraph, discs_at_start: Callable[[float], Discs], length: float,
-          namespace: str = '') -> Drive:
+          namespace: str = '', patience: float = 30.0) -> Drive:
     """Follow a line of ``length`` m at SPEED past discs, until within 0.3 m of its end.
 
     ``discs_at_start(start)``: the discs, given the reference's start (absolute s); sent ten
-    times a second. Bounded: the reference's duration and 30 s.
+    times a second. Bounded: the reference's duration and ``patience`` seconds.
     """
     ns = namespace
     sim = graph.add(SimulatorNode, namespace=ns, parameter_overrides=parameters(
@@ -149,10 +151,10 @@ def drive(graph: InProcessGraph, discs_at_start: Callable[[float], Discs], lengt
     def arrived() -> bool:
         with lock:
             return bool(odometry) and odometry[-1][1] > length - 0.3
-    done = wait_until(arrived, length / SPEED + 30.0)
+    done = wait_until(arrived, length / SPEED + patience)
     with lock:
         track = np.array(odometry)
-    return Drive(track, start, discs, done, planner, sim)
+    return Drive(track, start, discs, done, planner, sim, probe)
 
 
 def run_crossing_demo(out: Path, log: Callable[[str], None] = print, seed: int = 11) -> dict:

@@ -15,10 +15,12 @@
 
 """The benchmark's peers, each set up the way its own users write it.
 
-Both take the paper's sleigh problem as numbers only — its parameters (m, J, a), the sampled
-reference, the start, h, N and epsilon — and write the sleigh's equations by hand in their own API
-(the paper's quasi-velocities v1 = sqrt(I) omega, v2 = sqrt(m) * forward speed, so the cost is the
-same function), never handed this package's derived expressions:
+Each takes a problem as numbers only — the model's parameters, the sampled reference, the start,
+h, N, epsilon, the terminal condition and the discs (grown by the robot's radius) — and writes the
+model's equations by hand in its own API (the paper's sleigh in its quasi-velocities
+v1 = sqrt(I) omega, v2 = sqrt(m) * forward speed; the unicycle in its body twist — so the cost is
+the same function), never handed this package's derived expressions. Discs are kept clear at
+every knot after the start, as their users write a constraint:
 
 - do-mpc: its ``Model`` with the right-hand side typed in, its default orthogonal collocation and
   IPOPT; the reference as time-varying parameters; the terminal state fixed by terminal bounds.
@@ -36,6 +38,7 @@ from __future__ import annotations
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass
+from functools import partial
 import math
 import time
 from typing import Any
@@ -62,10 +65,37 @@ def sleigh_rhs(x: Any, u: Any, m: float, J: float, a: float) -> Any:
                       v1 / math.sqrt(inertia), u[0] - eta * v1 * v2, u[1] + eta * v1 * v1)
 
 
-def _numbers(problem: TrackingProblem) -> tuple[dict[str, float], np.ndarray, np.ndarray]:
+def unicycle_rhs(x: Any, u: Any) -> Any:
+    """Write out the dynamic unicycle: x = (x, y, theta, v, omega), u = accelerations."""
+    return ca.vertcat(ca.cos(x[2]) * x[3], ca.sin(x[2]) * x[3], x[4], u[0], u[1])
+
+
+def written_rhs(problem: TrackingProblem) -> Callable[[Any, Any], Any]:
+    """Return the model's right-hand side as written by hand above (sleigh or unicycle)."""
+    system = problem.system
+    if system.name == 'chaplygin_sleigh':
+        return partial(sleigh_rhs, **system.parameters)
+    if system.name == 'unicycle':
+        return unicycle_rhs
+    raise ValueError(f'the peers know the sleigh and the unicycle, not {system.name}')
+
+
+def _numbers(problem: TrackingProblem) -> tuple[np.ndarray, np.ndarray]:
     q_knots, v_knots = problem.reference_samples[:2]
-    x0 = np.concatenate([problem.q0, problem.v0])
-    return problem.system.parameters, np.hstack([q_knots, v_knots]), x0
+    return np.hstack([q_knots, v_knots]), np.concatenate([problem.q0, problem.v0])
+
+
+def _clearances(problem: TrackingProblem, x: Any) -> list[Any]:
+    """Return |p - c|^2 - (r + R)^2 of state ``x`` for each disc: >= 0 to keep clear."""
+    return [(x[0] - cx) ** 2 + (x[1] - cy) ** 2 - grown ** 2
+            for cx, cy, grown in problem.limits.obstacles]
+
+
+def _terminal(problem: TrackingProblem, x: Any, x_ref: Any) -> Any:
+    """Return omega/2 |q_N - q_r(T)|^2 for a terminal cost, 0 for a terminal equality."""
+    n = problem.system.n
+    return 0.5 * problem.omega * ca.sumsqr(x[:n] - x_ref[:n]) if problem.terminal == 'cost' \
+        else 0
 
 
 @dataclass(frozen=True)
@@ -75,10 +105,11 @@ class Contender:
     solve: Callable[[], float]
     build_s: float  # set-up [s]: model, solver, and for Opti its first solve
     warm: Callable[[np.ndarray], float] | None = None  # start offset -> objective
+    positions: Callable[[], np.ndarray] | None = None  # the last plan's (x, y) at its knots
 
 
 def dompc(problem: TrackingProblem) -> Contender:
-    """Set the sleigh up in do-mpc for cold solves."""
+    """Set the problem up in do-mpc for cold solves."""
     with warnings.catch_warnings():  # do-mpc warns about its optional features on import
         warnings.simplefilter('ignore')
         import do_mpc
@@ -100,7 +131,13 @@ def dompc(problem: TrackingProblem) -> Contender:
             mpc.make_step(x0 + offset)
         return float(mpc.solver_stats['iterations']['obj'][-1])
 
-    return Contender(solve, build, warm)
+    def positions() -> np.ndarray:
+        with _legacy_numpy():
+            states = [np.array(mpc.opt_x_num['_x', i, 0, 0]).ravel()
+                      for i in range(problem.steps + 1)]
+        return np.array(states)[:, :2]
+
+    return Contender(solve, build, warm, positions)
 
 
 @contextmanager
@@ -115,12 +152,13 @@ def _legacy_numpy() -> Iterator[None]:
 
 
 def _dompc_controller(do_mpc, problem: TrackingProblem):
-    parameters, reference, x0 = _numbers(problem)
+    reference, x0 = _numbers(problem)
+    nx, nu = len(x0), problem.system.r
     model = do_mpc.model.Model('continuous', 'SX')
-    x = model.set_variable('_x', 'x', (5, 1))
-    u = model.set_variable('_u', 'u', (2, 1))
-    x_r = model.set_variable('_tvp', 'x_r', (5, 1))
-    model.set_rhs('x', sleigh_rhs(x, u, **parameters))
+    x = model.set_variable('_x', 'x', (nx, 1))
+    u = model.set_variable('_u', 'u', (nu, 1))
+    x_r = model.set_variable('_tvp', 'x_r', (nx, 1))
+    model.set_rhs('x', written_rhs(problem)(x, u))
     model.setup()
     mpc = do_mpc.controller.MPC(model)
     mpc.settings.n_horizon = problem.steps
@@ -128,10 +166,13 @@ def _dompc_controller(do_mpc, problem: TrackingProblem):
     mpc.settings.store_full_solution = False
     mpc.settings.nlpsol_opts = IPOPT_QUIET
     running = problem.h * 0.5 * (ca.sumsqr(x - x_r) + problem.epsilon * ca.sumsqr(u))
-    mpc.set_objective(lterm=running, mterm=ca.DM(0))
+    mpc.set_objective(lterm=running, mterm=_terminal(problem, x, x_r) + ca.DM(0))
     mpc.set_rterm(u=0.0)
-    mpc.terminal_bounds['lower', 'x'] = reference[-1]
-    mpc.terminal_bounds['upper', 'x'] = reference[-1]
+    for j, clearance in enumerate(_clearances(problem, x)):
+        mpc.set_nl_cons(f'disc_{j}', -clearance, ub=0.0)
+    if problem.terminal == 'equality':
+        mpc.terminal_bounds['lower', 'x'] = reference[-1]
+        mpc.terminal_bounds['upper', 'x'] = reference[-1]
     template = mpc.get_tvp_template()
     for i in range(problem.steps + 1):
         template['_tvp', i, 'x_r'] = reference[i]
@@ -141,11 +182,12 @@ def _dompc_controller(do_mpc, problem: TrackingProblem):
 
 
 def opti_multiple_shooting(problem: TrackingProblem) -> Contender:
-    """Set the sleigh up with Opti + IPOPT (multiple shooting, RK4) for cold solves."""
-    parameters, reference, x0 = _numbers(problem)
+    """Set the problem up with Opti + IPOPT (multiple shooting, RK4) for cold solves."""
+    reference, x0 = _numbers(problem)
+    nx, nu = len(x0), problem.system.r
     start = time.perf_counter()
-    x, u = ca.SX.sym('x', 5), ca.SX.sym('u', 2)
-    f = ca.Function('f', [x, u], [sleigh_rhs(x, u, **parameters)])
+    x, u = ca.SX.sym('x', nx), ca.SX.sym('u', nu)
+    f = ca.Function('f', [x, u], [written_rhs(problem)(x, u)])
     h, big_n = problem.h, problem.steps
     k1 = f(x, u)
     k2 = f(x + h / 2 * k1, u)
@@ -153,35 +195,49 @@ def opti_multiple_shooting(problem: TrackingProblem) -> Contender:
     k4 = f(x + h * k3, u)
     step = ca.Function('rk4', [x, u], [x + h / 6 * (k1 + 2 * k2 + 2 * k3 + k4)])
     opti = ca.Opti()
-    xs, us = opti.variable(5, big_n + 1), opti.variable(2, big_n)
-    cost = 0
+    xs, us = opti.variable(nx, big_n + 1), opti.variable(nu, big_n)
+    cost = _terminal(problem, xs[:, -1], reference[-1])
     for i in range(big_n):
         opti.subject_to(xs[:, i + 1] == step(xs[:, i], us[:, i]))
         cost += h * 0.5 * (ca.sumsqr(xs[:, i] - reference[i])
                            + problem.epsilon * ca.sumsqr(us[:, i]))
+        for clearance in _clearances(problem, xs[:, i + 1]):
+            opti.subject_to(clearance >= 0)
     opti.subject_to(xs[:, 0] == x0)
-    opti.subject_to(xs[:, -1] == reference[-1])
+    if problem.terminal == 'equality':
+        opti.subject_to(xs[:, -1] == reference[-1])
     opti.minimize(cost)
     opti.solver('ipopt', IPOPT_QUIET)
     opti.set_initial(xs, np.tile(x0[:, None], (1, big_n + 1)))
-    opti.solve()  # the first solve builds IPOPT's functions: counted as set-up
+    last = [opti.solve()]  # the first solve builds IPOPT's functions: counted as set-up
     build = time.perf_counter() - start
-    return Contender(lambda: float(opti.solve().value(cost)), build)
+
+    def solve() -> float:
+        last[0] = opti.solve()
+        return float(last[0].value(cost))
+
+    return Contender(solve, build, positions=lambda: np.array(last[0].value(xs))[:2].T)
 
 
 def rockit_fatrop(problem: TrackingProblem) -> Contender:
-    """Set the sleigh up in rockit with fatrop, called through ``ocp.to_function``."""
+    """Set the problem up in rockit with fatrop, called through ``ocp.to_function``."""
     from rockit import MultipleShooting, Ocp  # (rockit-meco: the bench's extra)
-    parameters, reference, x0 = _numbers(problem)
+    reference, x0 = _numbers(problem)
+    nx, nu = len(x0), problem.system.r
     start = time.perf_counter()
     ocp = Ocp(T=problem.horizon)
-    x, u = ocp.state(5), ocp.control(2)
-    x_ref, x_start = ocp.parameter(5, grid='control+'), ocp.parameter(5)
-    ocp.set_der(x, sleigh_rhs(x, u, **parameters))
+    x, u = ocp.state(nx), ocp.control(nu)
+    x_ref, x_start = ocp.parameter(nx, grid='control+'), ocp.parameter(nx)
+    ocp.set_der(x, written_rhs(problem)(x, u))
     ocp.add_objective(ocp.sum(problem.h * 0.5 * (ca.sumsqr(x - x_ref)
                                                  + problem.epsilon * ca.sumsqr(u))))
+    if problem.terminal == 'cost':
+        ocp.add_objective(ocp.at_tf(_terminal(problem, x, x_ref)))
     ocp.subject_to(ocp.at_t0(x) == x_start)
-    ocp.subject_to(ocp.at_tf(x) == ocp.at_tf(x_ref))
+    for clearance in _clearances(problem, x):
+        ocp.subject_to(clearance >= 0, include_first=False)
+    if problem.terminal == 'equality':
+        ocp.subject_to(ocp.at_tf(x) == ocp.at_tf(x_ref))
     ocp.method(MultipleShooting(N=problem.steps, M=1, intg='rk'))
     ocp.solver('fatrop', {'structure_detection': 'auto', 'expand': True, 'print_time': False,
                           'fatrop.print_level': 0})
@@ -193,14 +249,17 @@ def rockit_fatrop(problem: TrackingProblem) -> Contender:
     plan = ocp.to_function('plan', [x_start, ocp.sample(x_ref, grid='control')[1], states,
                                     controls], [states, controls])
     build = time.perf_counter() - start
-    cold_guess = (np.tile(x0[:, None], (1, problem.steps + 1)), np.zeros((2, problem.steps)))
+    cold_guess = (np.tile(x0[:, None], (1, problem.steps + 1)), np.zeros((nu, problem.steps)))
     last = list(cold_guess)
 
     def run(start_state: np.ndarray, guess: tuple | list) -> float:
         xs, us = (np.array(a) for a in plan(start_state, reference.T, *guess))
         last[:] = [xs, us]
-        return problem.h * 0.5 * float(np.sum((xs[:, :-1] - reference[:-1].T) ** 2)
-                                       + problem.epsilon * np.sum(us ** 2))
+        n = problem.system.n
+        end = 0.0 if problem.terminal != 'cost' else \
+            0.5 * problem.omega * float(np.sum((xs[:n, -1] - reference[-1, :n]) ** 2))
+        return end + problem.h * 0.5 * float(np.sum((xs[:, :-1] - reference[:-1].T) ** 2)
+                                             + problem.epsilon * np.sum(us ** 2))
 
     return Contender(lambda: run(x0, cold_guess), build,
-                     lambda offset: run(x0 + offset, last))
+                     lambda offset: run(x0 + offset, last), lambda: last[0][:2].T)

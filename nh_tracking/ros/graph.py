@@ -76,6 +76,18 @@ class InProcessGraph:
     def plain_node(self, name: str, namespace: str = '') -> Node:
         return self.add(lambda **kw: rclpy.create_node(name, **kw), namespace=namespace)
 
+    def remove(self, *nodes: Node) -> None:
+        """Stop spinning ``nodes`` and destroy them (a graph that runs scene after scene).
+
+        On the executor's thread, between two callbacks: a timer of theirs is not cut short.
+        """
+        def remove_now() -> None:
+            for node in nodes:
+                self.executor.remove_node(node)
+                self.nodes.remove(node)
+                node.destroy_node()
+        self.call(remove_now)
+
     def call(self, request: Callable[..., R], *args: object, timeout: float = 10.0,
              **kwargs: object) -> R:
         """Run ``request(*args, **kwargs)`` on the executor's thread; what it returns.
