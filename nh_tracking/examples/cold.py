@@ -142,14 +142,16 @@ def cold_past_a_disc(log: Callable[[str], None]) -> dict:
              **{n: c.positions for n, c in contenders.items() if c.positions is not None}}
     for name, path in paths.items():
         out[name]['side'] = _side(path())
-        log(f"  {name} goes round the disc on the {out[name]['side']}")
+        log(f"  {name} {out[name]['side']}")
     return out
 
 
 def _side(positions: np.ndarray) -> str:
-    """Say on which side of the direction of travel (+x) a plan passes DISC."""
+    """Say on which side of the direction of travel (+x) a plan passes DISC, if it does."""
+    if positions[:, 0].max() < DISC[0]:
+        return 'stops short of it'
     beside = positions[np.argmin(np.abs(positions[:, 0] - DISC[0])), 1] - DISC[1]
-    return 'left' if beside > 0 else 'right'
+    return 'passes it on the ' + ('left' if beside > 0 else 'right')
 
 
 def _peers(problem: TrackingProblem, log: Callable[[str], None]) -> dict[str, peers.Contender]:
