@@ -108,6 +108,11 @@ def moved(discs: np.ndarray, by: ArrayLike) -> np.ndarray:
     return out
 
 
+def centres_at(centres: np.ndarray, velocities: np.ndarray, t: ArrayLike) -> np.ndarray:
+    """Return centres (M, 2) moved on by their velocities (M, 2) to times ``t``: (T, M, 2)."""
+    return centres[None] + np.reshape(t, (-1, 1, 1)) * velocities[None]
+
+
 def in_the_plane(system: NonholonomicSystem) -> bool:
     """Whether ``system`` declares a pose x and y: obstacles can be avoided only then."""
     return {'x', 'y'} <= set((system.pose or {}).values())
@@ -179,7 +184,7 @@ class Limits:
             return self.obstacles[None, :, :2]
         if t is None:
             raise ValueError('moving obstacles: clearance needs the times of the configurations')
-        return self.obstacles[None, :, :2] + np.reshape(t, (-1, 1, 1)) * self.motion[None]
+        return centres_at(self.obstacles[:, :2], self.motion, t)
 
     def clearance(self, q: np.ndarray, t: ArrayLike | None = None) -> np.ndarray:
         """Distance to each obstacle's edge (grown by the robot's radius) at configurations q.
@@ -280,8 +285,7 @@ def relevant_discs(discs: np.ndarray, robot: np.ndarray, path: np.ndarray,
         return discs
     points = np.vstack([np.asarray(robot, dtype=float)[None, :2], path[:, :2]])
     t = np.r_[0.0, np.linspace(0.0, horizon, len(path))]
-    rates = obstacle_discs(discs)[:, 3:5]
-    centres = discs[None, :, :2] + t[:, None, None] * rates[None]  # (points, M, 2)
+    centres = centres_at(discs[:, :2], obstacle_discs(discs)[:, 3:5], t)  # (points, M, 2)
     grown = discs[:, 2] + robot_radius
     to_path = np.linalg.norm(points[:, None, :] - centres, axis=2).min(axis=0) - grown
     margin = 0.5 + float(np.hypot(*(points[0] - points[1])))

@@ -20,7 +20,7 @@ import numpy as np
 from visualization_msgs.msg import MarkerArray
 
 from nh_tracking.costmap import costmap_discs
-from nh_tracking.limits import nearest_discs
+from nh_tracking.limits import nearest_discs, obstacle_discs
 from nh_tracking.ros.guarded import guarded, GuardedNode
 from nh_tracking.ros.obstacle_messages import MarkerObstacles, occupied_cells
 from nh_tracking.ros.planner_interface import subscribe_latched
@@ -50,9 +50,8 @@ class ObstacleListener(GuardedNode):
     @guarded('costmap')
     def on_costmap(self, msg: OccupancyGrid) -> None:
         cells, size = occupied_cells(msg, self.frame, self.costmap_threshold)
-        discs = costmap_discs(cells, size, DISC_SIZE)
         self.costmap = (cells, size)
-        self._costmap_discs = np.c_[discs, np.zeros((len(discs), 2))]
+        self._costmap_discs = obstacle_discs(costmap_discs(cells, size, DISC_SIZE))
         self.obstacles_changed()
 
     def obstacle_discs(self, centre: np.ndarray, reach: float, count: int
