@@ -27,6 +27,7 @@ from scipy.optimize import lsq_linear, minimize
 from nh_tracking.numeric import NumericFunction
 from nh_tracking.solvers.line_search import line_search_solve
 from nh_tracking.solvers.newton import NewtonStep
+from nh_tracking.solvers.nlp import Pace
 from nh_tracking.solvers.working_set import working_set_solve
 
 RNG = np.random.default_rng(7)
@@ -54,7 +55,7 @@ class Problem:
     def working_set(self, w0):
         return working_set_solve(self.step, self.g, np.asarray(w0, float), np.zeros(0),
                                  self.lower, self.upper,
-                                 np.zeros(len(self.lower), dtype=bool), None)
+                                 np.zeros(len(self.lower), dtype=bool), Pace(None))
 
 
 def _kkt_solution(a, b, c, d):

@@ -62,16 +62,13 @@ def test_random_scenes_of_discs_on_and_near_the_route_through_ros(graph):
     """
     import numpy as np
 
-    from nh_tracking.examples.crossing import drive, Standing
+    from nh_tracking.examples.crossing import drive, random_scene
     from test_ros import unique_namespace
 
     rng, arrived, collisions, closest, took = np.random.default_rng(0), 0, 0, np.inf, []
     for _ in range(10):
-        count = rng.integers(3, 7)
-        discs = np.c_[rng.uniform(1.0, 5.0, count), rng.uniform(-0.5, 0.5, count),
-                      rng.uniform(0.1, 0.3, count)]
-        run = drive(graph, lambda start: Standing(discs.tolist()), 6.0, unique_namespace(),
-                    patience=10.0)
+        scene = random_scene(rng)
+        run = drive(graph, lambda start: scene, 6.0, unique_namespace(), patience=10.0)
         arrived += run.arrived
         collisions += run.sim.collisions
         closest = min(closest, float(run.closest.min()))

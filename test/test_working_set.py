@@ -29,6 +29,7 @@ from nh_tracking.solvers import sample_plan, variational
 from nh_tracking.solvers.inequalities import Shape
 from nh_tracking.solvers.midpoint import working_set_step
 from nh_tracking.solvers.newton import NewtonStep
+from nh_tracking.solvers.nlp import Pace
 from nh_tracking.solvers.working_set import working_set_solve
 from systems import coupled_system, inclined_knife_edge
 
@@ -45,15 +46,15 @@ def test_the_working_set_tells_the_minimum_beside_an_obstacle_from_the_saddle():
     values = nht.numeric.NumericFunction(ca.Function('g', [w, p], [g]))
     lower, upper, convex = np.ones(1), np.full(1, np.inf), np.ones(1, dtype=bool)
     found = working_set_solve(step, values, np.array([0.9, 0.5]), np.zeros(0), lower, upper,
-                              convex, None)
+                              convex, Pace(None))
     assert found is not None and found.active == 1
     assert np.allclose(found.w, [1.0, 0.0], atol=1e-8)
     assert found.multipliers[0] == pytest.approx(-0.25, abs=1e-8)  # CasADi's sign: lower bound
     assert working_set_solve(step, values, np.array([-1.0, 0.05]), np.zeros(0), lower, upper,
-                             convex, None) is None
+                             convex, Pace(None)) is None
     # unconstrained in effect (the target outside the disc): no row held, no check needed
     found = working_set_solve(NewtonStep(w, p, w - ca.DM([2.0, 1.0]), g), values,
-                              np.array([1.5, 0.5]), np.zeros(0), lower, upper, convex, None)
+                              np.array([1.5, 0.5]), np.zeros(0), lower, upper, convex, Pace(None))
     assert found is not None and found.active == 0 and np.allclose(found.w, [2.0, 1.0])
 
 

@@ -216,11 +216,13 @@ def run_bench(out: Path, log: Callable[[str], None] = print, ros: bool = True) -
         ('cold_disc', lambda: cold_past_a_disc(log)),
     ]
     if ros:
+        from nh_tracking.examples.crossing import obstacle_scenes
         from nh_tracking.examples.fleet import fleet
         from nh_tracking.examples.latency import deployed_latency, ros_latency
         sections += [('ros_latency', lambda: ros_latency(log)),
                      ('ros_latency_deployed', lambda: deployed_latency(log)),
-                     ('fleet', lambda: fleet(log))]
+                     ('fleet', lambda: fleet(log)),
+                     ('obstacle_scenes', lambda: obstacle_scenes(log))]
     results: dict[str, dict] = {}
     for i, (name, run) in enumerate(sections, 1):
         log(f'[{i}/{len(sections)}] {name}')
@@ -279,6 +281,24 @@ def acceptance(results: dict) -> dict:
                      f"the odometry's source {ros['latency_ms']['p50']:.2f} ms, of which "
                      f"{ros['overhead_ms']['p50']:.2f} ms beyond the numerical planner",
             'pass': deployed['latency_ms']['p50'] <= 1.5}
+    scenes = results.get('obstacle_scenes')
+    if scenes:
+        free, centred = scenes['free'], scenes['centred']
+        verdicts['a disc centred on the route: at the end in <= 1.5x the time without'] = {
+            'value': f"{centred['took_s']:.1f} s vs {free['took_s']:.1f} s, "
+                     f"{centred['collisions']} collisions",
+            'pass': free['arrived'] and centred['arrived'] and centred['collisions'] == 0
+            and centred['took_s'] <= 1.5 * free['took_s']}
+        arrived = sum(scene['arrived'] for scene in scenes['scenes'])
+        hits = sum(scene['collisions'] for scene in scenes['scenes'])
+        verdicts['random scenes of 3-6 discs: >= 90 % arrive, 0 collisions'] = {
+            'value': f"{arrived} of {len(scenes['scenes'])} arrived, {hits} collisions",
+            'pass': arrived >= 0.9 * len(scenes['scenes']) and hits == 0}
+        crossing = scenes['crossing']
+        verdicts['discs crossing the route: 0 collisions, the robot arrives'] = {
+            'value': f"arrived {crossing['late_s']:+.1f} s after the reference, closest "
+                     f"{crossing['closest_m']:.3f} m, {crossing['collisions']} collisions",
+            'pass': crossing['arrived'] and crossing['collisions'] == 0}
     crowd = results.get('fleet')
     if crowd:
         verdicts['fleet figure (reported, no bar)'] = {

@@ -75,6 +75,13 @@ class Standing:
 Discs = Crossings | Standing
 
 
+def random_scene(rng: np.random.Generator) -> Standing:
+    """Return 3-6 discs (radius 0.1-0.3 m) within 0.5 m of a 6 m route along +x."""
+    count = rng.integers(3, 7)
+    return Standing(np.c_[rng.uniform(1.0, 5.0, count), rng.uniform(-0.5, 0.5, count),
+                          rng.uniform(0.1, 0.3, count)].tolist())
+
+
 def markers(discs: Discs, stamp_ns: int) -> MarkerArray:
     """Return the discs as a tracker sends them: cylinders by id, where they are at the stamp."""
     out = []
@@ -155,6 +162,47 @@ def drive(graph: InProcessGraph, discs_at_start: Callable[[float], Discs], lengt
     with lock:
         track = np.array(odometry)
     return Drive(track, start, discs, done, planner, sim, probe)
+
+
+def obstacle_scenes(log: Callable[[str], None] = print, scenes: int = 10, seed: int = 0
+                    ) -> dict:
+    """Drive the closed-loop scenes with discs through the nodes, at default settings.
+
+    A 6 m route without discs and with one centred on it (times to the end); ``scenes`` seeded
+    scenes of :func:`random_scene` (how many arrive, in what time); CROSSINGS discs crossing a
+    longer route (closest approaches, delay at the end). Collisions as the simulator counts them.
+    """
+    def summary(run: Drive) -> dict:
+        return {'arrived': run.arrived, 'took_s': run.took, 'collisions': run.sim.collisions,
+                'closest_m': float(run.closest.min(initial=np.inf))}
+
+    out: dict = {}
+    with InProcessGraph() as graph:
+        def run_scene(name: str, discs: Callable[[float], Discs], length: float,
+                      patience: float = 30.0) -> dict:
+            run = drive(graph, discs, length, f'/{name}', patience)
+            graph.remove(run.planner, run.sim, run.probe)
+            return summary(run)
+
+        out['free'] = run_scene('free', lambda start: Standing([]), 6.0)
+        out['centred'] = run_scene('centred', lambda start: Standing([(3.0, 0.0, 0.3)]), 6.0)
+        log(f"  a disc centred on a 6 m route: {out['centred']['took_s']:.1f} s to the end "
+            f"({out['free']['took_s']:.1f} s without it), "
+            f"{out['centred']['collisions']} collisions")
+        rng = np.random.default_rng(seed)
+        out['scenes'] = [run_scene(f'scene{i}', lambda start: random_scene(rng), 6.0, 10.0)
+                         for i in range(scenes)]
+        took = [scene['took_s'] for scene in out['scenes'] if scene['arrived']]
+        log(f'  {scenes} scenes of 3-6 discs: {len(took)} arrived (median '
+            f'{np.median(took) if took else np.nan:.1f} s), '
+            f"{sum(scene['collisions'] for scene in out['scenes'])} collisions")
+        length = 2.0 + 2.0 * CROSSINGS
+        out['crossing'] = run_scene('crossing', lambda start: Crossings(11, start), length)
+        out['crossing']['late_s'] = out['crossing']['took_s'] - length / SPEED
+        log(f'  {CROSSINGS} discs crossing at {DISC_SPEED} m/s: arrived '
+            f"{out['crossing']['late_s']:+.1f} s after the reference, closest "
+            f"{out['crossing']['closest_m']:.3f} m, {out['crossing']['collisions']} collisions")
+    return out
 
 
 def run_crossing_demo(out: Path, log: Callable[[str], None] = print, seed: int = 11) -> dict:

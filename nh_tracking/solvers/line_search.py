@@ -51,7 +51,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from nh_tracking.solvers.newton import NewtonStep
-from nh_tracking.solvers.nlp import before, DEADLINE, Outcome
+from nh_tracking.solvers.nlp import DEADLINE, Outcome, Pace
 from nh_tracking.solvers.working_set import WorkingSet
 
 MAX_ITERATIONS = 20  # fatrop takes 10 on the paper's sleigh from the reference, 11 with a terminal
@@ -125,8 +125,9 @@ def line_search_solve(step: NewtonStep, w: np.ndarray, p: np.ndarray, lower: np.
     scale = max(1.0, float(theta))
     search = _Filter(THETA_MAX * scale, THETA_MIN * scale, [])
     unsettled, crawled = 0, 0  # unsettled steps in a row, unsettled steps shorter than CRAWL
+    pace = Pace(stop)
     for _ in range(MAX_ITERATIONS):
-        if not before(stop):
+        if not pace.room():
             return _unsettled(w, multipliers, factorisations, DEADLINE)
         shift = 0.0
         while True:

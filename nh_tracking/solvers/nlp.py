@@ -73,6 +73,28 @@ def before(stop: float | None) -> bool:
     return stop is None or time.perf_counter() < stop
 
 
+class Pace:
+    """Says whether a step as long as the longest so far still ends before an absolute stop.
+
+    An iterative route asks before each step (a factorisation, an iteration, a chunk of them):
+    it then returns by its stop, not one step after it. The first step may start whenever
+    ``step`` (a prior estimate, 0 if none) still ends before the stop.
+    """
+
+    def __init__(self, stop: float | None, step: float = 0.0) -> None:
+        self.stop = stop
+        self.step = step  # [s] the longest step so far
+        self._began: float | None = None
+
+    def room(self) -> bool:
+        """Whether the next step, beginning now, would end before the stop."""
+        now = time.perf_counter()
+        if self._began is not None:
+            self.step = max(self.step, now - self._began)
+        self._began = now
+        return self.stop is None or now + self.step < self.stop
+
+
 def halfway(stop: float | None) -> float | None:
     """Return the stop time of a first try that leaves the next at least half the time left."""
     return None if stop is None else 0.5 * (time.perf_counter() + stop)
@@ -95,7 +117,7 @@ class _Deadline(ca.Callback):
     def __init__(self, nx: int, ng: int, np_: int) -> None:
         ca.Callback.__init__(self)
         self.sizes = {'x': nx, 'lam_x': nx, 'g': ng, 'lam_g': ng, 'lam_p': np_, 'f': 1}
-        self.deadline = math.inf
+        self.pace = Pace(None)
         self.construct('deadline', {})
 
     def get_n_in(self) -> int:
@@ -114,7 +136,7 @@ class _Deadline(ca.Callback):
         return ca.Sparsity.dense(self.sizes.get(ca.nlpsol_out(i), 0), 1)
 
     def eval(self, arg: Sequence[ca.DM]) -> list[ca.DM]:  # noqa: A003 - CasADi's name
-        return [ca.DM(1.0 if time.perf_counter() > self.deadline else 0.0)]
+        return [ca.DM(0.0 if self.pace.room() else 1.0)]
 
 
 @dataclass
@@ -167,6 +189,7 @@ class BoundedNlp:
         self._name, self._options = name, options
         self._chunked = bounded and backend == 'fatrop' and not iterations
         self._chunk_size = FATROP_CHUNK_INTERIOR if inequalities else FATROP_CHUNK
+        self._chunk_s = 0.0  # [s] a whole chunk, at the last chunk's pace (the NLP's size sets it)
         self._warm = backend == 'fatrop' and inequalities
         self.build = LibraryBuild.of_nlp(name, backend, nlp, options) if compiled else None
         library = self.build.library() if self.build is not None else None
@@ -199,14 +222,15 @@ class BoundedNlp:
 
     def solve(self, deadline: float | None, warm: bool = False, **args: Any) -> Outcome:
         """Solve from ``args`` (x0, p, bounds); ``warm``: x0 is a near-optimal plan."""
-        if deadline is not None and time.perf_counter() > deadline:  # not started
+        pace = Pace(deadline, self._chunk_s if self._chunked else 0.0)
+        if not pace.room():  # not started: too little time left for one chunk
             return Outcome({'x': args['x0'], 'lam_g': np.zeros(len(args['lbg']))}, False, 0,
                            DEADLINE)
         solver = self._solvers[warm and self._warm]  # (the set may be swapped meanwhile)
         if self._chunked:
-            return self._chunks(solver, math.inf if deadline is None else deadline, args)
+            return self._chunks(solver, pace, args)
         if self._callback is not None:
-            self._callback.deadline = math.inf if deadline is None else deadline
+            self._callback.pace = Pace(deadline)
         result = solver(**args)
         stats = solver.stats()
         message = words(stats.get('return_status', 'failed'))
@@ -216,17 +240,21 @@ class BoundedNlp:
             success, message = True, 'real-time iteration'
         return Outcome(result, success, int(stats.get('iter_count', -1)), message)
 
-    def _chunks(self, chunk: ca.Function, deadline: float, args: dict[str, Any]) -> Outcome:
+    def _chunks(self, chunk: ca.Function, pace: Pace, args: dict[str, Any]) -> Outcome:
+        """Solve in chunks of iterations, the next only if it ends before the pace's stop."""
         iterations = 0
         while True:
+            began = time.perf_counter()
             result = chunk(**args)
             stats = chunk.stats()
-            iterations += int(stats.get('iter_count', 0))
+            taken = int(stats.get('iter_count', 0))
+            self._chunk_s = (time.perf_counter() - began) * self._chunk_size / max(1, taken)
+            iterations += taken
             message = words(stats.get('return_status', 'failed'))
             if stats['success'] or message != FATROP_STATUS[1]:
                 return Outcome(result, bool(stats['success']), iterations, message)
             if iterations >= MAX_ITERATIONS:
                 return Outcome(result, False, iterations, message)
-            if time.perf_counter() > deadline:
+            if not pace.room():
                 return Outcome(result, False, iterations, DEADLINE)
             args = {**args, 'x0': result['x'], 'lam_g0': result['lam_g']}

@@ -32,7 +32,7 @@ import numpy as np
 
 from nh_tracking.problem import Solution, TrackingProblem
 from nh_tracking.simulate import simulate
-from nh_tracking.solvers.base import Guess, Method, Structure
+from nh_tracking.solvers.base import Guess, Method, Structure, time_left
 from nh_tracking.solvers.nlp import deadline_after
 from nh_tracking.solvers.replay import interval_gap, REPLAY_RTOL
 
@@ -68,13 +68,17 @@ def second_look(problem: TrackingProblem, method: Method, first: Solution,
                 max_time: float | None, seed: int) -> Solution:
     """Re-solve from a perturbed copy of ``first`` (or of the reference, if it failed).
 
-    Within what is left of the call's ``max_time`` [s] (none left: ``first`` as it is). The
-    perturbation is scaled by the extent of the reference's motion (not by where it lies: a
-    heading wound several turns, far coordinates) and kept inside the model's domain.
+    Within what is left of the call's ``max_time`` [s] (none left, or ``first`` ran out of
+    time: ``first`` as it is). The perturbation is scaled by the extent of the reference's
+    motion (not by where it lies: a heading wound several turns, far coordinates) and kept
+    inside the model's domain.
     """
     if max_time is not None and max_time <= 0:
         return first
-    if method.proves_minimum(problem, first, deadline_after(max_time)):
+    stop = deadline_after(max_time)
+    if not time_left(first, stop):
+        return first
+    if method.proves_minimum(problem, first, stop):
         first.local_minimum = True
         return first
     rng = np.random.default_rng(seed)

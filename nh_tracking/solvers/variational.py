@@ -46,7 +46,7 @@ from nh_tracking.solvers.line_search import line_search_solve
 from nh_tracking.solvers.midpoint import (BACKENDS, Transcription, transcription,
                                           working_set_step, WorkingSetStep)
 from nh_tracking.solvers.newton import newton_steps
-from nh_tracking.solvers.nlp import before, deadline_after, halfway, Outcome
+from nh_tracking.solvers.nlp import before, DEADLINE, deadline_after, halfway, Outcome, Pace
 from nh_tracking.solvers.working_set import working_set_solve, WorkingSet
 from nh_tracking.system import NonholonomicSystem
 
@@ -158,7 +158,7 @@ def _solve_with(problem: TrackingProblem, initial_guess: Guess | None, stop: flo
     searched = (newton and not warm and not len(problem.limits.obstacles)
                 and tr.soft_index is None and solver == 'fatrop' and not compiled)
     held_step = _held_step(problem, tr) if newton and (warm or searched) else None
-    start = time.perf_counter()
+    start, pace = time.perf_counter(), Pace(stop)
     w0 = tr.pack(q_g, v_g, u_g)
     read: list[np.ndarray] = []  # the plan read from the unknowns (a Newton step gives it)
     route = solver if tr.soft_index is None else 'ipopt (soft limits)'
@@ -180,7 +180,7 @@ def _solve_with(problem: TrackingProblem, initial_guess: Guess | None, stop: flo
                                          halfway(stop))
                 held = None if not held.success and before(stop) else held
             else:
-                held = _working_set(held_step, w0, p, bounds, stop,
+                held = _working_set(held_step, w0, p, bounds, pace,
                                     carried_multipliers(tr, problem, initial_guess, p))
         if held is not None:
             outcome, route = held, f"newton ({'line search' if searched else 'working set'})"
@@ -189,6 +189,9 @@ def _solve_with(problem: TrackingProblem, initial_guess: Guess | None, stop: flo
             # recover): refuse to start, and say why (Newton steps from it give up at once)
             return unsolved(problem, 'variational', NOT_FINITE, time.perf_counter() - start, q_g,
                             v_g, solver)
+        elif not pace.room():  # the Newton steps took the time
+            outcome = Outcome({'x': w0, 'lam_g': np.zeros(len(bounds['lbg']))}, False, 0,
+                              DEADLINE)
         else:  # cold, or the working set did not settle: interior point
             outcome = tr.nlp.solve(stop, warm, x0=np.concatenate([w0, np.zeros(slacks)]), p=p,
                                    **bounds)
@@ -229,7 +232,7 @@ def _held_step(problem: TrackingProblem, tr: Transcription) -> WorkingSetStep | 
 
 
 def _working_set(step: WorkingSetStep, w0: np.ndarray, p: np.ndarray,
-                 bounds: dict[str, np.ndarray], stop: float | None,
+                 bounds: dict[str, np.ndarray], pace: Pace,
                  multipliers: np.ndarray | None) -> Outcome | None:
     """Replan by Newton steps on a working set of the limit rows (None: it did not settle).
 
@@ -240,7 +243,7 @@ def _working_set(step: WorkingSetStep, w0: np.ndarray, p: np.ndarray,
     if step.failures >= PAUSE_AFTER and step.tries % PAUSE:
         return None
     held = working_set_solve(step.step, step.constraints, w0, p, bounds['lbg'], bounds['ubg'],
-                             step.nonconvex, stop, multipliers)
+                             step.nonconvex, pace, multipliers)
     step.failures = 0 if held is not None else step.failures + 1
     return None if held is None else Outcome(
         {'x': held.w, 'lam_g': held.multipliers}, True, held.factorisations,

@@ -37,7 +37,7 @@ import numpy as np
 
 from nh_tracking.numeric import NumericFunction
 from nh_tracking.solvers.newton import NewtonStep
-from nh_tracking.solvers.nlp import before
+from nh_tracking.solvers.nlp import Pace
 
 MAX_STEPS = 12  # Newton steps (a warm plan needs 2-5)
 MAX_FACTORISATIONS = 24  # in all: a set that needs more is not near the previous plan's
@@ -202,7 +202,7 @@ class WorkingSet:
 
 def working_set_solve(step: NewtonStep, constraints: NumericFunction, w: np.ndarray,
                       p: np.ndarray, lower: np.ndarray, upper: np.ndarray,
-                      nonconvex: np.ndarray, stop: float | None,
+                      nonconvex: np.ndarray, pace: Pace,
                       multipliers: np.ndarray | None = None) -> WorkingSetSolution | None:
     """Solve min 1/2 |r|^2 s.t. lower <= g <= upper from w, or None (see the module).
 
@@ -234,7 +234,7 @@ def working_set_solve(step: NewtonStep, constraints: NumericFunction, w: np.ndar
         guessed = rows.held() if guessed is None else guessed  # the guess's contacts
         changed, offset = False, np.zeros_like(w)
         while True:
-            if factorisations >= MAX_FACTORISATIONS or not before(stop):
+            if factorisations >= MAX_FACTORISATIONS or not pace.room():
                 return None
             w_full, multipliers, full, stationarity = step(w, p, *rows.arguments(), curvature)
             factorisations += 1
