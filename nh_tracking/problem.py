@@ -241,6 +241,21 @@ class Multipliers:
     obstacles: np.ndarray  # the clearance rows' disc parameters: other discs, other rows
 
 
+@dataclass(frozen=True)
+class LimitCheck:
+    """What a converged plan's limits call for, beyond whether it keeps them.
+
+    ``least_violating``: its start breaks a limit, and it is the least-violating plan (a soft
+    NLP's); ``other_disc``: it converged into a disc its clearance points were not given (solve
+    again with the discs nearest it); ``through_disc``: clear at its points, it passes through a
+    disc between two of them (solve again from rest).
+    """
+
+    least_violating: bool = False
+    other_disc: bool = False
+    through_disc: bool = False
+
+
 @dataclass
 class Solution:
     """A plan: knots t (N+1,), q (N+1, n), v (N+1, k); controls u (N, r) held per interval.
@@ -253,8 +268,9 @@ class Solution:
     strict local minimum (False: not shown, or not one); ``costates`` holds (lambda (N+1, n),
     mu (N+1, k)) where the method provides them; ``minima`` lists the distinct local minima
     (cost, times found) of a multi-start search; ``details`` holds method-specific figures
-    (e.g. the discrete admissibility residual); ``multipliers`` the NLP's multipliers, for a
-    warm start from this plan.
+    (e.g. the discrete admissibility residual, ``violation``: by how much a limit is broken);
+    ``limit_check`` what its limits call for (a retry, or a least-violating plan);
+    ``multipliers`` the NLP's multipliers, for a warm start from this plan.
     """
 
     t: np.ndarray
@@ -273,6 +289,7 @@ class Solution:
     costates: tuple[np.ndarray, np.ndarray] | None = None
     minima: list[tuple[float, int]] = field(default_factory=list)
     details: dict[str, float] = field(default_factory=dict)
+    limit_check: LimitCheck = LimitCheck()
     control_law: Callable[[float], np.ndarray] | None = field(default=None, repr=False)
     multipliers: Multipliers | None = field(default=None, repr=False)
 

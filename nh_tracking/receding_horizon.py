@@ -283,7 +283,7 @@ class RecedingHorizonPlanner:
                                f'{s.method}: cost {sol.cost:.4g} in {sol.iterations} iterations',
                                reference)
         solve_time = sol.solve_time if sol is not None else 0.0
-        if (sol is not None and finite and not missed and sol.details.get('least_violating')
+        if (sol is not None and finite and not missed and sol.limit_check.least_violating
                 and start_violation(problem) > VIOLATION_TOL
                 and avoidance.no_deeper(problem, sol, discs)):
             self.previous = sol  # inside an obstacle, say: the way out beats the old plan

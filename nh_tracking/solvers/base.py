@@ -70,12 +70,12 @@ def clear_of_every_disc(solve: Callable[[Guess | None, bool], Solution], guess: 
     """
     result = solve(guess, guess is None)
     for every in (False, True):
-        if not result.details.get('other_disc') or not before(stop):
+        if not result.limit_check.other_disc or not before(stop):
             break
         retry = solve(guess if every else Guess(result.q, result.v, result.u), every)
         result = _after(result, retry, 'every disc at every point' if every
                         else 'the discs nearest its plan')
-    if result.details.get('through_disc') and before(stop):
+    if result.limit_check.through_disc and before(stop):
         steps, sys = problem.steps, problem.system
         rest = Guess(np.tile(problem.q0, (steps + 1, 1)), np.zeros((steps + 1, sys.k)),
                      np.zeros((steps, sys.r)))

@@ -35,7 +35,7 @@ import casadi as ca
 import numpy as np
 
 from nh_tracking.limits import Limits, plan_times
-from nh_tracking.problem import TrackingProblem
+from nh_tracking.problem import LimitCheck, TrackingProblem
 from nh_tracking.regularity import Domain
 
 SOFT_WEIGHT = 1e4  # per unit of violation: above the multipliers of any sane tracking cost
@@ -252,8 +252,8 @@ def start_violation(problem: TrackingProblem) -> float:
 
 def judged(rows: Rows, limits: Limits, soft: bool, converged: bool, path: np.ndarray,
            v: np.ndarray, u: np.ndarray | None, h: float,
-           message: str) -> tuple[bool, str, dict[str, float]]:
-    """Return whether a plan succeeded within its limits, why not, and the details.
+           message: str) -> tuple[bool, str, float, LimitCheck]:
+    """Return whether a plan succeeded within its limits, why not, its violation and check.
 
     ``path``: its configurations at the start and the clearance points, in time order (knots
     ``h`` apart: :func:`.limits.plan_path`). A soft
@@ -261,7 +261,8 @@ def judged(rows: Rows, limits: Limits, soft: bool, converged: bool, path: np.nda
     converged into a disc went into one its clearance points were not given (``other_disc``:
     solved again, :func:`.base.clear_of_every_disc`), and one clear at its points may still
     pass through a disc between two of them (:meth:`.Limits.swept`: ``through_disc``, which a
-    soft NLP, blind to it as well, does not mend).
+    soft NLP, blind to it as well, does not mend). The violation: the most any limit is broken,
+    at the points or between them.
     """
     t = plan_times(len(path) // 2, h)
     at_points, swept = limits.violation(path, v, u, t), limits.swept(path, t)
@@ -273,11 +274,11 @@ def judged(rows: Rows, limits: Limits, soft: bool, converged: bool, path: np.nda
         message = (f'{message}; but the plan passes through a disc between its knots and '
                    f'midpoints (by {swept:.3g} m: they are too far apart for its speed; more '
                    'steps or velocity bounds)')
-    return success, message, {
-        'violation': violation, 'least_violating': soft and converged,
-        'other_disc': not soft and converged and at_points > VIOLATION_TOL
+    return success, message, violation, LimitCheck(
+        least_violating=soft and converged,
+        other_disc=not soft and converged and at_points > VIOLATION_TOL
         and len(limits.obstacles) > rows.shape.slots,
-        'through_disc': converged and at_points <= VIOLATION_TOL < swept}
+        through_disc=converged and at_points <= VIOLATION_TOL < swept)
 
 
 def _broken(limits: Limits, path: np.ndarray, v: np.ndarray, u: np.ndarray | None,

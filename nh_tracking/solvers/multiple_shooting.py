@@ -146,7 +146,7 @@ def _solve_until(problem: TrackingProblem, initial_guess: Guess | None,
     soft = start_violation(problem) > VIOLATION_TOL  # only the least-violating plan exists
     result = route(soft)
     if (not result.success and problem.limits.active and not soft and time_left(result, stop)
-            and not result.details.get('through_disc')):
+            and not result.limit_check.through_disc):
         result = next_route(result, f'ipopt failed ({result.message}) -> soft limits',
                             lambda: route(True))
     return result
@@ -191,7 +191,7 @@ def _solve_once(problem: TrackingProblem, initial_guess: Guess | None,
     x = np.vstack([stage[:, :n + k], w[-(n + k):]])
     q, v, u = x[:, :n], x[:, n:], stage[:, n + k:]
     cost = float(tr.running_cost(w, p)) + terminal_cost(problem, q[-1])
-    success, message, details = judged(
+    success, message, violation, check = judged(
         tr.limits, problem.limits, tr.soft_index is not None,
         outcome.success and bool(np.all(np.isfinite(w))),
         np.vstack([q[:1], np.array(tr.clearance_at(w, p))]), v, u,  # knots, RK4 midpoints
@@ -201,7 +201,7 @@ def _solve_once(problem: TrackingProblem, initial_guess: Guess | None,
         iterations=outcome.iterations, solve_time=elapsed,
         terminal_error=terminal_error(problem, q[-1], v[-1]), method='multiple_shooting',
         message=message, route='ipopt' if tr.soft_index is None else 'ipopt (soft limits)',
-        details=details)
+        details={'violation': violation}, limit_check=check)
 
 
 def _domain_bounds(system: NonholonomicSystem, steps: int) -> tuple[np.ndarray, np.ndarray]:

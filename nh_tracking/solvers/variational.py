@@ -127,7 +127,7 @@ def solve_variational_until(problem: TrackingProblem, initial_guess: Guess | Non
         result = next_route(result, f'fatrop failed ({result.message}) -> ipopt',
                             lambda: route('ipopt', False, False))
     if not result.success and problem.limits.active and not soft and time_left(result, stop) and \
-            not result.details.get('through_disc'):  # e.g. a terminal state inside an obstacle
+            not result.limit_check.through_disc:  # e.g. a terminal state inside an obstacle
         result = next_route(result, f'{result.route} failed ({result.message}) -> soft limits',
                             lambda: route(solver, compiled, True))
     domain = problem.system.domain
@@ -207,7 +207,7 @@ def _solve_with(problem: TrackingProblem, initial_guess: Guess | None, stop: flo
     lam = -0.5 * lam_g[tr.admissibility_rows].reshape(problem.steps, sys.n)
     mu = (-problem.epsilon * u if sys.fully_actuated
           else -lam_g[tr.dynamics_rows].reshape(problem.steps, sys.k))
-    success, message, details = judged(
+    success, message, violation, check = judged(
         tr.limits, problem.limits, tr.soft_index is not None,
         outcome.success and bool(np.isfinite(w).all()), plan_path(q), v, u, problem.h,
         outcome.message)
@@ -217,7 +217,8 @@ def _solve_with(problem: TrackingProblem, initial_guess: Guess | None, stop: flo
         terminal_error=float(end_error[0]), method='variational',
         message=message, route=route, local_minimum=outcome.minimum,
         costates=(lam, mu), multipliers=multipliers_at(tr, problem, lam_g, p),
-        details={'admissibility_residual': max_residual, **details})
+        details={'admissibility_residual': max_residual, 'violation': violation},
+        limit_check=check)
 
 
 def _held_step(problem: TrackingProblem, tr: Transcription) -> WorkingSetStep | None:
