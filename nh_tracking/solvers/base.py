@@ -85,7 +85,7 @@ def clear_of_every_disc(solve: Callable[[Guess | None, bool], Solution], guess: 
 
 def time_left(previous: Solution, stop: float | None) -> bool:
     """Whether another route may start after ``previous``: neither it nor the clock ran out."""
-    return previous.message != DEADLINE and before(stop)
+    return not previous.message.startswith(DEADLINE) and before(stop)
 
 
 def next_route(failed: Solution, route: str, solve: Callable[[], Solution]) -> Solution:

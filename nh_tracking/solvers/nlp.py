@@ -77,13 +77,13 @@ class Pace:
     """Says whether a step as long as the longest so far still ends before an absolute stop.
 
     An iterative route asks before each step (a factorisation, an iteration, a chunk of them):
-    it then returns by its stop, not one step after it. The first step may start whenever
-    ``step`` (a prior estimate, 0 if none) still ends before the stop.
+    it then returns by its stop, not one step after it. The first step may start whenever the
+    stop is ahead.
     """
 
-    def __init__(self, stop: float | None, step: float = 0.0) -> None:
+    def __init__(self, stop: float | None) -> None:
         self.stop = stop
-        self.step = step  # [s] the longest step so far
+        self.step = 0.0  # [s] the longest step so far
         self._began: float | None = None
 
     def room(self) -> bool:
@@ -189,7 +189,6 @@ class BoundedNlp:
         self._name, self._options = name, options
         self._chunked = bounded and backend == 'fatrop' and not iterations
         self._chunk_size = FATROP_CHUNK_INTERIOR if inequalities else FATROP_CHUNK
-        self._chunk_s = 0.0  # [s] a whole chunk, at the last chunk's pace (the NLP's size sets it)
         self._warm = backend == 'fatrop' and inequalities
         self.build = LibraryBuild.of_nlp(name, backend, nlp, options) if compiled else None
         library = self.build.library() if self.build is not None else None
@@ -222,8 +221,8 @@ class BoundedNlp:
 
     def solve(self, deadline: float | None, warm: bool = False, **args: Any) -> Outcome:
         """Solve from ``args`` (x0, p, bounds); ``warm``: x0 is a near-optimal plan."""
-        pace = Pace(deadline, self._chunk_s if self._chunked else 0.0)
-        if not pace.room():  # not started: too little time left for one chunk
+        pace = Pace(deadline)
+        if not pace.room():  # not started
             return Outcome({'x': args['x0'], 'lam_g': np.zeros(len(args['lbg']))}, False, 0,
                            DEADLINE)
         solver = self._solvers[warm and self._warm]  # (the set may be swapped meanwhile)
@@ -244,12 +243,9 @@ class BoundedNlp:
         """Solve in chunks of iterations, the next only if it ends before the pace's stop."""
         iterations = 0
         while True:
-            began = time.perf_counter()
             result = chunk(**args)
             stats = chunk.stats()
-            taken = int(stats.get('iter_count', 0))
-            self._chunk_s = (time.perf_counter() - began) * self._chunk_size / max(1, taken)
-            iterations += taken
+            iterations += int(stats.get('iter_count', 0))
             message = words(stats.get('return_status', 'failed'))
             if stats['success'] or message != FATROP_STATUS[1]:
                 return Outcome(result, bool(stats['success']), iterations, message)
