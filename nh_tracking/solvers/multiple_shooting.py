@@ -35,7 +35,7 @@ from nh_tracking.solvers.cache import by_steps, PerSystemCache
 from nh_tracking.solvers.inequalities import (ConstraintStack, DOMAIN_MARGIN, judged, Rows, Shape,
                                               soft_bounds, soften, start_violation,
                                               VIOLATION_TOL)
-from nh_tracking.solvers.nlp import BoundedNlp, deadline_after
+from nh_tracking.solvers.nlp import BoundedNlp, deadline_after, Pace
 from nh_tracking.system import NonholonomicSystem
 
 SUBSTEPS = 2  # RK4 steps per control interval
@@ -183,7 +183,7 @@ def _solve_once(problem: TrackingProblem, initial_guess: Guess | None,
         w0, lbw, ubw = (np.concatenate([a, np.full(slacks, b)])
                         for a, b in ((w0, 0.0), (lbw, 0.0), (ubw, np.inf)))
     start = time.perf_counter()
-    outcome = tr.nlp.solve(stop, x0=w0, p=p, lbx=lbw, ubx=ubw, lbg=lbg, ubg=ubg)
+    outcome = tr.nlp.solve(Pace(stop), x0=w0, p=p, lbx=lbw, ubx=ubw, lbg=lbg, ubg=ubg)
     elapsed = time.perf_counter() - start
     slacks = 0 if tr.soft_index is None else len(tr.soft_index)
     w = np.array(outcome.result['x']).ravel()[:len(w0) - slacks]

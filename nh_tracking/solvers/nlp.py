@@ -219,9 +219,12 @@ class BoundedNlp:
         solvers = self._load(str(library))
         self._solvers, self.solver, self.compiled = solvers, solvers[False], True
 
-    def solve(self, deadline: float | None, warm: bool = False, **args: Any) -> Outcome:
-        """Solve from ``args`` (x0, p, bounds); ``warm``: x0 is a near-optimal plan."""
-        pace = Pace(deadline)
+    def solve(self, pace: Pace, warm: bool = False, **args: Any) -> Outcome:
+        """Solve from ``args`` (x0, p, bounds); ``warm``: x0 is a near-optimal plan.
+
+        ``pace``: the route's, its steps so far measured (none: the solve starts if its stop is
+        ahead).
+        """
         if not pace.room():  # not started
             return Outcome({'x': args['x0'], 'lam_g': np.zeros(len(args['lbg']))}, False, 0,
                            DEADLINE)
@@ -229,7 +232,7 @@ class BoundedNlp:
         if self._chunked:
             return self._chunks(solver, pace, args)
         if self._callback is not None:
-            self._callback.pace = Pace(deadline)
+            self._callback.pace = pace
         result = solver(**args)
         stats = solver.stats()
         message = words(stats.get('return_status', 'failed'))

@@ -46,7 +46,7 @@ from nh_tracking.solvers.line_search import line_search_solve
 from nh_tracking.solvers.midpoint import (BACKENDS, Transcription, transcription,
                                           working_set_step, WorkingSetStep)
 from nh_tracking.solvers.newton import newton_steps
-from nh_tracking.solvers.nlp import before, DEADLINE, deadline_after, halfway, Outcome, Pace
+from nh_tracking.solvers.nlp import before, deadline_after, halfway, Outcome, Pace
 from nh_tracking.solvers.working_set import working_set_solve, WorkingSet
 from nh_tracking.system import NonholonomicSystem
 
@@ -189,11 +189,8 @@ def _solve_with(problem: TrackingProblem, initial_guess: Guess | None, stop: flo
             # recover): refuse to start, and say why (Newton steps from it give up at once)
             return unsolved(problem, 'variational', NOT_FINITE, time.perf_counter() - start, q_g,
                             v_g, solver)
-        elif not pace.room():  # the Newton steps took the time
-            outcome = Outcome({'x': w0, 'lam_g': np.zeros(len(bounds['lbg']))}, False, 0,
-                              DEADLINE)
-        else:  # cold, or the working set did not settle: interior point
-            outcome = tr.nlp.solve(stop, warm, x0=np.concatenate([w0, np.zeros(slacks)]), p=p,
+        else:  # cold, or the working set did not settle: interior point (if the time is left)
+            outcome = tr.nlp.solve(pace, warm, x0=np.concatenate([w0, np.zeros(slacks)]), p=p,
                                    **bounds)
     elapsed = time.perf_counter() - start
     w = np.array(outcome.result['x']).ravel()[:tr.unknowns]
