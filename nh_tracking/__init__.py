@@ -22,14 +22,15 @@ imports rclpy) and the examples (``nh_tracking.examples``: demo, benchmark, expe
 from importlib.metadata import PackageNotFoundError, version
 
 from nh_tracking import models
+from nh_tracking.estimation import estimate_parameters, ParameterEstimate
 from nh_tracking.problem import Solution, TrackingProblem
 from nh_tracking.simulate import simulate
 from nh_tracking.solvers import solve
 from nh_tracking.system import NonholonomicSystem
 from nh_tracking.trajectory import Trajectory
 
-__all__ = ['NonholonomicSystem', 'Solution', 'TrackingProblem', 'Trajectory', 'models',
-           'simulate', 'solve']
+__all__ = ['NonholonomicSystem', 'ParameterEstimate', 'Solution', 'TrackingProblem',
+           'Trajectory', 'estimate_parameters', 'models', 'simulate', 'solve']
 try:
     __version__ = version('nh_tracking')  # one source: package.xml, read by setup.py
 except PackageNotFoundError:  # running from a source tree that is not installed

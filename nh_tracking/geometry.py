@@ -95,6 +95,23 @@ def potential_force(metric: ca.SX, rho: ca.SX, potential: ca.SX, q: ca.SX) -> ca
     return ca.solve(metric_on_distribution(metric, rho), rho.T @ ca.gradient(potential, q))
 
 
+def input_matrix(metric: ca.SX, rho: ca.SX, actuators: ca.SX | None) -> ca.SX:
+    """Return B = G_D^{-1} rho^T F: how forces along the actuators' directions F move v.
+
+    The identity when there are no actuators (one control per basis field).
+    """
+    if actuators is None:
+        return ca.SX.eye(rho.shape[1])
+    return ca.solve(metric_on_distribution(metric, rho), rho.T @ actuators)
+
+
+def acceleration(gamma: ca.SX, inputs: ca.SX, metric: ca.SX, rho: ca.SX, potential: ca.SX,
+                 q: ca.SX, v: ca.SX, u: ca.SX) -> ca.SX:
+    """Return vdot = -Gamma(v, v) - grad_{G_D} V + B u: the controlled equations in v."""
+    return (-quadratic_christoffel(gamma, v) - potential_force(metric, rho, potential, q)
+            + inputs @ u)
+
+
 def constraint_kernel_candidates(constraints: ca.SX) -> list[ca.SX]:
     """Polynomial vector fields spanning ker mu(q): generalised cross products of mu's rows.
 

@@ -16,18 +16,41 @@
 
 Metric, constraints, potential, basis and actuators come as callables of a CasADi SX column q;
 what they return is taken as an SX matrix of the shape the system needs (a list of rows of
-expressions too), or refused with the argument named.
+expressions too), or refused with the argument named. A model's data may close over physical
+parameters that are numbers (to build the system) or CasADi symbols (to estimate them).
 """
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass
 import re
 from typing import Any
 
 import casadi as ca
 
+SymbolicMap = Callable[[ca.SX], Any]
+
 POSE_AXES = ('x', 'y', 'z', 'yaw')  # of a ROS pose: position and heading
 NAME = re.compile(r'[A-Za-z][A-Za-z0-9_]*')  # a system's name names its CasADi functions
+
+
+@dataclass(frozen=True)
+class LagrangianData:
+    """A model's coordinates and the maps of q that define its dynamics.
+
+    As :meth:`NonholonomicSystem.from_constraints` takes them: ``metric`` (n, n),
+    ``constraints`` (m, n) or None, ``potential`` scalar or None, ``basis`` (n, k) of D or None
+    (then a G-orthonormal one is sampled, which needs numeric parameters), ``actuators`` (n, r)
+    or None (one control per basis field).
+    """
+
+    coordinates: Sequence[str]
+    metric: SymbolicMap
+    constraints: SymbolicMap | None = None
+    potential: SymbolicMap | None = None
+    basis: SymbolicMap | None = None
+    actuators: SymbolicMap | None = None
+    angles: Sequence[str] = ()
 
 
 def as_sx(value: Any, shape: tuple[int, int] | None, what: str) -> ca.SX:

@@ -127,6 +127,11 @@ def held_rk4(system: NonholonomicSystem, x: Any, u: Any, h: Any, substeps: int) 
         rate = system.ode_fn(x, u)
         return np.asarray(rate) if numeric else rate
 
+    return rk4(ode, x, u, h, substeps)
+
+
+def rk4(ode: Callable[[Any, Any], Any], x: Any, u: Any, h: Any, substeps: int) -> Any:
+    """Return the state after ``h`` of xdot = ode(x, u) with ``u`` held: fixed RK4 steps."""
     dt = h / substeps
     for _ in range(substeps):
         k1 = ode(x, u)

@@ -29,7 +29,7 @@ on symbols) with numpy wrappers (for users). The data is checked for regularity 
 """
 from __future__ import annotations
 
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Mapping, Sequence
 from typing import Any
 
 import casadi as ca
@@ -37,11 +37,10 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from nh_tracking import geometry, lean, regularity
-from nh_tracking.lagrangian_data import as_sx, check_name, pose_axes
+from nh_tracking.lagrangian_data import (as_sx, check_name, LagrangianData, pose_axes,
+                                         SymbolicMap)
 from nh_tracking.numeric import NumericFunction
 from nh_tracking.regularity import Domain
-
-SymbolicMap = Callable[[ca.SX], Any]
 
 
 class NonholonomicSystem:
@@ -95,13 +94,9 @@ class NonholonomicSystem:
         g_d = geometry.metric_on_distribution(metric, rho)
         gamma = geometry.christoffel(metric, rho, q)
         forces = metric @ rho if actuators is None else actuators
-        inputs = ca.SX.eye(self.k) if actuators is None else ca.solve(g_d, rho.T @ actuators)
+        inputs = geometry.input_matrix(metric, rho, actuators)
         qdot = rho @ v
-        vdot = (
-            -geometry.quadratic_christoffel(gamma, v)
-            - geometry.potential_force(metric, rho, potential, q)
-            + inputs @ u
-        )
+        vdot = geometry.acceleration(gamma, inputs, metric, rho, potential, q, v, u)
         self.actuators_fn = ca.Function('actuators', [q], [forces], ['q'], ['F'])
         self.rho_fn = ca.Function('rho', [q], [rho], ['q'], ['rho'])
         self._rho = NumericFunction(self.rho_fn)  # every odometry message and command needs it
@@ -198,6 +193,17 @@ class NonholonomicSystem:
             parameters=parameters, basis_condition=condition, pose=pose, actuators=forces,
             domain=box,
         )
+
+    @classmethod
+    def from_data(cls, data: LagrangianData, **names: Any) -> NonholonomicSystem:
+        """Build a system from a model's :class:`LagrangianData`.
+
+        ``names`` as in :meth:`from_constraints`: domain, controls, velocities, name,
+        parameters, pose.
+        """
+        return cls.from_constraints(
+            data.coordinates, data.metric, data.constraints, data.potential, basis=data.basis,
+            actuators=data.actuators, angles=data.angles, **names)
 
     def _lean(self, function: ca.Function) -> ca.Function:
         """Drop what is constant or repeated in ``function``, checked over the domain."""

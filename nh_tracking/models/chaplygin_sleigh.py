@@ -19,7 +19,8 @@ import math
 
 import casadi as ca
 
-from nh_tracking.models.spec import ModelSpec, PhysicalParameter, positive
+from nh_tracking.lagrangian_data import LagrangianData
+from nh_tracking.models.spec import ModelSpec, PhysicalParameter, positive, Scalar
 from nh_tracking.system import NonholonomicSystem
 
 
@@ -35,6 +36,15 @@ def chaplygin_sleigh(m: float = 1.0, J: float = 4.0, a: float = 0.2) -> Nonholon
     positive(m=m, J=J)
     if not math.isfinite(a):
         raise ValueError(f'model parameter a must be finite, got {a!r}')
+    return NonholonomicSystem.from_data(
+        lagrangian(m, J, a), controls=['torque', 'force'], velocities=['rotation', 'forward'],
+        pose={'x1': 'x', 'x2': 'y', 'theta': 'yaw'}, name='chaplygin_sleigh',
+        parameters={'m': m, 'J': J, 'a': a},
+    )
+
+
+def lagrangian(m: Scalar, J: Scalar, a: Scalar) -> LagrangianData:
+    """Return the sleigh's metric, constraint and basis; parameters numbers or CasADi symbols."""
     inertia = J + m * a**2
 
     def metric(q: ca.SX) -> ca.SX:
@@ -47,16 +57,12 @@ def chaplygin_sleigh(m: float = 1.0, J: float = 4.0, a: float = 0.2) -> Nonholon
         return ca.horzcat(-ca.sin(q[2]), ca.cos(q[2]), 0)
 
     def basis(q: ca.SX) -> ca.SX:
-        x1 = ca.vertcat(0, 0, 1 / math.sqrt(inertia))
-        x2 = ca.vertcat(ca.cos(q[2]), ca.sin(q[2]), 0) / math.sqrt(m)
+        x1 = ca.vertcat(0, 0, 1 / ca.sqrt(inertia))
+        x2 = ca.vertcat(ca.cos(q[2]), ca.sin(q[2]), 0) / ca.sqrt(m)
         return ca.horzcat(x1, x2)
 
-    return NonholonomicSystem.from_constraints(
-        ['x1', 'x2', 'theta'], metric, constraints, basis=basis, angles=['theta'],
-        controls=['torque', 'force'], velocities=['rotation', 'forward'],
-        pose={'x1': 'x', 'x2': 'y', 'theta': 'yaw'}, name='chaplygin_sleigh',
-        parameters={'m': m, 'J': J, 'a': a},
-    )
+    return LagrangianData(['x1', 'x2', 'theta'], metric, constraints, basis=basis,
+                          angles=['theta'])
 
 
 SPEC = ModelSpec(
@@ -66,4 +72,4 @@ SPEC = ModelSpec(
      PhysicalParameter('a', 0.2, 'm', "distance from the blade's contact point to the centre "
                        'of mass', (-1e6, 1e6))),
     'a rigid body on a blade that cannot slip sideways',
-    start=((0.0, 0.5, 0.0), (1 / 3, 1.0)))
+    start=((0.0, 0.5, 0.0), (1 / 3, 1.0)), lagrangian=lagrangian)

@@ -17,7 +17,8 @@ from __future__ import annotations
 
 import casadi as ca
 
-from nh_tracking.models.spec import ModelSpec, PhysicalParameter, positive
+from nh_tracking.lagrangian_data import LagrangianData
+from nh_tracking.models.spec import ModelSpec, PhysicalParameter, positive, Scalar
 from nh_tracking.system import NonholonomicSystem
 
 
@@ -31,6 +32,15 @@ def rolling_disk(
     so v = (turn rate, spin rate).
     """
     positive(m=m, R=R, I_spin=I_spin, I_turn=I_turn)
+    return NonholonomicSystem.from_data(
+        lagrangian(m, R, I_spin, I_turn), controls=['turn_acceleration', 'spin_acceleration'],
+        velocities=['turn', 'spin'], pose={'x': 'x', 'y': 'y', 'theta': 'yaw'},
+        name='rolling_disk', parameters={'m': m, 'R': R, 'I_spin': I_spin, 'I_turn': I_turn},
+    )
+
+
+def lagrangian(m: Scalar, R: Scalar, I_spin: Scalar, I_turn: Scalar) -> LagrangianData:
+    """Return the disk's metric, rolling constraints and basis (numbers or CasADi symbols)."""
 
     def constraints(q: ca.SX) -> ca.SX:
         c, s = ca.cos(q[2]), ca.sin(q[2])
@@ -40,13 +50,9 @@ def rolling_disk(
         c, s = ca.cos(q[2]), ca.sin(q[2])
         return ca.horzcat(ca.vertcat(0, 0, 1, 0), ca.vertcat(R * c, R * s, 0, 1))
 
-    return NonholonomicSystem.from_constraints(
-        ['x', 'y', 'theta', 'phi'], lambda q: ca.diag(ca.vertcat(m, m, I_turn, I_spin)),
-        constraints, basis=basis, angles=['theta', 'phi'],
-        controls=['turn_acceleration', 'spin_acceleration'], velocities=['turn', 'spin'],
-        pose={'x': 'x', 'y': 'y', 'theta': 'yaw'}, name='rolling_disk',
-        parameters={'m': m, 'R': R, 'I_spin': I_spin, 'I_turn': I_turn},
-    )
+    return LagrangianData(['x', 'y', 'theta', 'phi'],
+                          lambda q: ca.diag(ca.vertcat(m, m, I_turn, I_spin)), constraints,
+                          basis=basis, angles=['theta', 'phi'])
 
 
 SPEC = ModelSpec(
@@ -56,4 +62,4 @@ SPEC = ModelSpec(
      PhysicalParameter('I_spin', 0.1, 'kg m^2', 'inertia about the wheel axle'),
      PhysicalParameter('I_turn', 0.05, 'kg m^2', 'inertia about the vertical axis')),
     'a coin rolling upright; its rolling angle is not seen in a pose',
-    start=((0.0, 0.0, 0.0, 0.0), (1.0, 1.0)))
+    start=((0.0, 0.0, 0.0, 0.0), (1.0, 1.0)), lagrangian=lagrangian)

@@ -19,7 +19,8 @@ import math
 
 import casadi as ca
 
-from nh_tracking.models.spec import ModelSpec, PhysicalParameter, positive
+from nh_tracking.lagrangian_data import LagrangianData
+from nh_tracking.models.spec import ModelSpec, PhysicalParameter, positive, Scalar
 from nh_tracking.system import NonholonomicSystem
 
 STEERING_LIMIT = math.pi / 2  # at |phi| = pi/2 both axles are parallel: D changes rank
@@ -41,11 +42,28 @@ def snakeboard(m: float = 1.0,
     with one control per basis field, that references are generated with.
     """
     positive(m=m, l=l, J=J, J_r=J_r, J_w=J_w)
+    return NonholonomicSystem.from_data(
+        lagrangian(m, l, J, J_r, J_w, actuated=actuated),
+        domain={'phi': (-STEERING_LIMIT, STEERING_LIMIT)},
+        controls=None if actuated else ['rotor_torque', 'steering_torque'],
+        velocities=['forward', 'rotor', 'steering'],
+        pose={'x': 'x', 'y': 'y', 'theta': 'yaw'},
+        name='snakeboard_actuated' if actuated else 'snakeboard',
+        parameters={'m': m, 'l': l, 'J': J, 'J_r': J_r, 'J_w': J_w},
+    )
+
+
+def lagrangian(m: Scalar, l: Scalar, J: Scalar, J_r: Scalar,  # noqa: E741
+               J_w: Scalar, actuated: bool = False) -> LagrangianData:
+    """Return the snakeboard's metric, wheel constraints, basis and torque directions.
+
+    The physical parameters are numbers or CasADi symbols.
+    """
 
     def metric(q: ca.SX) -> ca.SX:
-        return ca.SX(ca.DM([
+        return ca.blockcat([
             [m, 0, 0, 0, 0], [0, m, 0, 0, 0], [0, 0, J + J_r + 2 * J_w, J_r, 0],
-            [0, 0, J_r, J_r, 0], [0, 0, 0, 0, 2 * J_w]]))
+            [0, 0, J_r, J_r, 0], [0, 0, 0, 0, 2 * J_w]])
 
     def constraints(q: ca.SX) -> ca.SX:
         theta, phi = q[2], q[4]
@@ -62,16 +80,8 @@ def snakeboard(m: float = 1.0,
     def torques(q: ca.SX) -> ca.SX:
         return ca.SX(ca.DM([[0, 0], [0, 0], [0, 0], [1, 0], [0, 1]]))
 
-    return NonholonomicSystem.from_constraints(
-        ['x', 'y', 'theta', 'psi', 'phi'], metric, constraints, basis=basis,
-        actuators=None if actuated else torques,
-        domain={'phi': (-STEERING_LIMIT, STEERING_LIMIT)}, angles=['theta', 'psi'],
-        controls=None if actuated else ['rotor_torque', 'steering_torque'],
-        velocities=['forward', 'rotor', 'steering'],
-        pose={'x': 'x', 'y': 'y', 'theta': 'yaw'},
-        name='snakeboard_actuated' if actuated else 'snakeboard',
-        parameters={'m': m, 'l': l, 'J': J, 'J_r': J_r, 'J_w': J_w},
-    )
+    return LagrangianData(['x', 'y', 'theta', 'psi', 'phi'], metric, constraints, basis=basis,
+                          actuators=None if actuated else torques, angles=['theta', 'psi'])
 
 
 SPEC = ModelSpec(
@@ -82,4 +92,4 @@ SPEC = ModelSpec(
      PhysicalParameter('J_r', 0.05, 'kg m^2', "the rotor's moment of inertia"),
      PhysicalParameter('J_w', 0.01, 'kg m^2', "each wheel pair's moment of inertia")),
     'a board propelled by rotor and steering torques only (underactuated)',
-    start=((0.0, 0.0, 0.0, 0.0, 0.0), (0.5, 0.0, 0.0)))
+    start=((0.0, 0.0, 0.0, 0.0, 0.0), (0.5, 0.0, 0.0)), lagrangian=lagrangian)

@@ -24,9 +24,13 @@ from dataclasses import dataclass
 import inspect
 import math
 
+import casadi as ca
+
+from nh_tracking.lagrangian_data import LagrangianData
 from nh_tracking.system import NonholonomicSystem
 
 POSITIVE = (1e-6, 1e6)
+Scalar = float | ca.SX  # a physical parameter: a number to build with, a symbol to estimate
 
 
 def positive(**values: float) -> None:
@@ -58,7 +62,9 @@ class PhysicalParameter:
 class ModelSpec:
     """A model: its factory (keyword arguments = the physical parameters) and their specs.
 
-    ``start`` is a typical initial state (q, v) for demonstrations.
+    ``start`` is a typical initial state (q, v) for demonstrations. ``lagrangian`` (keyword
+    arguments = the physical parameters, numbers or CasADi symbols) gives the model's data with
+    its parameters left symbolic, which estimating them needs; without it they are fixed.
     """
 
     name: str
@@ -66,6 +72,7 @@ class ModelSpec:
     parameters: tuple[PhysicalParameter, ...] = ()
     summary: str = ''
     start: tuple[tuple[float, ...], tuple[float, ...]] | None = None
+    lagrangian: Callable[..., LagrangianData] | None = None
 
     def __post_init__(self) -> None:
         arguments = inspect.signature(self.factory).parameters

@@ -17,7 +17,8 @@ from __future__ import annotations
 
 import casadi as ca
 
-from nh_tracking.models.spec import ModelSpec, PhysicalParameter, positive
+from nh_tracking.lagrangian_data import LagrangianData
+from nh_tracking.models.spec import ModelSpec, PhysicalParameter, positive, Scalar
 from nh_tracking.system import NonholonomicSystem
 
 
@@ -28,6 +29,18 @@ def unicycle(m: float = 1.0, J: float = 1.0) -> NonholonomicSystem:
     u = (linear, angular) acceleration; the wheels' force and torque are m u1 and J u2.
     """
     positive(m=m, J=J)
+    return NonholonomicSystem.from_data(
+        lagrangian(m, J), controls=['linear_acceleration', 'angular_acceleration'],
+        velocities=['linear', 'angular'], pose={'x': 'x', 'y': 'y', 'theta': 'yaw'},
+        name='unicycle', parameters={'m': m, 'J': J},
+    )
+
+
+def lagrangian(m: Scalar, J: Scalar) -> LagrangianData:
+    """Return the unicycle's metric, constraint and body-twist basis.
+
+    m and J do not enter the motion of v: the controls are accelerations.
+    """
 
     def constraints(q: ca.SX) -> ca.SX:
         return ca.horzcat(-ca.sin(q[2]), ca.cos(q[2]), 0)
@@ -35,16 +48,13 @@ def unicycle(m: float = 1.0, J: float = 1.0) -> NonholonomicSystem:
     def basis(q: ca.SX) -> ca.SX:
         return ca.horzcat(ca.vertcat(ca.cos(q[2]), ca.sin(q[2]), 0), ca.vertcat(0, 0, 1))
 
-    return NonholonomicSystem.from_constraints(
-        ['x', 'y', 'theta'], lambda q: ca.diag(ca.vertcat(m, m, J)), constraints,
-        basis=basis, angles=['theta'], controls=['linear_acceleration', 'angular_acceleration'],
-        velocities=['linear', 'angular'], pose={'x': 'x', 'y': 'y', 'theta': 'yaw'},
-        name='unicycle', parameters={'m': m, 'J': J},
-    )
+    return LagrangianData(['x', 'y', 'theta'], lambda q: ca.diag(ca.vertcat(m, m, J)),
+                          constraints, basis=basis, angles=['theta'])
 
 
 SPEC = ModelSpec(
     'unicycle', unicycle,
     (PhysicalParameter('m', 1.0, 'kg', 'mass'),
      PhysicalParameter('J', 1.0, 'kg m^2', 'moment of inertia about the vertical axis')),
-    'a differential-drive robot; v is the body twist', start=((0.0, 0.0, 0.0), (1.0, 1.0)))
+    'a differential-drive robot; v is the body twist', start=((0.0, 0.0, 0.0), (1.0, 1.0)),
+    lagrangian=lagrangian)
