@@ -174,7 +174,9 @@ class _Fit:
     def __init__(self, plant: ParametricModel, times: np.ndarray, controls: np.ndarray) -> None:
         self.plant = plant
         count, nx, size = len(times), plant.n + plant.k, len(plant.names)
-        self.scale = np.maximum(np.abs(plant.start), 1e-3)  # delta = (value - start) / scale
+        defaults = plant.spec.defaults  # delta = (value - start) / scale; a zero start is
+        self.scale = np.array([abs(v) if v else max(abs(defaults[n]), 1.0)  # scaled by its
+                               for n, v in zip(plant.names, plant.start)])  # default's size
         x0, x1, u = ca.SX.sym('x0', nx), ca.SX.sym('x1', nx), ca.SX.sym('u', plant.r)
         delta, h = ca.SX.sym('delta', size), ca.SX.sym('h')
         values = plant.start + self.scale * delta
@@ -190,10 +192,11 @@ class _Fit:
         misfit = (states[:plant.n, :] - target) * weights
         cost = (0.5 * ca.sumsqr(misfit) + 0.5 * PRIOR * ca.sumsqr(d)) / count
         bounds = {p.name: p.bounds for p in plant.spec.parameters}
-        low = [max((bounds[n][0] - plant.values[n]) / s, -(1 - 1 / MOVE) if v > 0 else -MOVE)
-               for n, s, v in zip(plant.names, self.scale, plant.start)]
-        high = [min((bounds[n][1] - plant.values[n]) / s, MOVE)
-                for n, s in zip(plant.names, self.scale)]
+        move = [_move(v) for v in plant.start]  # within a factor MOVE, the sign kept
+        low = [max((bounds[n][0] - plant.values[n]) / s, m[0])
+               for n, s, m in zip(plant.names, self.scale, move)]
+        high = [min((bounds[n][1] - plant.values[n]) / s, m[1])
+                for n, s, m in zip(plant.names, self.scale, move)]
         self.size, self.nx, self.count = size, nx, count
         self.bounds = (np.r_[np.full(nx * count, -np.inf), low],
                        np.r_[np.full(nx * count, np.inf), high])
@@ -244,10 +247,19 @@ class _Fit:
         return np.linalg.inv(marginal)
 
 
+def _move(start: float) -> tuple[float, float]:
+    """Return the bounds of delta that keep a value within a factor MOVE of ``start``."""
+    if start > 0:
+        return -(1 - 1 / MOVE), MOVE - 1
+    if start < 0:
+        return -(MOVE - 1), 1 - 1 / MOVE
+    return -MOVE, MOVE  # in units of the default's size
+
+
 def _estimate(plant: ParametricModel, scale: np.ndarray, delta: np.ndarray,
               covariance: np.ndarray, noise: np.ndarray, outliers: int) -> ParameterEstimate:
     std = np.sqrt(np.abs(np.diag(covariance))) * scale
-    relative = std / np.where(plant.start == 0, scale, np.abs(plant.start))
+    relative = std / scale
     excited = bool(_worst(covariance) <= EXCITED)
     values = plant.start + scale * delta if excited else plant.start
     loose = [f'{n} (±{r:.0%})' if r < 10 else f'{n} (nothing)'

@@ -24,6 +24,7 @@ import enum
 
 import numpy as np
 
+from nh_tracking.adaptation import BackgroundEstimates
 from nh_tracking.goal_checking import GoalState
 from nh_tracking.receding_horizon import PlanStatus
 from nh_tracking.session import TrackingSession
@@ -99,4 +100,18 @@ def session_health(session: TrackingSession, problem: str, counts: dict[str, int
         'latency_p50_ms': f'{np.percentile(latency, 50) * 1e3:.2f}',
         'latency_p99_ms': f'{np.percentile(latency, 99) * 1e3:.2f}',
     }
+    if session.adaptation is not None:
+        values.update(estimate_values(session.adaptation))
     return Health(level, message, values)
+
+
+def estimate_values(adaptation: BackgroundEstimates) -> dict[str, object]:
+    """Return the values in use of what is estimated online, its spread and the excitation."""
+    last = adaptation.last
+    values: dict[str, object] = {}
+    for name, value in adaptation.values.items():
+        values[f'estimate/{name}'] = f'{value:.6g}'
+        values[f'estimate/{name}/std'] = f'{last.std[name]:.3g}' if last else 'none'
+    values['estimate/excitation'] = (
+        adaptation.failure or (last.message if last else 'waiting for a full window'))
+    return values

@@ -66,6 +66,19 @@ def bases(system: NonholonomicSystem, qs: np.ndarray) -> np.ndarray:
     return blocks.transpose(1, 0, 2)
 
 
+def reexpressed(reference: Trajectory, old: NonholonomicSystem,
+                new: NonholonomicSystem) -> Trajectory:
+    """Return ``reference`` (in ``old``'s basis of D) as the same motion in ``new``'s.
+
+    For a model rebuilt with other physical parameters, whose basis may scale with them: the
+    velocities v keep their qdot = rho v; the controls, the old model's, are dropped (zero).
+    """
+    qdot = np.einsum('nik,nk->ni', bases(old, reference.q), reference.v)
+    rho = bases(new, reference.q)
+    v = np.array([np.linalg.lstsq(r, w, rcond=None)[0] for r, w in zip(rho, qdot)])
+    return Trajectory(reference.t, reference.q, v, np.zeros((len(reference.t) - 1, new.r)))
+
+
 def wrap_angle(angle: np.ndarray | float) -> np.ndarray | float:
     """Angle(s) in (-pi, pi]."""
     return np.pi - np.mod(np.pi - np.asarray(angle), 2 * np.pi)

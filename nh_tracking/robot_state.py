@@ -28,6 +28,8 @@ from nh_tracking.joints import JointMap, JointReading, JointsRejected, observe
 from nh_tracking.poses import PoseMap
 from nh_tracking.session_types import Clock, ClockSkew, StateEstimate
 
+LEAD = 0.05  # s: odometry stamped this far ahead of the clock keeps its stamp (a tick)
+
 
 class RobotState:
     """Pose, twist and joints in; :class:`StateEstimate` (q, v at a stamp) out.
@@ -68,13 +70,19 @@ class RobotState:
             return self._latest
 
     def _checked_stamp(self, ns: int) -> tuple[int, int]:
-        """(``ns`` no later than the clock, the clock); ClockSkew if over max_clock_skew ahead."""
+        """(``ns`` no later than LEAD past the clock, the clock); ClockSkew beyond max_clock_skew.
+
+        A stamp up to LEAD ahead keeps its time: on sim time odometry often arrives before the
+        /clock tick it was stamped with, and dating it at receipt would start every plan from
+        it one tick early. Further ahead (clocks out of step) it is dated LEAD past the clock,
+        so the watchdog gives it at most LEAD more.
+        """
         now = self.clock()
         ahead = (ns - now) * 1e-9
         if ahead > self.max_clock_skew:
             raise ClockSkew(f'stamped {ahead:.3f} s ahead of this clock (max_clock_skew is '
                             f'{self.max_clock_skew:g} s): clocks out of step?')
-        return min(ns, now), now
+        return min(ns, now + int(LEAD * 1e9)), now
 
     def set_joints(self, ns: int, names: Sequence[str], positions: Sequence[float] | np.ndarray,
                    velocities: Sequence[float] | np.ndarray) -> bool:
@@ -102,7 +110,7 @@ class RobotState:
                      received: float) -> StateEstimate:
         """Take the latest pose and body twist, with the joints (:mod:`joints`).
 
-        ClockSkew if stamped over max_clock_skew ahead; a state is never later than the clock.
+        ClockSkew if stamped over max_clock_skew ahead.
         """
         ns = self._checked_stamp(ns)[0]
         with self._lock:

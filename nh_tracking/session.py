@@ -30,13 +30,14 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from nh_tracking import models
+from nh_tracking.adaptation import BackgroundEstimates, SentControls
 from nh_tracking.following import checked_reference, Following
 from nh_tracking.limits import moved, obstacle_discs
-from nh_tracking.poses import PoseMap
+from nh_tracking.poses import PoseMap, reexpressed
 from nh_tracking.problem import Solution
 from nh_tracking.receding_horizon import (PlannerSettings, PlanOutcome, PlanStatus,
                                           RecedingHorizonPlanner)
-from nh_tracking.robot_state import RobotState
+from nh_tracking.robot_state import LEAD, RobotState
 from nh_tracking.session_types import (Clock, PlanResult, settle_heap,
                                        Staleness, StateEstimate)
 from nh_tracking.solvers.compiled import cancel_builds
@@ -82,6 +83,8 @@ class TrackingSession:
         self._wake, self._rebuild, self._stop = (threading.Event() for _ in range(3))
         self._threads: list[threading.Thread] = []
         self._on_plan: Callable[[PlanResult], None] = lambda result: None
+        self.adaptation: BackgroundEstimates | None = None  # online estimates, when adapting
+        self.sent_controls = SentControls()  # what the robot was sent, for the estimates
 
     @property
     def system(self) -> NonholonomicSystem:
@@ -113,6 +116,8 @@ class TrackingSession:
         settle_heap(2)
 
     def stop(self, timeout: float = 10.0) -> None:
+        if self.adaptation is not None:
+            self.adaptation.close()
         self._stop.set()
         self._wake.set()
         self._rebuild.set()
@@ -158,6 +163,35 @@ class TrackingSession:
         """Take the latest pose and body twist (:meth:`RobotState.set_odometry`)."""
         state = self.robot.set_odometry(ns, pose, twist, received)
         self.following.update(pose, twist, self.seconds(state.ns))
+        if self.adaptation is not None:
+            if not self.active:  # commands stop: what was sent before is not in force after
+                self.sent_controls.clear()
+            self.adaptation.sample(self.seconds(state.ns), state.q, self.sent_controls.readings)
+
+    def adapt(self, names: Sequence[str]) -> None:
+        """Estimate the physical parameters ``names`` online; a moved estimate rebuilds."""
+        self.adaptation = BackgroundEstimates(self.model, names, self.system.parameters,
+                                              self._adapted)
+
+    def _adapted(self) -> None:
+        """Rebuild with the estimates in use, over a build still to come (a user's change)."""
+        with self._lock:
+            build = self._pending
+        if build is None:
+            self.reconfigure(self.system.parameters, self.planner.settings)
+        else:
+            self.reconfigure(build.physical, build.settings)
+
+    def _send(self, result: PlanResult) -> None:
+        """Hand a plan to ``on_plan`` (the commands); remember its controls when adapting.
+
+        A plan is recorded as in force from its start (the state it was planned from); the
+        estimates also read it as in force one odometry interval later (``SentControls``).
+        """
+        self._on_plan(result)
+        if self.adaptation is not None and result.outcome is not None:
+            plan = result.outcome.plan
+            self.sent_controls.sent(plan.t[0], plan.t, plan.u)
 
     @property
     def state(self) -> StateEstimate | None:
@@ -195,8 +229,9 @@ class TrackingSession:
     # reconfiguration --------------------------------------------------------------------------
     def reconfigure(self, physical: Mapping[str, float], settings: PlannerSettings) -> None:
         """Rebuild with new parameters on the builder thread (the latest request wins)."""
-        with self._lock:
-            self._pending = _Build(dict(physical), settings)
+        adapted = self.adaptation.values if self.adaptation is not None else {}
+        with self._lock:  # the estimates in use, not the values typed, of what is adapted
+            self._pending = _Build({**physical, **adapted}, settings)
         self._rebuild.set()
 
     @property
@@ -224,6 +259,8 @@ class TrackingSession:
                 planner.previous = old.previous  # the warm start survives a settings change
             else:
                 self.robot.set_pose_map(PoseMap(system))
+                if old.reference is not None:  # its velocities were in the old basis
+                    planner.set_reference(reexpressed(old.reference, old.system, system))
             self.planner = planner
         settle_heap(1)
         with self._lock:
@@ -244,7 +281,7 @@ class TrackingSession:
             outcome = planner.plan(self.seconds(state.ns), state.q, state.v)
             result = PlanResult(outcome, state, f'{outcome.status}: {outcome.message} '
                                                 f'({outcome.solve_time * 1e3:.1f} ms)')
-            self._on_plan(result)  # the commands first: the robot waits for them
+            self._send(result)  # the commands first: the robot waits for them
             self.latencies.append((time.perf_counter() - state.received,
                                    planner.stats.plan_durations[-1], outcome.solve_time))
             with self._lock:
@@ -265,11 +302,11 @@ class TrackingSession:
             return PlanResult(None, state, reason)
         if outcome.status in (PlanStatus.BRAKE, PlanStatus.STOP):
             if outcome.status is PlanStatus.BRAKE:
-                self._on_plan(PlanResult(outcome, state, reason))
+                self._send(PlanResult(outcome, state, reason))
             return PlanResult(None, state, reason)
         braking = self.planner.brake(self.seconds(state.ns), state.q, state.v, reason)
         result = PlanResult(braking, state, braking.message)
-        self._on_plan(result)
+        self._send(result)
         with self._lock:
             self.outcome = braking
         return result
@@ -333,6 +370,8 @@ class TrackingSession:
                 self._commanded = commanded
         trajectory = commanded[1]
         t = self.seconds(now_ns)
+        if trajectory.t[0] - LEAD <= t < trajectory.t[0]:
+            t = trajectory.t[0]  # planned from odometry stamped a little ahead of this clock
         if stale or not self.active or self.following.halted or \
                 not trajectory.t[0] <= t <= trajectory.t[-1]:
             return np.zeros(4)

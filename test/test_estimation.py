@@ -210,7 +210,7 @@ def test_online_estimates_reach_the_truth_in_20_s_and_stay_put_without_excitatio
     estimator = OnlineEstimator(spec, ['m', 'J'], spec.defaults)
     fits = []
     for k, tk in enumerate(t):
-        estimator.add(tk, q[k], u[min(k, len(u) - 1)])
+        estimator.add(tk, q[k], u[max(k - 1, 0)])  # the control since the last sample
         if estimator.due(tk):
             fits.append((tk, estimator.update()))
     assert len(fits) >= 5  # from 9 s on, every 2 s

@@ -90,6 +90,7 @@ def cmd_demo(args: argparse.Namespace) -> int:
     obstacles: a differential-drive robot on a line through two obstacles, torques limited.
     Scenario nav2: a differential-drive robot given a follow_path goal as Nav2 sends it.
     Scenario crossing: a differential-drive robot on a line that ten moving discs cross.
+    With --adapt: the sleigh learns its robot's m and J while tracking it.
     """
     def log(line: str) -> None:
         print(line, flush=True)
@@ -111,6 +112,12 @@ def cmd_demo(args: argparse.Namespace) -> int:
                                    kind=args.obstacles, log=log)
         return 0 if result['collisions'] == 0 and result['cross_track_error_last_3s'] < 0.05 \
             else 1
+    if args.adapt:
+        from nh_tracking.examples.adapting import run_adaptation_demo
+
+        outcome = run_adaptation_demo(Path(args.out), duration=args.duration or 40.0,
+                                      log=log)
+        return 0 if outcome['prediction_error_ratio'] >= 5 else 1
     from nh_tracking.examples.demo import run_demo
 
     summary = run_demo(Path(args.out), duration=args.duration or 15.0,
@@ -159,6 +166,9 @@ def build_parser() -> argparse.ArgumentParser:
                            'crossing a line')
     demo.add_argument('--obstacles', choices=('markers', 'costmap'), default='markers',
                       help='obstacles scenario: send them as MarkerArray or OccupancyGrid')
+    demo.add_argument('--adapt', action='store_true',
+                      help="sleigh: the robot's J 30 %% above the model's, m 20 %% below, with "
+                           'and without online estimates of them (adapt.png)')
     demo.add_argument('--duration', type=float, default=None,
                       help='simulated seconds (default 15, obstacles 25)')
     demo.add_argument('--reference', choices=('path', 'trajectory'), default='path',

@@ -60,12 +60,13 @@ class ClosedLoop:
     """
 
     def __init__(self, graph: InProcessGraph, namespace: str = '/demo',
-                 planner_overrides: dict | None = None) -> None:
+                 planner_overrides: dict | None = None, robot: dict | None = None) -> None:
+        """``robot``: the simulated robot's physical parameters (default: J 10 % above)."""
         model = models.chaplygin_sleigh()
         self.graph = graph
         self.pose_map = PoseMap(model)
         self.namespace = namespace
-        self.heavier_inertia = model.parameters['J'] * INERTIA_MISMATCH
+        self.robot = robot or {'J': model.parameters['J'] * INERTIA_MISMATCH}
         self.planner = graph.add(PlannerNode, namespace=namespace, parameter_overrides=parameters(
             **{'use_sim_time': True, **(planner_overrides or {})}))
         self.sim: SimulatorNode | None = None
@@ -101,7 +102,7 @@ class ClosedLoop:
         self.send_reference(reference, kind)
         self.sim = self.graph.add(SimulatorNode, namespace=self.namespace,
                                   parameter_overrides=parameters(
-                                      J=self.heavier_inertia, publish_clock=True, rate=50.0,
+                                      **self.robot, publish_clock=True, rate=50.0,
                                       initial_state=np.concatenate(start_state).tolist(),
                                       time_scale=time_scale, start_time=START))
 

@@ -297,3 +297,24 @@ def plot_route(route: np.ndarray, track: np.ndarray, feedback: np.ndarray,
         axes[2].plot(feedback[:, 0], feedback[:, 1], '.-', ms=3)
     axes[2].set(xlabel='t [s]', ylabel='distance_to_goal [m]', title='action feedback')
     return _finish(fig, path)
+
+
+def plot_adaptation(runs: dict, truth: dict[str, float], path: Path) -> Path:
+    """Plot the values the planner used over time against the truth, and 1-s predictions."""
+    fig, axes = _subplots(1, len(truth) + 1, figsize=(5.2 * (len(truth) + 1), 4.4))
+    for ax, name in zip(axes, truth):
+        for adapt, run in runs.items():
+            times = [t for t, _ in run['values']] + [run['t'][-1]]
+            used = [v[name] for _, v in run['values']]
+            ax.step(times, used + used[-1:], where='post',
+                    label='adapted' if adapt else 'fixed (the model as typed)')
+        ax.axhline(truth[name], color='k', ls='--', label='the robot')
+        ax.set(xlabel='t [s]', ylabel=name, title=f"{name} in the planner's model")
+        ax.legend(fontsize=8)
+    ax = axes[-1]
+    for adapt, run in runs.items():
+        ax.semilogy(run['prediction_t'], np.maximum(run['prediction_error'], 1e-6), '.', ms=3,
+                    label='adapted' if adapt else 'fixed')
+    ax.set(xlabel='t [s]', ylabel='error [m]', title='plan 1 s ahead vs where the robot was')
+    ax.legend(fontsize=8)
+    return _finish(fig, path)

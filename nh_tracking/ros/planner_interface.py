@@ -87,6 +87,10 @@ JOINT_NAMES = plain(
     'joint_names', [], 'joints of joint_states that give coordinates a pose does not show, as '
     'coordinate:joint entries (e.g. phi:front_steering_joint); a coordinate not named is '
     'its own joint name', read_only=True)
+ADAPT = plain(
+    'adapt', [], 'physical parameters of the model to estimate online from the odometry and '
+    'the controls sent (e.g. [m, J]); a moved estimate rebuilds the solver; empty: off',
+    read_only=True)
 NODE = (
     plain('frame_id', 'odom', 'fixed frame of references and odometry', read_only=True),
     plain('cmd_vel_stamped', False, 'publish TwistStamped on cmd_vel', read_only=True),
@@ -96,5 +100,6 @@ NODE = (
           'm', (0.1, 1000.0)),
     COSTMAP_THRESHOLD,
     JOINT_NAMES,
+    ADAPT,
 )
 PARAMETERS = SETTINGS + SESSION + ROUTE + GOAL + NODE

@@ -115,6 +115,8 @@ class PlannerNode(RuntimeParameters, PlanOutputs, ObstacleListener, ClockWatchdo
                                       self.params['odom_timeout'], self._log,
                                       self.params['joint_names'])
             session.planner.prepare()  # blocking: the first plan must not be late
+            if self.params['adapt']:
+                session.adapt(self.params['adapt'])
         except Exception as exc:  # noqa: BLE001 - a user's model may raise anything
             self._configure_error = f'{type(exc).__name__}: {exc}'
             self.fail('configure', exc)
