@@ -174,9 +174,10 @@ class _Fit:
     def __init__(self, plant: ParametricModel, times: np.ndarray, controls: np.ndarray) -> None:
         self.plant = plant
         count, nx, size = len(times), plant.n + plant.k, len(plant.names)
-        defaults = plant.spec.defaults  # delta = (value - start) / scale; a zero start is
-        self.scale = np.array([abs(v) if v else max(abs(defaults[n]), 1.0)  # scaled by its
-                               for n, v in zip(plant.names, plant.start)])  # default's size
+        # delta = (value - start) / scale; a zero start is scaled by its default's size
+        defaults = plant.spec.defaults
+        self.scale = np.array([abs(v) if v else max(abs(defaults[n]), 1.0)
+                               for n, v in zip(plant.names, plant.start)])
         x0, x1, u = ca.SX.sym('x0', nx), ca.SX.sym('x1', nx), ca.SX.sym('u', plant.r)
         delta, h = ca.SX.sym('delta', size), ca.SX.sym('h')
         values = plant.start + self.scale * delta

@@ -74,8 +74,7 @@ def reexpressed(reference: Trajectory, old: NonholonomicSystem,
     velocities v keep their qdot = rho v; the controls, the old model's, are dropped (zero).
     """
     qdot = np.einsum('nik,nk->ni', bases(old, reference.q), reference.v)
-    rho = bases(new, reference.q)
-    v = np.array([np.linalg.lstsq(r, w, rcond=None)[0] for r, w in zip(rho, qdot)])
+    v = np.einsum('nki,ni->nk', np.linalg.pinv(bases(new, reference.q)), qdot)
     return Trajectory(reference.t, reference.q, v, np.zeros((len(reference.t) - 1, new.r)))
 
 
