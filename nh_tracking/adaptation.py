@@ -240,7 +240,7 @@ def mean_control(t: np.ndarray, u: np.ndarray, t0: float, t1: float) -> np.ndarr
 
 
 class SentControls:
-    """The control sequences sent, each in force from when it was sent until the next one.
+    """The control sequences sent (each from its start, or once it was sent) until the next one.
 
     What the robot applied, as far as the planner knows; ``keep`` seconds of them are kept.
     """
@@ -264,24 +264,29 @@ class SentControls:
     def readings(self, t0: float, t1: float) -> tuple[np.ndarray, np.ndarray] | None:
         """Return the mean control applied over [t0, t1], read two ways; None if not known.
 
-        A sequence sent within the interval may have reached the robot at once or only for the
-        next one: the mean had each been applied from its start, and from ``t1 - t0`` later
-        (where the later reading runs past what was sent, the first is given twice).
+        A sequence may have reached the robot at once or only after the solve that made it and
+        one more interval: the mean had each been applied from its start, and from ``t1 - t0``
+        after it was sent (where the later reading runs past what was sent, the first is given
+        twice).
         """
         with self._lock:
             sent = list(self._sent)
         if not sent or sent[0][0] > t0:
             return None
-        prompt = self._mean(sent, t0, t1, 0.0)
+        prompt = self._mean(sent, t0, t1, None)
         late = prompt if t1 == t0 else self._mean(sent, t0, t1, t1 - t0)
         if prompt is None:
             return None
         return prompt, prompt if late is None else late
 
     @staticmethod
-    def _mean(sent: list, t0: float, t1: float, lag: float) -> np.ndarray | None:
-        """Return the mean with each sequence but the first in force ``lag`` after it was sent."""
-        starts = [sent[0][0]] + [when + lag for when, _, _ in sent[1:]]
+    def _mean(sent: list, t0: float, t1: float, lag: float | None) -> np.ndarray | None:
+        """Return the mean with each sequence but the first in force ``lag`` after it was sent.
+
+        ``lag`` None: each from its own start instead (as if it reached the robot at once).
+        """
+        starts = [sent[0][0]] + [t[0] if lag is None else max(when, t[0]) + lag
+                                 for when, t, _ in sent[1:]]
         ends = starts[1:] + [np.inf]
         if t1 == t0:
             j = max(i for i, start in enumerate(starts) if start <= t0)

@@ -185,13 +185,13 @@ class TrackingSession:
     def _send(self, result: PlanResult) -> None:
         """Hand a plan to ``on_plan`` (the commands); remember its controls when adapting.
 
-        A plan is recorded as in force from its start (the state it was planned from); the
-        estimates also read it as in force one odometry interval later (``SentControls``).
+        The estimates read a plan as in force from its start (the state it was planned from),
+        or from one odometry interval after it was sent (``SentControls``).
         """
         self._on_plan(result)
         if self.adaptation is not None and result.outcome is not None:
             plan = result.outcome.plan
-            self.sent_controls.sent(plan.t[0], plan.t, plan.u)
+            self.sent_controls.sent(self.now(), plan.t, plan.u)
 
     @property
     def state(self) -> StateEstimate | None:
