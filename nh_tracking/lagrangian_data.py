@@ -52,6 +52,21 @@ class LagrangianData:
     actuators: SymbolicMap | None = None
     angles: Sequence[str] = ()
 
+    def expressions(self, q: ca.SX) -> tuple[ca.SX, ca.SX, ca.SX, ca.SX, ca.SX | None]:
+        """(metric, constraints, potential, basis, actuators) at the symbol ``q``.
+
+        A ValueError if the data gives no basis (a sampled one needs numeric parameters).
+        """
+        n = len(self.coordinates)
+        if self.basis is None:
+            raise ValueError('Lagrangian data with symbolic parameters must give a basis of D')
+        metric = as_sx(self.metric(q), (n, n), 'metric')
+        constraints = (as_sx(self.constraints(q), None, 'constraints') if self.constraints
+                       else ca.SX(0, n))
+        potential = as_sx(self.potential(q), (1, 1), 'potential') if self.potential else ca.SX(0)
+        actuators = as_sx(self.actuators(q), None, 'actuators') if self.actuators else None
+        return metric, constraints, potential, as_sx(self.basis(q), None, 'basis'), actuators
+
 
 def as_sx(value: Any, shape: tuple[int, int] | None, what: str) -> ca.SX:
     if isinstance(value, (list, tuple)):  # rows of expressions, as users write them

@@ -94,15 +94,27 @@ def lean(function: ca.Function, draw: Draw) -> ca.Function:
 
 
 def draw_states(function: ca.Function, coordinates: Sequence[str], angles: Sequence[str],
-                domain: Domain, sizes: Mapping[str, int]) -> Draw:
-    """Draw inputs for a function of (q[, v][, u]): q in the domain, the others normal."""
+                domain: Domain, sizes: Mapping[str, int],
+                centres: Mapping[str, np.ndarray] | None = None) -> Draw:
+    """Draw inputs for a function of (q[, v][, u][, p]): q in the domain, the others normal.
+
+    An input in ``centres`` (physical parameters) is drawn around its values instead: within
+    a factor of about 2 of each, keeping its sign (a zero one: normal).
+    """
+    centres = dict(centres or {})
+
     def draw(seed: int) -> list[np.ndarray]:
         rng = np.random.default_rng(seed)
         q = random_configurations(coordinates, angles, domain, rng, 4 * SAMPLES)
         q = q[[domain.contains(x) for x in q]][:SAMPLES]
-        return [q if name == 'q' else rng.normal(size=(SAMPLES, sizes[name]))
-                for name in function.name_in()]
+        return [q if name == 'q' else _around(centres[name], rng) if name in centres
+                else rng.normal(size=(SAMPLES, sizes[name])) for name in function.name_in()]
     return draw
+
+
+def _around(centre: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    spread = rng.normal(scale=0.25, size=(SAMPLES, len(centre)))
+    return np.where(centre == 0.0, spread, centre * np.exp(spread))
 
 
 def _input(symbol: ca.SX, j: int, base: np.ndarray, other: np.ndarray) -> _Node:

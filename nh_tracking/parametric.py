@@ -28,7 +28,6 @@ import casadi as ca
 import numpy as np
 
 from nh_tracking import geometry
-from nh_tracking.lagrangian_data import as_sx
 from nh_tracking.models.spec import ModelSpec
 
 
@@ -74,15 +73,12 @@ def parametric_model(spec: ModelSpec, names: Sequence[str],
     checked = spec.check(**dict(values or {}))
     p = ca.SX.sym('p', len(names))
     data = spec.lagrangian(**{**checked, **{name: p[i] for i, name in enumerate(names)}})
-    if data.basis is None:
-        raise ValueError(f'model {spec.name}: its Lagrangian data must give a basis of D to '
-                         'leave parameters symbolic')
     n = len(data.coordinates)
     q = ca.SX.sym('q', n)
-    metric = as_sx(data.metric(q), (n, n), 'metric')
-    rho = as_sx(data.basis(q), None, 'basis')
-    potential = as_sx(data.potential(q), (1, 1), 'potential') if data.potential else ca.SX(0)
-    actuators = as_sx(data.actuators(q), None, 'actuators') if data.actuators else None
+    try:
+        metric, _, potential, rho, actuators = data.expressions(q)
+    except ValueError as exc:
+        raise ValueError(f'model {spec.name}: {exc}') from None
     k = rho.shape[1]
     inputs = geometry.input_matrix(metric, rho, actuators)
     r = inputs.shape[1]

@@ -78,6 +78,12 @@ def reexpressed(reference: Trajectory, old: NonholonomicSystem,
     return Trajectory(reference.t, reference.q, v, np.zeros((len(reference.t) - 1, new.r)))
 
 
+def carried_velocity(old: NonholonomicSystem, new: NonholonomicSystem, q: np.ndarray,
+                     v: np.ndarray) -> np.ndarray:
+    """Return the quasi-velocities in ``new``'s basis of the motion ``v`` is in ``old``'s, at q."""
+    return np.linalg.pinv(new.rho(q)) @ (old.rho(q) @ v)
+
+
 def wrap_angle(angle: np.ndarray | float) -> np.ndarray | float:
     """Angle(s) in (-pi, pi]."""
     return np.pi - np.mod(np.pi - np.asarray(angle), 2 * np.pi)

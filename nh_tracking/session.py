@@ -65,7 +65,7 @@ class TrackingSession:
         self.on_stale: Callable[[], None] = lambda: None  # said at once, on the thread that saw it
         self.log = log
         self.epoch_ns = clock()
-        system = models.create(model, **physical)
+        system = models.create_parametrised(model, **physical)
         self.robot = RobotState(PoseMap(system), clock, joint_names, odom_timeout, log)
         self.following = Following(self)  # references in; the path in force as a goal
         self.planner = RecedingHorizonPlanner(system, settings)
@@ -245,8 +245,8 @@ class TrackingSession:
         if build is None:
             return
         current = self.planner
-        same_model = build.physical == current.system.parameters
-        system = current.system if same_model else models.create(self.model, **build.physical)
+        system = models.with_parameters(current.system, self.model, build.physical)
+        same_model, same_family = system is current.system, system.family is current.system.family
         if current.settings.compiled and not build.settings.compiled:
             cancel_builds()  # the C code it was building is not wanted any more
         planner = RecedingHorizonPlanner(system, build.settings)
@@ -255,9 +255,9 @@ class TrackingSession:
         with self._solve_lock:
             old = self.planner
             planner.reference, planner.stats = old.reference, old.stats
-            if same_model:
-                planner.previous = old.previous  # the warm start survives a settings change
-            else:
+            if same_family:  # the warm start survives a settings change and new values
+                planner.previous = old.previous
+            if not same_model:
                 self.robot.set_pose_map(PoseMap(system))
                 if old.reference is not None:  # its velocities were in the old basis
                     planner.set_reference(reexpressed(old.reference, old.system, system))
@@ -265,7 +265,12 @@ class TrackingSession:
         settle_heap(1)
         with self._lock:
             self._pending = None if self._pending is build else self._pending
-        self.log('info', f'rebuilt in {time.perf_counter() - started:.2f} s: {build.settings}')
+        took = time.perf_counter() - started
+        if same_family and not same_model and build.settings == current.settings:
+            self.log('info', f'new model values in use after {took:.3f} s, nothing rebuilt: '
+                             f'{_changes(current.system, system)}')
+        else:
+            self.log('info', f'rebuilt in {took:.2f} s: {build.settings}')
 
     # planning ---------------------------------------------------------------------------------
     def replan(self) -> PlanResult:
@@ -377,3 +382,8 @@ class TrackingSession:
             return np.zeros(4)
         q, v = trajectory.sample(t)
         return self.pose_map.body_twist(q[0], v[0])
+
+
+def _changes(old: NonholonomicSystem, new: NonholonomicSystem) -> str:
+    return ', '.join(f'{k} {old.parameters[k]:g} -> {x:g}' for k, x in new.parameters.items()
+                     if old.parameters.get(k) != x)

@@ -29,7 +29,9 @@ on symbols) with numpy wrappers (for users). The data is checked for regularity 
 """
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
+import copy
+from dataclasses import dataclass
 from typing import Any
 
 import casadi as ca
@@ -41,6 +43,21 @@ from nh_tracking.lagrangian_data import (as_sx, check_name, LagrangianData, pose
                                          SymbolicMap)
 from nh_tracking.numeric import NumericFunction
 from nh_tracking.regularity import Domain
+
+
+@dataclass(eq=False)
+class DynamicsFamily:
+    """The dynamics of the systems that differ only in the values of the parameters ``names``.
+
+    Those are an input ``p`` here (empty when none is symbolic), so the NLPs built from these
+    functions — cached per family — serve every member: a new value is a new number in the
+    next solve. ``dynamics(q, v, u, p)`` -> (qdot, vdot); ``rho(q, p)``; ``input_matrix(q, p)``.
+    """
+
+    names: tuple[str, ...]
+    dynamics: ca.Function
+    rho: ca.Function
+    input_matrix: ca.Function
 
 
 class NonholonomicSystem:
@@ -70,6 +87,8 @@ class NonholonomicSystem:
         pose: Mapping[str, str] | None = None,
         actuators: ca.SX | None = None,
         domain: Domain | None = None,
+        symbolic: Sequence[str] = (),
+        p: ca.SX | None = None,
     ) -> None:
         self.name = check_name(name)
         self.coordinates = tuple(coordinates)
@@ -89,32 +108,82 @@ class NonholonomicSystem:
         if len(self.control_names) != self.r or len(self.velocity_names) != self.k:
             raise ValueError(f'{name}: need {self.r} control and {self.k} velocity names')
 
-        v = ca.SX.sym('v', self.k)
-        u = ca.SX.sym('u', self.r)
+        v, u = ca.SX.sym('v', self.k), ca.SX.sym('u', self.r)
+        p = ca.SX.sym('p', 0) if p is None else p
+        if p.shape[0] != len(symbolic):
+            raise ValueError(f'{name}: {len(symbolic)} symbolic parameters, {p.shape[0]} symbols')
         g_d = geometry.metric_on_distribution(metric, rho)
         gamma = geometry.christoffel(metric, rho, q)
-        forces = metric @ rho if actuators is None else actuators
         inputs = geometry.input_matrix(metric, rho, actuators)
         qdot = rho @ v
         vdot = geometry.acceleration(gamma, inputs, metric, rho, potential, q, v, u)
-        self.actuators_fn = ca.Function('actuators', [q], [forces], ['q'], ['F'])
-        self.rho_fn = ca.Function('rho', [q], [rho], ['q'], ['rho'])
+        self._symbols = (q, v, u, p)
+        self._expressions = {
+            'actuators': metric @ rho if actuators is None else actuators, 'rho': rho,
+            'metric': metric, 'constraints': constraints, 'potential': potential,
+            'input_matrix': inputs, 'metric_D': g_d, 'christoffel': gamma, 'qdot': qdot,
+            'vdot': vdot, 'energy': 0.5 * v.T @ g_d @ v + potential}
+        values = np.array([self.parameters[name] for name in symbolic], dtype=float)
+        self._bind(values)
+        if symbolic:
+            self.family = DynamicsFamily(
+                tuple(symbolic),
+                self._lean(ca.Function('dynamics', [q, v, u, p], [qdot, vdot],
+                                       ['q', 'v', 'u', 'p'], ['qdot', 'vdot']), values),
+                ca.Function('rho', [q, p], [rho], ['q', 'p'], ['rho']),
+                self._lean(ca.Function('input_matrix', [q, p], [inputs], ['q', 'p'], ['B']),
+                           values))
+        else:  # the NLPs take the lean functions, and no parameters
+            self.family = DynamicsFamily(
+                (), ca.Function('dynamics', [q, v, u, p], list(self.dynamics_fn(q, v, u)),
+                                ['q', 'v', 'u', 'p'], ['qdot', 'vdot']),
+                ca.Function('rho', [q, p], [self.rho_fn(q)], ['q', 'p'], ['rho']),
+                ca.Function('input_matrix', [q, p], [self.input_matrix_fn(q)], ['q', 'p'],
+                            ['B']))
+
+    def _bind(self, values: np.ndarray) -> None:
+        """Build the numeric functions at the symbolic parameters' ``values``."""
+        q, v, u, p = self._symbols
+        e = {key: ca.substitute(expr, p, values) for key, expr in self._expressions.items()}
+        self.actuators_fn = ca.Function('actuators', [q], [e['actuators']], ['q'], ['F'])
+        self.rho_fn = ca.Function('rho', [q], [e['rho']], ['q'], ['rho'])
         self._rho = NumericFunction(self.rho_fn)  # every odometry message and command needs it
-        self.metric_fn = ca.Function('metric', [q], [metric], ['q'], ['G'])
-        self.constraints_fn = ca.Function('constraints', [q], [constraints], ['q'], ['mu'])
-        self.potential_fn = ca.Function('potential', [q], [potential], ['q'], ['V'])
+        self.metric_fn = ca.Function('metric', [q], [e['metric']], ['q'], ['G'])
+        self.constraints_fn = ca.Function('constraints', [q], [e['constraints']], ['q'], ['mu'])
+        self.potential_fn = ca.Function('potential', [q], [e['potential']], ['q'], ['V'])
         # The derived functions, without what the derivation leaves symbolic but is constant.
         self.input_matrix_fn = self._lean(
-            ca.Function('input_matrix', [q], [inputs], ['q'], ['B']))
-        self.metric_D_fn = ca.Function('metric_D', [q], [g_d], ['q'], ['G_D'])
-        self.christoffel_fn = ca.Function('christoffel', [q], [gamma], ['q'], ['Gamma'])
+            ca.Function('input_matrix', [q], [e['input_matrix']], ['q'], ['B']))
+        self.metric_D_fn = ca.Function('metric_D', [q], [e['metric_D']], ['q'], ['G_D'])
+        self.christoffel_fn = ca.Function('christoffel', [q], [e['christoffel']], ['q'],
+                                          ['Gamma'])
         self.dynamics_fn = self._lean(ca.Function(
-            'dynamics', [q, v, u], [qdot, vdot], ['q', 'v', 'u'], ['qdot', 'vdot']))
-        self.energy_fn = self._lean(ca.Function(
-            'energy', [q, v], [0.5 * v.T @ g_d @ v + potential], ['q', 'v'], ['E']))
+            'dynamics', [q, v, u], [e['qdot'], e['vdot']], ['q', 'v', 'u'], ['qdot', 'vdot']))
+        self.energy_fn = self._lean(ca.Function('energy', [q, v], [e['energy']], ['q', 'v'],
+                                                ['E']))
         x = ca.SX.sym('x', self.n + self.k)
         self.ode_fn = ca.Function('ode', [x, u], [ca.vertcat(*self.dynamics_fn(
             x[:self.n], x[self.n:], u))], ['x', 'u'], ['xdot'])
+
+    @property
+    def family_values(self) -> np.ndarray:
+        """Return the values of the family's symbolic parameters, in order (the NLPs' numbers)."""
+        return np.array([self.parameters[name] for name in self.family.names], dtype=float)
+
+    def with_values(self, **values: float) -> NonholonomicSystem:
+        """Return this system with new values of symbolic parameters: same family, same NLPs.
+
+        No derivation and no NLP is built again; a ValueError names a parameter that is not
+        symbolic here (its change needs the model built anew).
+        """
+        fixed = set(values) - set(self.family.names)
+        if fixed:
+            raise ValueError(f'{self.name}: parameters {sorted(fixed)} are not symbolic in '
+                             f'this system ({list(self.family.names)} are)')
+        changed = copy.copy(self)
+        changed.parameters = {**self.parameters, **{k: float(x) for k, x in values.items()}}
+        changed._bind(changed.family_values)
+        return changed
 
     @classmethod
     def from_constraints(
@@ -205,10 +274,37 @@ class NonholonomicSystem:
             data.coordinates, data.metric, data.constraints, data.potential, basis=data.basis,
             actuators=data.actuators, angles=data.angles, **names)
 
-    def _lean(self, function: ca.Function) -> ca.Function:
-        """Drop what is constant or repeated in ``function``, checked over the domain."""
-        return lean.lean(function, lean.draw_states(function, self.coordinates, self.angles,
-                                                    self.domain, {'v': self.k, 'u': self.r}))
+    def parametrised(self, lagrangian: Callable[..., LagrangianData], names: Sequence[str]
+                     ) -> NonholonomicSystem:
+        """Return this system with the physical parameters ``names`` symbolic in its data.
+
+        ``lagrangian``: the model's data as a function of its physical parameters (keyword
+        arguments; the others at this system's ``parameters``); its basis must be this
+        system's. Every other choice (names,
+        pose, domain) is kept. Its :meth:`with_values` then changes those values without a
+        rebuild.
+        """
+        names = tuple(names)
+        p = ca.SX.sym('p', len(names))
+        data = lagrangian(**{**self.parameters, **{name: p[i] for i, name in enumerate(names)}})
+        q = ca.SX.sym('q', self.n)
+        metric, constraints, potential, rho, actuators = data.expressions(q)
+        return type(self)(
+            name=self.name, coordinates=self.coordinates, q=q, metric=metric,
+            constraints=constraints, potential=potential, rho=rho, angles=self.angles,
+            controls=self.control_names, velocities=self.velocity_names,
+            parameters=self.parameters, basis_condition=self.basis_condition, pose=self.pose,
+            actuators=actuators, domain=self.domain,
+            symbolic=names, p=p)
+
+    def _lean(self, function: ca.Function, p: np.ndarray | None = None) -> ca.Function:
+        """Drop what is constant or repeated in ``function``, checked over the domain.
+
+        ``p``: the values its input ``p`` (physical parameters) is drawn around.
+        """
+        return lean.lean(function, lean.draw_states(
+            function, self.coordinates, self.angles, self.domain, {'v': self.k, 'u': self.r},
+            None if p is None else {'p': p}))
 
     # numpy interface -------------------------------------------------------------------------
     def rho(self, q: ArrayLike) -> np.ndarray:

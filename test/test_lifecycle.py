@@ -35,6 +35,7 @@ from nh_tracking.ros import messages as msgs
 from nh_tracking.ros import SimulatorNode
 from nh_tracking.ros.graph import wait_until
 from nh_tracking.ros.planner_node import LATCHED
+from nh_tracking.solvers import midpoint
 from test_ros import unique_namespace, WallClockPair
 
 pytestmark = pytest.mark.timeout(240)
@@ -113,8 +114,9 @@ def test_reconfiguring_never_stops_the_plan_in_force(graph, tmp_path, monkeypatc
     """Changes that rebuild the solver never stop cmd_vel or control_sequence for long.
 
     compiled=true on an empty cache (a child process compiles while plans go on interpreted),
-    a real-time iteration budget, a finer grid, control bounds, the model's inertia and another
-    method: each rebuilds NLPs in the background while the plan in force is replanned. Here
+    a real-time iteration budget, a finer grid, control bounds and another method: each
+    rebuilds NLPs in the background while the plan in force is replanned; the model's inertia
+    is a new number in the same NLPs. Here
     the simulator shares the planner's executor and interpreter (its integration, and the
     cyclic garbage scipy leaves, hold up the planner's timers): up to 0.14 s beyond a stream's
     spacing was measured, so the bound is two replan periods; deployed as processes the bar is
@@ -133,6 +135,8 @@ def test_reconfiguring_never_stops_the_plan_in_force(graph, tmp_path, monkeypatc
                                 'iterations': 0, 'u_max': []}):
         since = time.monotonic()
         replaced, model = weakref.ref(planner.planner), weakref.ref(planner.live.system)
+        family = planner.live.system.family
+        nlps = midpoint._CACHE.held(family)
         result = planner.set_parameters_atomically([  # [] alone would be a byte array
             Parameter(k, Parameter.Type.DOUBLE_ARRAY, v) if isinstance(v, list)
             else Parameter(k, value=v) for k, v in change.items()])
@@ -147,6 +151,10 @@ def test_reconfiguring_never_stops_the_plan_in_force(graph, tmp_path, monkeypatc
         # must go by reference counting alone
         assert replaced() is None, change
         assert (model() is None) == ('J' in change), change
+        if 'J' in change:  # new values of the same family: its NLPs, not new ones
+            assert planner.live.system.parameters['J'] == change['J']
+            assert planner.live.system.family is family
+            assert set(map(id, midpoint._CACHE.held(family))) >= set(map(id, nlps)) != set()
         gaps = {'cmd_vel': cmd.max_gap(since), 'control_sequence': sequences.max_gap(since)}
         print(f'\n{change}: new solver after {took:.2f} s; longest gap meanwhile: ' + ', '.join(
             f'{k} {g * 1e3:.0f} ms (period {spacing[k] * 1e3:.0f} ms)' for k, g in gaps.items()))

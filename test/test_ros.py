@@ -33,6 +33,7 @@ from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint, MultiDOFJ
 from visualization_msgs.msg import Marker, MarkerArray
 
 from faults import Faulty
+from nh_tracking import models
 from nh_tracking.examples.demo import ClosedLoop, sleigh_reference, START
 from nh_tracking.examples.experiments import SLEIGH_REFERENCE_START
 from nh_tracking.examples.obstacles import costmap_msg
@@ -376,6 +377,34 @@ def test_simulator_holds_controls_until_the_timeout_then_coasts(graph):
     assert 0.29 <= speed <= latest + 1e-9
     wait_until(lambda: False, 0.5)
     assert sim.state[1][0] == pytest.approx(speed, abs=1e-9)
+
+
+def test_simulator_physical_parameters_change_at_run_time_and_the_motion_goes_on(graph):
+    """A sleigh's J and m set while it slides: new numbers in its dynamics, qdot kept.
+
+    Its basis scales with m and J, so the quasi-velocities change with them; qdot must not.
+    """
+    ns = unique_namespace()
+    sim = graph.add(SimulatorNode, namespace=ns, parameter_overrides=parameters(
+        model='chaplygin_sleigh', initial_state=[0.0, 0.0, 0.0, 0.3, 1.0], rate=100.0))
+    family = sim.system.family
+    assert wait_until(lambda: sim.state[0][0] > 0.05, 5.0)
+    (q, v), old = sim.state, sim.system
+    assert sim.set_parameters([Parameter('J', value=5.2), Parameter('m', value=0.8)])[0] \
+        .successful
+    (q_now, v_now), new = sim.state, sim.system
+    assert sim.system.family is family and sim.system.parameters['J'] == 5.2
+    # steps apart: speed and turn rate nearly the same, the quasi-velocities 10 % and more apart
+    motion = lambda qdot: np.array([np.hypot(qdot[0], qdot[1]), qdot[2]])  # noqa: E731
+    assert motion(new.rho(q_now) @ v_now) == pytest.approx(motion(old.rho(q) @ v), abs=5e-3)
+    assert np.abs(v_now - v).max() > 0.08
+    built = models.chaplygin_sleigh(m=0.8, J=5.2)
+    q, v = sim.state
+    assert np.allclose(np.concatenate(sim.system.dynamics(q, v)),
+                       np.concatenate(built.dynamics(q, v)), atol=1e-12)
+    assert sim.set_parameters([Parameter('a', value=0.3)])[0].successful
+    assert sim.system.parameters == {'m': 0.8, 'J': 5.2, 'a': 0.3}
+    assert wait_until(lambda: sim.state[0][0] > q[0] + 0.05, 5.0)  # and it steps on
 
 
 def test_simulator_velocity_mode_follows_cmd_vel_and_initialpose_resets(graph):

@@ -22,6 +22,7 @@ point in the group ``nh_tracking.models``.
 """
 from __future__ import annotations
 
+from collections.abc import Mapping
 import importlib
 from importlib.metadata import entry_points
 
@@ -39,8 +40,8 @@ from nh_tracking.models.unicycle import unicycle
 from nh_tracking.system import NonholonomicSystem
 
 __all__ = ['MODELS', 'ModelSpec', 'PhysicalParameter', 'chaplygin_sleigh', 'create',
-           'model_parameters', 'nonholonomic_particle', 'rolling_disk', 'snakeboard', 'spec',
-           'unicycle']
+           'create_parametrised', 'model_parameters', 'nonholonomic_particle', 'rolling_disk',
+           'snakeboard', 'spec', 'unicycle', 'with_parameters']
 
 MODELS: dict[str, ModelSpec] = {m.SPEC.name: m.SPEC for m in (_sleigh, _particle, _unicycle,
                                                               _disk, _snakeboard)}
@@ -81,3 +82,23 @@ def model_parameters(name: str) -> dict[str, float]:
 def create(name: str, **parameters: float) -> NonholonomicSystem:
     """Return a model by name (as the ROS parameter ``model`` names it), its parameters checked."""
     return spec(name).create(**parameters)
+
+
+def create_parametrised(name: str, **parameters: float) -> NonholonomicSystem:
+    """As :func:`create`, with the physical parameters symbolic: see ``with_values``."""
+    return spec(name).create_parametrised(**parameters)
+
+
+def with_parameters(system: NonholonomicSystem, name: str,
+                    parameters: Mapping[str, float]) -> NonholonomicSystem:
+    """Return model ``name`` (now ``system``) with ``parameters``, rebuilt only if need be.
+
+    ``system`` itself if nothing changes; new values in its family (the same NLPs) if every
+    change is symbolic in it; else the model built anew, as :func:`create_parametrised`.
+    """
+    changed = {k: x for k, x in parameters.items() if system.parameters.get(k) != x}
+    if not changed:
+        return system
+    if set(changed) <= set(system.family.names):
+        return system.with_values(**changed)
+    return create_parametrised(name, **{**system.parameters, **parameters})

@@ -109,6 +109,21 @@ class ModelSpec:
                              f'{type(system).__name__}, not a NonholonomicSystem')
         return system
 
+    def create_parametrised(self, **values: object) -> NonholonomicSystem:
+        """Build the model with its physical parameters symbolic in its dynamics.
+
+        Its :meth:`~NonholonomicSystem.with_values` changes them without a rebuild (the NLPs
+        take them as parameters). The plain model when the spec has no symbolic Lagrangian data
+        or its data no basis of D.
+        """
+        system = self.create(**values)
+        if self.lagrangian is None:
+            return system
+        try:
+            return system.parametrised(self.lagrangian, [p.name for p in self.parameters])
+        except ValueError:  # no basis given: a sampled one needs numbers
+            return system
+
     @classmethod
     def from_factory(cls, name: str, factory: Callable[..., NonholonomicSystem]) -> ModelSpec:
         """Return a spec for a plain factory function: its keyword defaults are the parameters.

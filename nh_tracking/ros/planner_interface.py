@@ -89,7 +89,7 @@ JOINT_NAMES = plain(
     'its own joint name', read_only=True)
 ADAPT = plain(
     'adapt', [], 'physical parameters of the model to estimate online from the odometry and '
-    'the controls sent (e.g. [m, J]); a moved estimate rebuilds the solver; empty: off',
+    'the controls sent (e.g. [m, J]); a moved estimate is a new number in the solver; empty: off',
     read_only=True)
 NODE = (
     plain('frame_id', 'odom', 'fixed frame of references and odometry', read_only=True),

@@ -40,7 +40,7 @@ from nh_tracking import models
 from nh_tracking.costmap import gap
 from nh_tracking.joints import joint_mapping
 from nh_tracking.limits import bounds_from_lists
-from nh_tracking.poses import PoseMap
+from nh_tracking.poses import carried_velocity, PoseMap
 from nh_tracking.ros import conversions as cv
 from nh_tracking.ros import messages as msgs
 from nh_tracking.ros.guarded import guarded
@@ -80,7 +80,8 @@ class SimulatorNode(ObstacleListener):
     def __init__(self, **kwargs) -> None:
         super().__init__('nh_tracking_sim', **kwargs)
         model, params = declare_model(self)
-        self.system = models.create(model, **params)
+        self.model = model
+        self.system = models.create_parametrised(model, **params)
         self.pose_map = PoseMap(self.system)
         n, k = self.system.n, self.system.k
         initial = declare(self, plain('initial_state', (0.0,) * (n + k),
@@ -136,10 +137,23 @@ class SimulatorNode(ObstacleListener):
         self.get_logger().info(f'simulating {model} {params} from {initial.tolist()}, '
                                f'{self.mode} mode at {self.rate:g} Hz')
 
+    @guarded('parameter change')
     def _apply_parameters(self, params) -> None:
         for p in params:
             if p.name == 'control_timeout':
                 self.control_timeout = p.value
+        physical = {p.name: float(p.value) for p in params if p.name in self.system.parameters}
+        if physical:
+            self._change_model(physical)
+
+    def _change_model(self, physical: dict[str, float]) -> None:
+        """Change the robot's physical parameters now (a payload, a correction); qdot is kept."""
+        old = self.system
+        system = models.with_parameters(old, self.model, physical)
+        with self._lock:
+            self._v = carried_velocity(old, system, self._q, self._v)
+            self.system, self.pose_map = system, PoseMap(system)
+        self.get_logger().info(f'simulating {self.model} {system.parameters} from now on')
 
     def _clock_ns(self) -> int:
         return self.get_clock().now().nanoseconds

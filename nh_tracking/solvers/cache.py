@@ -12,10 +12,12 @@
 # See the License for the specific language governing permissions and
 # limitations under the License.
 
-"""Compiled solver structures, built once per (system, structure) and freed with the system.
+"""Compiled solver structures, built once per (owner, structure) and freed with the owner.
 
-Per system only the structures of the few horizon sizes used last are kept: a parameter storm
-(every ``steps`` value in turn) must not grow memory without bound (each size holds ~15 MB).
+The owner is a system, or the family of systems whose NLPs take its parameters' values as
+numbers (:class:`~nh_tracking.system.DynamicsFamily`). Per owner only the structures of the few
+horizon sizes used last are kept: a parameter storm (every ``steps`` value in turn) must not
+grow memory without bound (each size holds ~15 MB).
 
 A replanning loop must never stop to build one: inside :func:`builds_deferred` a structure not
 built yet is built on a background thread instead, and the call raises :class:`NotPrepared`
@@ -38,11 +40,12 @@ import time
 from typing import Generic, TypeVar
 import weakref
 
-from nh_tracking.system import NonholonomicSystem
+from nh_tracking.system import DynamicsFamily, NonholonomicSystem
 
 LOG = logging.getLogger(__name__)
 T = TypeVar('T')
-GROUPS = 3  # horizon sizes kept per system
+Owner = NonholonomicSystem | DynamicsFamily
+GROUPS = 3  # horizon sizes kept per owner
 
 
 @dataclass(frozen=True)
@@ -101,9 +104,9 @@ def by_steps(key: Hashable) -> Hashable:
 class PerSystemCache(Generic[T]):
     """Building a CasADi NLP or flow takes far longer than solving it, so each is built once.
 
-    Held per system, and dropped with it: a cached structure must not reference its system
-    (the store holds the structure, so the weakly held system would live on, with its NLPs).
-    Keys are grouped (``group(key)``: a horizon size); per system the ``groups`` used last are
+    Held per owner, and dropped with it: a cached structure must not reference its owner
+    (the store holds the structure, so the weakly held owner would live on, with its NLPs).
+    Keys are grouped (``group(key)``: a horizon size); per owner the ``groups`` used last are
     kept, an older group's structures are dropped together (a solve holding one keeps it alive).
     """
 
@@ -115,61 +118,61 @@ class PerSystemCache(Generic[T]):
         self._lock = threading.Lock()
         self._group, self._groups = group, groups
 
-    def get(self, system: NonholonomicSystem, key: Hashable, build: Callable[[], T]) -> T:
+    def get(self, owner: Owner, key: Hashable, build: Callable[[], T]) -> T:
         with self._lock:
-            found = self._lookup(system, key)
+            found = self._lookup(owner, key)
         if found is not None:
             return found
         policy = _POLICY.get() or _Policy()
         if policy.deferred:
-            self._build_later(system, key, build)
+            self._build_later(owner, key, build)
             raise NotPrepared(f'its NLP ({key}) was not prepared; it is being built in the '
                               'background')
         if policy.stop is None:
-            return self._keep(system, key, build())
-        return self._await(system, key, build, policy.stop)
+            return self._keep(owner, key, build())
+        return self._await(owner, key, build, policy.stop)
 
-    def ready(self, system: NonholonomicSystem, key: Hashable, build: Callable[[], T]
+    def ready(self, owner: Owner, key: Hashable, build: Callable[[], T]
               ) -> T | None:
         """Return the structure if built; else None, and it is built in the background."""
         with self._lock:
-            found = self._lookup(system, key)
+            found = self._lookup(owner, key)
         if found is None:
-            self._build_later(system, key, build)
+            self._build_later(owner, key, build)
         return found
 
-    def _await(self, system: NonholonomicSystem, key: Hashable, build: Callable[[], T],
+    def _await(self, owner: Owner, key: Hashable, build: Callable[[], T],
                stop: float) -> T:
         """Build on a background thread and wait for it until ``stop``; raise if not done."""
-        ident = (id(system), key)
-        done = self._build_later(system, key, build)
+        ident = (id(owner), key)
+        done = self._build_later(owner, key, build)
         done.wait(max(0.0, stop - time.perf_counter()))
         with self._lock:
-            found = self._lookup(system, key)
+            found = self._lookup(owner, key)
             error = self._errors.pop(ident, None) if done.is_set() else None
         if found is not None:
             return found
         if error is not None:
             raise error
-        raise NotPrepared(f'deadline reached while building its NLP for {system.name}; the '
-                          'build goes on in the background, ready for a later call')
+        raise NotPrepared(f'deadline reached while building its NLP ({key}); the build goes '
+                          'on in the background, ready for a later call')
 
-    def _lookup(self, system: NonholonomicSystem, key: Hashable) -> T | None:
-        groups: OrderedDict = self._store.setdefault(system, OrderedDict())
+    def _lookup(self, owner: Owner, key: Hashable) -> T | None:
+        groups: OrderedDict = self._store.setdefault(owner, OrderedDict())
         entries = groups.get(self._group(key))
         if entries is None or key not in entries:
             return None
         groups.move_to_end(self._group(key))
         return entries[key]
 
-    def _keep(self, system: NonholonomicSystem, key: Hashable, built: T) -> T:
+    def _keep(self, owner: Owner, key: Hashable, built: T) -> T:
         """Store ``built``; the groups it pushes out are freed after the lock is let go.
 
         (Freeing an NLP of GBs takes seconds, which a lookup must not wait for.)
         """
         dropped = []
         with self._lock:
-            groups: OrderedDict = self._store.setdefault(system, OrderedDict())
+            groups: OrderedDict = self._store.setdefault(owner, OrderedDict())
             groups.setdefault(self._group(key), {})[key] = built
             groups.move_to_end(self._group(key))
             while len(groups) > self._groups:
@@ -177,21 +180,27 @@ class PerSystemCache(Generic[T]):
         del dropped
         return built
 
+    def held(self, owner: Owner) -> list[T]:
+        """Return the structures held for ``owner`` (none built: empty)."""
+        with self._lock:
+            groups = self._store.get(owner, {})
+            return [built for entries in groups.values() for built in entries.values()]
+
     def __len__(self) -> int:
-        """Return how many structures are held, over all systems."""
+        """Return how many structures are held, over all owners."""
         with self._lock:
             return sum(len(entries) for groups in self._store.values()
                        for entries in groups.values())
 
-    def _build_later(self, system: NonholonomicSystem, key: Hashable,
+    def _build_later(self, owner: Owner, key: Hashable,
                      build: Callable[[], T]) -> threading.Event:
         """Queue a build (once) for the background builder; the event is set when it ends."""
-        ident = (id(system), key)
+        ident = (id(owner), key)
         with self._lock:
             if ident in self._building:
                 return self._building[ident]
             done = self._building[ident] = threading.Event()
-        held = weakref.ref(system)
+        held = weakref.ref(owner)
 
         def work() -> None:
             try:
@@ -200,7 +209,7 @@ class PerSystemCache(Generic[T]):
                 if alive is not None:
                     self._keep(alive, key, built)
             except Exception as exc:  # noqa: B902 - handed to the caller that awaits it
-                LOG.exception('building %s for %s failed', key, system.name)
+                LOG.exception('building %s failed', key)
                 with self._lock:
                     self._errors[ident] = exc
             finally:

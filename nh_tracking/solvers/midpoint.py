@@ -16,8 +16,9 @@
 
 Unknowns are the knots x_k = (q_k, v_k) of a curve on D and, per interval, the next velocity and
 the midpoint configuration (and the control, when it cannot be eliminated); see
-:class:`Transcription`. Built once per structure and cached; the numbers of a problem are its
-parameters and bounds.
+:class:`Transcription`. Built once per structure and family of systems
+(:class:`~nh_tracking.system.DynamicsFamily`) and cached; the numbers of a problem, the family's
+parameter values among them, are its parameters and bounds.
 """
 from __future__ import annotations
 
@@ -93,6 +94,7 @@ class Transcription:
             [problem.h, problem.epsilon, problem.omega],
             self.limits.parameters(problem.limits,
                                    clearance_points(q_knots if q is None else q), problem.h),
+            problem.system.family_values,
         ])
 
     def bounds(self, problem: TrackingProblem) -> dict[str, np.ndarray]:
@@ -130,8 +132,8 @@ def transcription(system: NonholonomicSystem, steps: int, terminal: str,
         raise ValueError(f'unknown NLP solver {solver!r}; choose one of {BACKENDS}')
     if shape.soft:
         solver, compiled, iterations = 'ipopt', False, 0
-    return _CACHE.get(system, (steps, terminal, solver, compiled, bool(bounded), shape,
-                               iterations),
+    return _CACHE.get(system.family, (steps, terminal, solver, compiled, bool(bounded), shape,
+                                      iterations),
                       lambda: _build(system, steps, terminal, solver, compiled, bool(bounded),
                                      shape, iterations))
 
@@ -159,7 +161,7 @@ _FORMS: PerSystemCache[_StageForm] = PerSystemCache(group=by_steps, groups=1)
 
 def _shared_form(system: NonholonomicSystem, steps: int, terminal: str,
                  shape: Shape) -> _StageForm:
-    return _FORMS.get(system, (steps, terminal, shape),
+    return _FORMS.get(system.family, (steps, terminal, shape),
                       lambda: _stage_form(system, steps, terminal, shape))
 
 
@@ -176,7 +178,10 @@ def _stage_form(system: NonholonomicSystem, steps: int, terminal: str,
     h, eps, omega = ca.SX.sym('h'), ca.SX.sym('eps'), ca.SX.sym('omega')
     limits = Rows(shape, plane(system) if shape.slots else None, 2 * steps,
                   system.domain.bounded_coordinates)
-    p = ca.vertcat(q0, v0, q_mid, v_mid, q_end, v_end, h, eps, omega, limits.obstacles)
+    family = system.family  # its NLP serves every member: the parameters' values are in p
+    physical = ca.SX.sym('physical', len(family.names))
+    p = ca.vertcat(q0, v0, q_mid, v_mid, q_end, v_end, h, eps, omega, limits.obstacles,
+                   physical)
 
     lagrangian, residual = tracking_lagrangian(system), tracking_residual(system)
     cost_residuals: list[ca.SX] = []
@@ -198,7 +203,7 @@ def _stage_form(system: NonholonomicSystem, steps: int, terminal: str,
         q, v = xs[i][:n], xs[i][n:]
         v_next, z = us[i][:k], us[i][k:k + n]
         vm = 0.5 * (v + v_next)
-        drift = system.dynamics_fn(z, vm, zero)[1]
+        drift = family.dynamics(z, vm, zero, physical)[1]
         u = (v_next - v) / h - drift if eliminated else us[i][k + n:]
         reference = (q_mid[i * n:(i + 1) * n], v_mid[i * k:(i + 1) * k])
         running += h * lagrangian(z, vm, u, *reference, eps)
@@ -209,10 +214,10 @@ def _stage_form(system: NonholonomicSystem, steps: int, terminal: str,
         if i == 0:
             g.add(xs[0] - ca.vertcat(q0, v0))
         adm_rows.extend(range(g.rows, g.rows + n))
-        g.add(z - q - 0.5 * h * system.rho_fn(z) @ vm)
+        g.add(z - q - 0.5 * h * family.rho(z, physical) @ vm)
         if not eliminated:
             dyn_rows.extend(range(g.rows, g.rows + k))
-            g.add(v_next - v - h * (drift + system.input_matrix_fn(z) @ u))
+            g.add(v_next - v - h * (drift + family.input_matrix(z, physical) @ u))
         if i > 0:  # the start is data, not a decision
             knot_limits(xs[i])
         g.add(*limits.clearance(z, g.rows))  # the midpoint, where L is evaluated
@@ -220,7 +225,8 @@ def _stage_form(system: NonholonomicSystem, steps: int, terminal: str,
         g.add(*limits.control(u, g.rows))
         q_next = xs[i + 1][:n]
         qm = 0.5 * (q + q_next)
-        residuals.append((q_next - q) / h - system.rho_fn(qm) @ (0.5 * (v + xs[i + 1][n:])))
+        residuals.append((q_next - q) / h
+                         - family.rho(qm, physical) @ (0.5 * (v + xs[i + 1][n:])))
     w.append(xs[-1])
     knot_limits(xs[-1])
     limits.built()
@@ -233,8 +239,12 @@ def _stage_form(system: NonholonomicSystem, steps: int, terminal: str,
     readout = [ca.horzcat(*[x[:n] for x in xs]), ca.horzcat(*[x[n:] for x in xs]),
                ca.horzcat(*controls), ca.mmax(ca.fabs(ca.horzcat(*residuals))), objective,
                ca.norm_2(xs[-1] - ca.vertcat(q_end, v_end))]
-    return _StageForm(ca.vertcat(*w), p, objective, ca.vertcat(*g.blocks),
-                      ca.vertcat(*cost_residuals), limits, readout, adm_rows, dyn_rows)
+    parts: list[ca.SX] = [objective, ca.vertcat(*g.blocks), ca.vertcat(*cost_residuals)]
+    if family.names:  # each stage's terms of the parameters alone, computed once
+        parts = [ca.cse(part) for part in parts]
+    objective, constraints, costs = parts
+    return _StageForm(ca.vertcat(*w), p, objective, constraints, costs, limits, readout,
+                      adm_rows, dyn_rows)
 
 
 def _build(system: NonholonomicSystem, steps: int, terminal: str, solver: str,
@@ -290,7 +300,7 @@ def working_set_step(system: NonholonomicSystem, steps: int, terminal: str,
     shape met later inside a replanning loop is built in the background (NotPrepared until
     then: those replans are interior points).
     """
-    return _STEPS.get(system, (steps, terminal, shape),
+    return _STEPS.get(system.family, (steps, terminal, shape),
                       lambda: _working_set_step(system, steps, terminal, shape))
 
 
