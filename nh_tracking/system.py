@@ -279,23 +279,32 @@ class NonholonomicSystem:
         """Return this system with the physical parameters ``names`` symbolic in its data.
 
         ``lagrangian``: the model's data as a function of its physical parameters (keyword
-        arguments; the others at this system's ``parameters``); its basis must be this
-        system's. Every other choice (names,
-        pose, domain) is kept. Its :meth:`with_values` then changes those values without a
-        rebuild.
+        arguments; the others at this system's ``parameters``); it must give this system
+        (same basis and dynamics, checked at sampled states; else a ValueError). Every other
+        choice (names, pose, domain) is kept. Its :meth:`with_values` then changes those values
+        without a rebuild.
         """
         names = tuple(names)
         p = ca.SX.sym('p', len(names))
         data = lagrangian(**{**self.parameters, **{name: p[i] for i, name in enumerate(names)}})
         q = ca.SX.sym('q', self.n)
         metric, constraints, potential, rho, actuators = data.expressions(q)
-        return type(self)(
+        family = type(self)(
             name=self.name, coordinates=self.coordinates, q=q, metric=metric,
             constraints=constraints, potential=potential, rho=rho, angles=self.angles,
             controls=self.control_names, velocities=self.velocity_names,
             parameters=self.parameters, basis_condition=self.basis_condition, pose=self.pose,
             actuators=actuators, domain=self.domain,
             symbolic=names, p=p)
+        rng = np.random.default_rng(0)
+        for x in regularity.sample_configurations(self.coordinates, self.angles, self.domain):
+            v, u = rng.normal(size=self.k), rng.normal(size=self.r)
+            ours, theirs = (np.concatenate([s.rho(x).ravel(), *s.dynamics(x, v, u)])
+                            for s in (self, family))
+            if not np.allclose(ours, theirs, rtol=1e-9, atol=1e-12):
+                raise ValueError(f'{self.name}: its Lagrangian data is not this model (basis '
+                                 f'or dynamics differ at q = {np.round(x, 3).tolist()})')
+        return family
 
     def _lean(self, function: ca.Function, p: np.ndarray | None = None) -> ca.Function:
         """Drop what is constant or repeated in ``function``, checked over the domain.

@@ -18,6 +18,8 @@ A member of a family (``create_parametrised(...).with_values(...)``) must be the
 with those values, by the derivation with numbers and by the Lagrange–d'Alembert equations with
 multipliers; and its plans must be those of that model, from the NLPs already built.
 """
+import dataclasses
+
 import numpy as np
 import pytest
 from test_estimation import PUSHED
@@ -71,6 +73,11 @@ def test_parameters_a_family_does_not_leave_symbolic_are_named():
         fixed.with_values(m=2.0)
     plain = nht.models.ModelSpec.from_factory('plain_sleigh', nht.models.chaplygin_sleigh)
     assert plain.create_parametrised().family.names == ()  # no symbolic data: fixed values
+    # data that is not the factory's model is not used: the planner would plan another robot
+    odd = dataclasses.replace(PUSHED, lagrangian=lambda m, J: PUSHED.lagrangian(2 * m, J))
+    assert odd.create_parametrised().family.names == ()
+    with pytest.raises(ValueError, match='is not this model'):
+        odd.create().parametrised(odd.lagrangian, ['m'])
 
 
 @pytest.mark.parametrize('name, values', [('chaplygin_sleigh', {'m': 0.8, 'J': 5.2}),

@@ -113,15 +113,15 @@ class ModelSpec:
         """Build the model with its physical parameters symbolic in its dynamics.
 
         Its :meth:`~NonholonomicSystem.with_values` changes them without a rebuild (the NLPs
-        take them as parameters). The plain model when the spec has no symbolic Lagrangian data
-        or its data no basis of D.
+        take them as parameters). The plain model when the spec has no symbolic Lagrangian data,
+        its data no basis of D, or data that is not the factory's model.
         """
         system = self.create(**values)
         if self.lagrangian is None:
             return system
         try:
             return system.parametrised(self.lagrangian, [p.name for p in self.parameters])
-        except ValueError:  # no basis given: a sampled one needs numbers
+        except ValueError:  # no basis given (a sampled one needs numbers), or another model
             return system
 
     @classmethod
