@@ -66,22 +66,26 @@ def bases(system: NonholonomicSystem, qs: np.ndarray) -> np.ndarray:
     return blocks.transpose(1, 0, 2)
 
 
+def carried(old: NonholonomicSystem, new: NonholonomicSystem, qs: np.ndarray,
+            vs: np.ndarray) -> np.ndarray:
+    """Return (N, k) quasi-velocities in ``new``'s basis of the motions ``vs`` give in ``old``'s.
+
+    For a model with other physical parameters, whose basis may scale with them: qdot = rho v
+    is kept, projected G-orthogonally onto ``new``'s D where that moves too.
+    """
+    qs = np.asarray(qs, dtype=float).reshape(-1, old.n)
+    qdot = np.einsum('nik,nk->ni', bases(old, qs), np.reshape(vs, (len(qs), old.k)))
+    return np.array(new.velocity_fn.map(len(qs))(qs.T, qdot.T)).T
+
+
 def reexpressed(reference: Trajectory, old: NonholonomicSystem,
                 new: NonholonomicSystem) -> Trajectory:
     """Return ``reference`` (in ``old``'s basis of D) as the same motion in ``new``'s.
 
-    For a model rebuilt with other physical parameters, whose basis may scale with them: the
-    velocities v keep their qdot = rho v; the controls, the old model's, are dropped (zero).
+    The velocities are :func:`carried`; the controls, the old model's, are dropped (zero).
     """
-    qdot = np.einsum('nik,nk->ni', bases(old, reference.q), reference.v)
-    v = np.einsum('nki,ni->nk', np.linalg.pinv(bases(new, reference.q)), qdot)
+    v = carried(old, new, reference.q, reference.v)
     return Trajectory(reference.t, reference.q, v, np.zeros((len(reference.t) - 1, new.r)))
-
-
-def carried_velocity(old: NonholonomicSystem, new: NonholonomicSystem, q: np.ndarray,
-                     v: np.ndarray) -> np.ndarray:
-    """Return the quasi-velocities in ``new``'s basis of the motion ``v`` is in ``old``'s, at q."""
-    return np.linalg.pinv(new.rho(q)) @ (old.rho(q) @ v)
 
 
 def wrap_angle(angle: np.ndarray | float) -> np.ndarray | float:

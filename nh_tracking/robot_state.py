@@ -59,7 +59,7 @@ class RobotState:
         self._lock = threading.Lock()
 
     def set_pose_map(self, pose_map: PoseMap) -> None:
-        """Read poses and joints for a rebuilt model (new physical parameters) from now on."""
+        """Read poses and joints for a model with new physical parameters from now on."""
         joint_map = JointMap(pose_map, self.joint_names)
         with self._lock:
             self.pose_map, self.joint_map = pose_map, joint_map

@@ -22,6 +22,7 @@ from __future__ import annotations
 
 from collections import deque
 from collections.abc import Callable, Mapping, Sequence
+import dataclasses
 from dataclasses import dataclass
 import threading
 import time
@@ -33,7 +34,7 @@ from nh_tracking import models
 from nh_tracking.adaptation import BackgroundEstimates, SentControls
 from nh_tracking.following import checked_reference, Following
 from nh_tracking.limits import moved, obstacle_discs
-from nh_tracking.poses import PoseMap, reexpressed
+from nh_tracking.poses import carried, PoseMap, reexpressed
 from nh_tracking.problem import Solution
 from nh_tracking.receding_horizon import (PlannerSettings, PlanOutcome, PlanStatus,
                                           RecedingHorizonPlanner)
@@ -169,12 +170,12 @@ class TrackingSession:
             self.adaptation.sample(self.seconds(state.ns), state.q, self.sent_controls.readings)
 
     def adapt(self, names: Sequence[str]) -> None:
-        """Estimate the physical parameters ``names`` online; a moved estimate rebuilds."""
+        """Estimate the physical parameters ``names`` online; a moved estimate is put in use."""
         self.adaptation = BackgroundEstimates(self.model, names, self.system.parameters,
                                               self._adapted)
 
     def _adapted(self) -> None:
-        """Rebuild with the estimates in use, over a build still to come (a user's change)."""
+        """Put the estimates in use, over a build still to come (a user's change)."""
         with self._lock:
             build = self._pending
         if build is None:
@@ -255,18 +256,22 @@ class TrackingSession:
         with self._solve_lock:
             old = self.planner
             planner.reference, planner.stats = old.reference, old.stats
-            if same_family:  # the warm start survives a settings change and new values
+            if same_model:  # the warm start survives a settings change
                 planner.previous = old.previous
-            if not same_model:
+            else:  # velocities were in the old basis, which may scale with the values
                 self.robot.set_pose_map(PoseMap(system))
-                if old.reference is not None:  # its velocities were in the old basis
+                if old.reference is not None:
                     planner.set_reference(reexpressed(old.reference, old.system, system))
+                if same_family and old.previous is not None:  # and new values
+                    planner.previous = dataclasses.replace(old.previous, v=carried(
+                        old.system, system, old.previous.q, old.previous.v))
             self.planner = planner
         settle_heap(1)
         with self._lock:
             self._pending = None if self._pending is build else self._pending
         took = time.perf_counter() - started
-        if same_family and not same_model and build.settings == current.settings:
+        if (same_family and not same_model and build.settings == current.settings
+                and build.settings.method == 'variational'):  # the others hold the numbers
             self.log('info', f'new model values in use after {took:.3f} s, nothing rebuilt: '
                              f'{_changes(current.system, system)}')
         else:

@@ -164,6 +164,10 @@ class NonholonomicSystem:
         x = ca.SX.sym('x', self.n + self.k)
         self.ode_fn = ca.Function('ode', [x, u], [ca.vertcat(*self.dynamics_fn(
             x[:self.n], x[self.n:], u))], ['x', 'u'], ['xdot'])
+        qdot = ca.SX.sym('qdot', self.n)
+        self.velocity_fn = ca.Function(
+            'velocity', [q, qdot], [geometry.basis_coefficients(e['metric'], e['rho'], qdot)],
+            ['q', 'qdot'], ['v'])
 
     @property
     def family_values(self) -> np.ndarray:
@@ -359,8 +363,8 @@ class NonholonomicSystem:
 
     def velocity_coordinates(self, q: ArrayLike, qdot: ArrayLike) -> np.ndarray:
         """V with rho v = P qdot: the quasi-velocities of qdot's G-orthogonal projection on D."""
-        rho, g = self.rho(q), self.metric(q)
-        return np.linalg.solve(rho.T @ g @ rho, rho.T @ g @ _vector(qdot, self.n, 'qdot'))
+        q, qdot = self.as_configuration(q), _vector(qdot, self.n, 'qdot')
+        return np.array(self.velocity_fn(q, qdot)).ravel()
 
     def __repr__(self) -> str:
         return (

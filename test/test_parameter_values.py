@@ -25,7 +25,7 @@ import pytest
 from test_estimation import PUSHED
 
 import nh_tracking as nht
-from nh_tracking import models
+from nh_tracking import models, poses
 from nh_tracking.solvers import midpoint
 from systems import basis_acceleration, lagrange_dalembert_acceleration
 
@@ -105,3 +105,33 @@ def test_new_values_plan_as_the_model_built_with_them_from_the_same_nlps(name, v
     built = plan(spec.create(**values))
     assert np.allclose(member.q, built.q, atol=1e-7)
     assert np.allclose(member.u, built.u, atol=1e-6 * (1 + np.abs(built.u).max()))
+
+
+def test_with_parameters_checks_ranges_and_rebuilds_only_what_is_not_symbolic():
+    sleigh = models.create_parametrised('chaplygin_sleigh')
+    with pytest.raises(ValueError, match='model parameter m'):
+        models.with_parameters(sleigh, 'chaplygin_sleigh', {'m': -1.0})
+    assert models.with_parameters(sleigh, 'chaplygin_sleigh', dict(sleigh.parameters)) is sleigh
+    assert models.with_parameters(sleigh, 'chaplygin_sleigh', {'J': 5.0}).family is sleigh.family
+    rebuilt = models.with_parameters(models.create('chaplygin_sleigh'), 'chaplygin_sleigh',
+                                     {'J': 5.0})
+    assert rebuilt.family.names == ('m', 'J', 'a') and rebuilt.parameters['J'] == 5.0
+
+
+@pytest.mark.parametrize('name, values', [('chaplygin_sleigh', {'m': 0.8, 'J': 5.2}),
+                                          ('rolling_disk', {'R': 0.7, 'I_spin': 0.3})])
+def test_velocities_are_carried_to_new_values_keeping_qdot_or_its_projection(name, values):
+    """The sleigh's D does not move with m and J: qdot is kept. The disk's moves with R."""
+    rng = np.random.default_rng(3)
+    old = models.create_parametrised(name)
+    new = old.with_values(**values)
+    qs = np.array(models.spec(name).start[0]) + 0.3 * rng.normal(size=(5, old.n))
+    vs = rng.normal(size=(5, old.k))
+    carried = poses.carried(old, new, qs, vs)
+    for q, v, w in zip(qs, vs, carried):
+        qdot, kept = old.rho(q) @ v, new.rho(q) @ w
+        rho, g = new.rho(q), new.metric(q)
+        assert rho.T @ g @ (qdot - kept) == pytest.approx(np.zeros(new.k), abs=1e-12)
+        if name == 'chaplygin_sleigh':
+            assert kept == pytest.approx(qdot, abs=1e-12)
+            assert np.abs(w - v).max() > 0.05 * np.abs(v).max()  # while its v changes

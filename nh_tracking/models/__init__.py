@@ -94,8 +94,10 @@ def with_parameters(system: NonholonomicSystem, name: str,
     """Return model ``name`` (now ``system``) with ``parameters``, rebuilt only if need be.
 
     ``system`` itself if nothing changes; new values in its family (the same NLPs) if every
-    change is symbolic in it; else the model built anew, as :func:`create_parametrised`.
+    change is symbolic in it; else the model built anew, as :func:`create_parametrised`. Values
+    out of the model's ranges are a ValueError.
     """
+    spec(name).check(**parameters)  # the ranges, as create checks them
     changed = {k: x for k, x in parameters.items() if system.parameters.get(k) != x}
     if not changed:
         return system

@@ -121,8 +121,8 @@ class ModelSpec:
             return system
         try:
             return system.parametrised(self.lagrangian, [p.name for p in self.parameters])
-        except ValueError:  # no basis given (a sampled one needs numbers), or another model
-            return system
+        except Exception:  # noqa: BLE001 - no basis given (a sampled one needs numbers), another
+            return system  # model, or data a user wrote for numbers only (if m > 0: ...)
 
     @classmethod
     def from_factory(cls, name: str, factory: Callable[..., NonholonomicSystem]) -> ModelSpec:

@@ -40,7 +40,7 @@ from nh_tracking import models
 from nh_tracking.costmap import gap
 from nh_tracking.joints import joint_mapping
 from nh_tracking.limits import bounds_from_lists
-from nh_tracking.poses import carried_velocity, PoseMap
+from nh_tracking.poses import carried, PoseMap
 from nh_tracking.ros import conversions as cv
 from nh_tracking.ros import messages as msgs
 from nh_tracking.ros.guarded import guarded
@@ -147,11 +147,11 @@ class SimulatorNode(ObstacleListener):
             self._change_model(physical)
 
     def _change_model(self, physical: dict[str, float]) -> None:
-        """Change the robot's physical parameters now (a payload, a correction); qdot is kept."""
+        """Change the robot's physical parameters now (a payload, a correction), qdot carried."""
         old = self.system
         system = models.with_parameters(old, self.model, physical)
         with self._lock:
-            self._v = carried_velocity(old, system, self._q, self._v)
+            self._v = carried(old, system, self._q, self._v)[0]
             self.system, self.pose_map = system, PoseMap(system)
         self.get_logger().info(f'simulating {self.model} {system.parameters} from now on')
 
