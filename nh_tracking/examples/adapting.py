@@ -25,6 +25,7 @@ import json
 from pathlib import Path
 import time
 
+from diagnostic_msgs.msg import DiagnosticArray
 import numpy as np
 
 from nh_tracking.examples.demo import ClosedLoop, sleigh_reference, START
@@ -53,6 +54,7 @@ def run_adaptation_demo(out: Path, duration: float = 40.0, time_scale: float = 2
             'prediction_error_median_after_20s': float(np.median(run['prediction_error'][late])),
             'cross_track_error_max_after_20s': float(run['cross_track'][run['t'] >= 20.0].max()),
             'values_in_use': run['values'][-1][1] if run['values'] else None,
+            'diagnostics': run['diagnostics'],
         }
     summary['prediction_error_ratio'] = (
         summary['fixed']['prediction_error_median_after_20s']
@@ -74,10 +76,23 @@ def _run(adapt: bool, reference, duration: float, time_scale: float,
          log: Callable[[str], None]) -> dict:
     predictions: list[tuple[float, np.ndarray]] = []  # (time predicted for, xy predicted)
     values: list[tuple[float, dict]] = []  # (time, the planner's model's values)
+    reported: dict[str, str] = {}  # the planner's last estimate/* diagnostics
+    excitation: set[str] = set()  # every excitation it reported
+
     with InProcessGraph() as graph:
         loop = ClosedLoop(graph, namespace='/adapted' if adapt else '/fixed',
                           planner_overrides={'adapt': list(TRUTH)} if adapt else None,
                           robot=TRUTH)
+
+        def on_diagnostics(msg: DiagnosticArray) -> None:
+            for status in msg.status:
+                if 'planner' in status.name and status.hardware_id.startswith(loop.namespace):
+                    found = {kv.key: kv.value for kv in status.values
+                             if kv.key.startswith('estimate/')}
+                    reported.update(found)
+                    excitation.update(v for k, v in found.items() if k == 'estimate/excitation')
+
+        loop.feeder.create_subscription(DiagnosticArray, '/diagnostics', on_diagnostics, 100)
         loop.start(reference, 'path', time_scale)
         last = None
         wall_limit = time.monotonic() + 60.0 + 4.0 * duration / time_scale
@@ -105,4 +120,5 @@ def _run(adapt: bool, reference, duration: float, time_scale: float,
     error = np.linalg.norm(np.array([p for _, p in predictions]) - where, axis=1)
     kept = when <= t[-1]
     return {'t': t, 'cross_track': cross_track_error(xy, reference.q[:, :2]),
-            'prediction_t': when[kept], 'prediction_error': error[kept], 'values': values}
+            'prediction_t': when[kept], 'prediction_error': error[kept], 'values': values,
+            'diagnostics': {**reported, 'excitation reported': sorted(excitation)}}
