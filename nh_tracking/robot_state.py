@@ -20,12 +20,13 @@ read by the solver and executor threads.
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
+import dataclasses
 import threading
 
 import numpy as np
 
 from nh_tracking.joints import JointMap, JointReading, JointsRejected, observe
-from nh_tracking.poses import PoseMap
+from nh_tracking.poses import carried, PoseMap
 from nh_tracking.session_types import Clock, ClockSkew, StateEstimate
 
 LEAD = 0.05  # s: odometry stamped this far ahead of the clock keeps its stamp (a tick)
@@ -59,9 +60,17 @@ class RobotState:
         self._lock = threading.Lock()
 
     def set_pose_map(self, pose_map: PoseMap) -> None:
-        """Read poses and joints for a model with new physical parameters from now on."""
+        """Read poses and joints for a model with new physical parameters from now on.
+
+        The latest state's velocities are carried into the new basis (which may scale with
+        the values), so the next plan does not start from the old one's.
+        """
         joint_map = JointMap(pose_map, self.joint_names)
         with self._lock:
+            latest, old = self._latest, self.pose_map.system
+            if latest is not None:
+                self._latest = dataclasses.replace(latest, v=carried(
+                    old, pose_map.system, latest.q, latest.v)[0])
             self.pose_map, self.joint_map = pose_map, joint_map
 
     @property

@@ -26,6 +26,8 @@ from test_estimation import PUSHED
 
 import nh_tracking as nht
 from nh_tracking import models, poses
+from nh_tracking.poses import PoseMap
+from nh_tracking.robot_state import RobotState
 from nh_tracking.solvers import midpoint
 from systems import basis_acceleration, lagrange_dalembert_acceleration
 
@@ -135,3 +137,18 @@ def test_velocities_are_carried_to_new_values_keeping_qdot_or_its_projection(nam
         if name == 'chaplygin_sleigh':
             assert kept == pytest.approx(qdot, abs=1e-12)
             assert np.abs(w - v).max() > 0.05 * np.abs(v).max()  # while its v changes
+
+
+def test_the_latest_odometry_is_carried_to_a_model_with_new_values():
+    """The plan right after a change starts from the robot's motion, not its old coordinates."""
+    old = models.create_parametrised('chaplygin_sleigh')
+    new = old.with_values(m=0.8, J=5.2)
+    now = [1_000_000_000]
+    robot = RobotState(PoseMap(old), lambda: now[0])
+    before = robot.set_odometry(now[0], np.array([1.0, 2.0, 0.0, 0.7]),
+                                np.array([0.9, 0.0, 0.0, 0.3]), 0.0)
+    robot.set_pose_map(PoseMap(new))
+    after = robot.latest
+    assert after.q == pytest.approx(before.q)
+    assert new.rho(after.q) @ after.v == pytest.approx(old.rho(before.q) @ before.v, abs=1e-12)
+    assert np.abs(after.v - before.v).max() > 0.05 * np.abs(before.v).max()
