@@ -125,21 +125,16 @@ class NonholonomicSystem:
             'vdot': vdot, 'energy': 0.5 * v.T @ g_d @ v + potential}
         values = np.array([self.parameters[name] for name in symbolic], dtype=float)
         self._bind(values)
-        if symbolic:
-            self.family = DynamicsFamily(
-                tuple(symbolic),
-                self._lean(ca.Function('dynamics', [q, v, u, p], [qdot, vdot],
-                                       ['q', 'v', 'u', 'p'], ['qdot', 'vdot']), values),
-                ca.Function('rho', [q, p], [rho], ['q', 'p'], ['rho']),
-                self._lean(ca.Function('input_matrix', [q, p], [inputs], ['q', 'p'], ['B']),
-                           values))
-        else:  # the NLPs take the lean functions, and no parameters
-            self.family = DynamicsFamily(
-                (), ca.Function('dynamics', [q, v, u, p], list(self.dynamics_fn(q, v, u)),
-                                ['q', 'v', 'u', 'p'], ['qdot', 'vdot']),
-                ca.Function('rho', [q, p], [self.rho_fn(q)], ['q', 'p'], ['rho']),
-                ca.Function('input_matrix', [q, p], [self.input_matrix_fn(q)], ['q', 'p'],
-                            ['B']))
+        if not symbolic:  # the numeric functions, lean already, with an empty p
+            qdot, vdot = self.dynamics_fn(q, v, u)
+            rho, inputs = self.rho_fn(q), self.input_matrix_fn(q)
+        lean = self._lean if symbolic else lambda function, p: function
+        self.family = DynamicsFamily(
+            tuple(symbolic),
+            lean(ca.Function('dynamics', [q, v, u, p], [qdot, vdot], ['q', 'v', 'u', 'p'],
+                             ['qdot', 'vdot']), values),
+            ca.Function('rho', [q, p], [rho], ['q', 'p'], ['rho']),
+            lean(ca.Function('input_matrix', [q, p], [inputs], ['q', 'p'], ['B']), values))
 
     def _bind(self, values: np.ndarray) -> None:
         """Build the numeric functions at the symbolic parameters' ``values``."""

@@ -214,11 +214,12 @@ def run_crossing_demo(out: Path, log: Callable[[str], None] = print, seed: int =
     with InProcessGraph() as graph:
         run = drive(graph, lambda start: Crossings(seed, start), length)
         collisions, fallbacks = run.sim.collisions, run.planner.planner.stats.fallbacks
+        errors = run.planner.errors + run.sim.errors
     closest = run.closest
     summary = {'crossings': CROSSINGS, 'disc_speed': DISC_SPEED, 'robot_speed': SPEED,
                'arrived': run.arrived, 'late_s': run.took - length / SPEED,
                'closest_approach_per_disc': closest.tolist(), 'collisions': collisions,
-               'fallbacks': fallbacks}
+               'fallbacks': fallbacks, 'errors': errors}
     figure = plot_crossing(run.track, run.discs, ROBOT_RADIUS, out / 'crossing.png')
     (out / 'crossing.json').write_text(json.dumps(summary, indent=2))
     log(f'{CROSSINGS} discs crossing at {DISC_SPEED} m/s: closest approach '
