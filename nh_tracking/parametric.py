@@ -14,21 +14,21 @@
 
 """A model's derived dynamics with some of its physical parameters left as CasADi symbols.
 
-The same derivation as :class:`~nh_tracking.system.NonholonomicSystem` (the geometry of
-:mod:`nh_tracking.geometry` on the model's :class:`~nh_tracking.lagrangian_data.LagrangianData`),
-but the parameters named are an input ``p`` of the functions, so a new value is a new number,
-not a new model: what estimating them needs.
+The family of :meth:`~nh_tracking.system.NonholonomicSystem.parametrised` with the parameters
+named symbolic and the others fixed, as the functions a fit of them needs: ``ode(x, u, p)`` and
+``velocity(q, qdot, p)``, a new value a new number, not a new model.
 """
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
+import functools
 
 import casadi as ca
 import numpy as np
 
-from nh_tracking import geometry
 from nh_tracking.models.spec import ModelSpec
+from nh_tracking.system import NonholonomicSystem
 
 
 @dataclass(frozen=True)
@@ -71,27 +71,25 @@ def parametric_model(spec: ModelSpec, names: Sequence[str],
         raise ValueError(f'model {spec.name} gives no Lagrangian data with symbolic parameters '
                          '(ModelSpec.lagrangian); its parameters can only be fixed')
     checked = spec.check(**dict(values or {}))
-    p = ca.SX.sym('p', len(names))
-    data = spec.lagrangian(**{**checked, **{name: p[i] for i, name in enumerate(names)}})
-    n = len(data.coordinates)
-    q = ca.SX.sym('q', n)
+    family = _family(spec, names, tuple((k, x) for k, x in checked.items() if k not in names))
+    n, k, r = family.n, family.k, family.r
+    x, u, p = ca.SX.sym('x', n + k), ca.SX.sym('u', family.r), ca.SX.sym('p', len(names))
+    ode = ca.Function('ode', [x, u, p], [ca.vertcat(*family.family.dynamics(x[:n], x[n:], u, p))],
+                      ['x', 'u', 'p'], ['xdot'])
+    return ParametricModel(
+        spec=spec, names=names, values=checked, coordinates=family.coordinates,
+        angle_mask=family.angle_mask, n=n, k=k, r=r, ode=ode, velocity=family.family.velocity)
+
+
+@functools.lru_cache(maxsize=8)
+def _family(spec: ModelSpec, names: tuple[str, ...],
+            fixed: tuple[tuple[str, float], ...]) -> NonholonomicSystem:
+    """Return the model with ``names`` symbolic (at their defaults), the others ``fixed``.
+
+    Kept: every fit of a window would otherwise derive it again.
+    """
     try:
-        metric, _, potential, rho, actuators = data.expressions(q)
+        system = spec.create(**dict(fixed))
+        return system.parametrised(spec.lagrangian, names)  # type: ignore[arg-type]
     except ValueError as exc:
         raise ValueError(f'model {spec.name}: {exc}') from None
-    k = rho.shape[1]
-    inputs = geometry.input_matrix(metric, rho, actuators)
-    r = inputs.shape[1]
-    v, u = ca.SX.sym('v', k), ca.SX.sym('u', r)
-    gamma = geometry.christoffel(metric, rho, q)
-    vdot = geometry.acceleration(gamma, inputs, metric, rho, potential, q, v, u)
-    x = ca.vertcat(q, v)
-    ode = ca.Function('ode', [x, u, p], [ca.vertcat(rho @ v, vdot)], ['x', 'u', 'p'], ['xdot'])
-    qdot = ca.SX.sym('qdot', n)
-    projected = geometry.basis_coefficients(metric, rho, qdot)
-    velocity = ca.Function('velocity', [q, qdot, p], [projected], ['q', 'qdot', 'p'], ['v'])
-    coordinates = tuple(data.coordinates)
-    return ParametricModel(
-        spec=spec, names=names, values=checked, coordinates=coordinates,
-        angle_mask=np.array([c in data.angles for c in coordinates]), n=n, k=k, r=r, ode=ode,
-        velocity=velocity)

@@ -51,13 +51,15 @@ class DynamicsFamily:
 
     Those are an input ``p`` here (empty when none is symbolic), so the NLPs built from these
     functions — cached per family — serve every member: a new value is a new number in the
-    next solve. ``dynamics(q, v, u, p)`` -> (qdot, vdot); ``rho(q, p)``; ``input_matrix(q, p)``.
+    next solve. ``dynamics(q, v, u, p)`` -> (qdot, vdot); ``rho(q, p)``; ``input_matrix(q, p)``;
+    ``velocity(q, qdot, p)`` -> v of qdot's G-orthogonal projection on D.
     """
 
     names: tuple[str, ...]
     dynamics: ca.Function
     rho: ca.Function
     input_matrix: ca.Function
+    velocity: ca.Function
 
 
 class NonholonomicSystem:
@@ -125,16 +127,20 @@ class NonholonomicSystem:
             'vdot': vdot, 'energy': 0.5 * v.T @ g_d @ v + potential}
         values = np.array([self.parameters[name] for name in symbolic], dtype=float)
         self._bind(values)
+        w = ca.SX.sym('qdot', self.n)
+        projected = geometry.basis_coefficients(metric, rho, w)
         if not symbolic:  # the numeric functions, lean already, with an empty p
             qdot, vdot = self.dynamics_fn(q, v, u)
             rho, inputs = self.rho_fn(q), self.input_matrix_fn(q)
+            projected = self.velocity_fn(q, w)
         lean = self._lean if symbolic else lambda function, p: function
         self.family = DynamicsFamily(
             tuple(symbolic),
             lean(ca.Function('dynamics', [q, v, u, p], [qdot, vdot], ['q', 'v', 'u', 'p'],
                              ['qdot', 'vdot']), values),
             ca.Function('rho', [q, p], [rho], ['q', 'p'], ['rho']),
-            lean(ca.Function('input_matrix', [q, p], [inputs], ['q', 'p'], ['B']), values))
+            lean(ca.Function('input_matrix', [q, p], [inputs], ['q', 'p'], ['B']), values),
+            ca.Function('velocity', [q, w, p], [projected], ['q', 'qdot', 'p'], ['v']))
 
     def _bind(self, values: np.ndarray) -> None:
         """Build the numeric functions at the symbolic parameters' ``values``."""
