@@ -32,6 +32,7 @@ from __future__ import annotations
 from collections.abc import Callable, Mapping, Sequence
 import copy
 from dataclasses import dataclass
+import math
 from typing import Any
 
 import casadi as ca
@@ -178,15 +179,27 @@ class NonholonomicSystem:
     def with_values(self, **values: float) -> NonholonomicSystem:
         """Return this system with new values of symbolic parameters: same family, same NLPs.
 
-        No derivation and no NLP is built again; a ValueError names a parameter that is not
-        symbolic here (its change needs the model built anew).
+        No derivation and no NLP is built again. A ValueError names a parameter that is not
+        symbolic here (its change needs the model built anew), a value that is not a finite
+        number, or values that make the model singular (a zero mass); the model's ranges are
+        checked by :func:`nh_tracking.models.with_parameters`.
         """
         fixed = set(values) - set(self.family.names)
         if fixed:
             raise ValueError(f'{self.name}: parameters {sorted(fixed)} are not symbolic in '
                              f'this system ({list(self.family.names)} are)')
+        numbers = {k: _finite(x, f'{self.name}: parameter {k}') for k, x in values.items()}
+        parameters = {**self.parameters, **numbers}
+        p = [parameters[name] for name in self.family.names]
+        rng = np.random.default_rng(0)
+        for q in regularity.sample_configurations(self.coordinates, self.angles, self.domain):
+            v, u = rng.normal(size=self.k), rng.normal(size=self.r)
+            state = (self.family.rho(q, p), *self.family.dynamics(q, v, u, p))
+            if not all(np.all(np.isfinite(np.array(part))) for part in state):
+                raise ValueError(f'{self.name}: {numbers} make the model singular (not finite '
+                                 f'at q = {np.round(q, 3).tolist()})')
         changed = copy.copy(self)
-        changed.parameters = {**self.parameters, **{k: float(x) for k, x in values.items()}}
+        changed.parameters = parameters
         changed._bind(changed.family_values)
         return changed
 
@@ -387,6 +400,16 @@ class NonholonomicSystem:
         q = self.as_configuration(q, what)
         self.domain.check(q, what)
         return q
+
+
+def _finite(x: object, what: str) -> float:
+    try:
+        number = float(x)  # type: ignore[arg-type]
+    except (TypeError, ValueError):
+        number = math.nan
+    if isinstance(x, bool) or not math.isfinite(number):
+        raise ValueError(f'{what} must be a finite number, got {x!r}')
+    return number
 
 
 def _vector(x: ArrayLike, size: int, what: str) -> np.ndarray:

@@ -68,7 +68,14 @@ def test_a_family_member_is_the_model_built_with_its_values(spec):
                                rtol=1e-8, atol=1e-10)
 
 
-def test_parameters_a_family_does_not_leave_symbolic_are_named():
+def test_bad_values_and_parameters_a_family_does_not_leave_symbolic_are_named():
+    sleigh = models.create_parametrised('chaplygin_sleigh')
+    for bad in (float('nan'), float('inf'), 'heavy', True, None):
+        with pytest.raises(ValueError, match='parameter J must be a finite number'):
+            sleigh.with_values(J=bad)
+    with pytest.raises(ValueError, match='make the model singular'):
+        sleigh.with_values(m=0.0)
+    assert sleigh.with_values(J=np.float32(5)).parameters['J'] == 5.0
     fixed = models.create_parametrised('nonholonomic_particle')
     assert fixed.family.names == ()
     with pytest.raises(ValueError, match=r"\['m'\] are not symbolic"):
