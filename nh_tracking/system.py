@@ -33,6 +33,7 @@ from collections.abc import Callable, Mapping, Sequence
 import copy
 from dataclasses import dataclass
 import math
+import numbers
 from typing import Any
 
 import casadi as ca
@@ -188,15 +189,17 @@ class NonholonomicSystem:
         if fixed:
             raise ValueError(f'{self.name}: parameters {sorted(fixed)} are not symbolic in '
                              f'this system ({list(self.family.names)} are)')
-        numbers = {k: _finite(x, f'{self.name}: parameter {k}') for k, x in values.items()}
-        parameters = {**self.parameters, **numbers}
+        given = {k: _finite(x, f'{self.name}: parameter {k}') for k, x in values.items()}
+        if all(self.parameters.get(k) == x for k, x in given.items()):
+            return self
+        parameters = {**self.parameters, **given}
         p = [parameters[name] for name in self.family.names]
         rng = np.random.default_rng(0)
         for q in regularity.sample_configurations(self.coordinates, self.angles, self.domain):
             v, u = rng.normal(size=self.k), rng.normal(size=self.r)
             state = (self.family.rho(q, p), *self.family.dynamics(q, v, u, p))
             if not all(np.all(np.isfinite(np.array(part))) for part in state):
-                raise ValueError(f'{self.name}: {numbers} make the model singular (not finite '
+                raise ValueError(f'{self.name}: {given} make the model singular (not finite '
                                  f'at q = {np.round(q, 3).tolist()})')
         changed = copy.copy(self)
         changed.parameters = parameters
@@ -403,13 +406,9 @@ class NonholonomicSystem:
 
 
 def _finite(x: object, what: str) -> float:
-    try:
-        number = float(x)  # type: ignore[arg-type]
-    except (TypeError, ValueError):
-        number = math.nan
-    if isinstance(x, bool) or not math.isfinite(number):
+    if isinstance(x, bool) or not isinstance(x, numbers.Real) or not math.isfinite(x):
         raise ValueError(f'{what} must be a finite number, got {x!r}')
-    return number
+    return float(x)
 
 
 def _vector(x: ArrayLike, size: int, what: str) -> np.ndarray:

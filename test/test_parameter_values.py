@@ -70,12 +70,13 @@ def test_a_family_member_is_the_model_built_with_its_values(spec):
 
 def test_bad_values_and_parameters_a_family_does_not_leave_symbolic_are_named():
     sleigh = models.create_parametrised('chaplygin_sleigh')
-    for bad in (float('nan'), float('inf'), 'heavy', True, None):
+    for bad in (float('nan'), float('inf'), 'heavy', '5', True, None, [5.0]):
         with pytest.raises(ValueError, match='parameter J must be a finite number'):
             sleigh.with_values(J=bad)
     with pytest.raises(ValueError, match='make the model singular'):
         sleigh.with_values(m=0.0)
     assert sleigh.with_values(J=np.float32(5)).parameters['J'] == 5.0
+    assert sleigh.with_values() is sleigh and sleigh.with_values(J=4) is sleigh  # no change
     fixed = models.create_parametrised('nonholonomic_particle')
     assert fixed.family.names == ()
     with pytest.raises(ValueError, match=r"\['m'\] are not symbolic"):
