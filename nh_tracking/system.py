@@ -31,9 +31,6 @@ from __future__ import annotations
 
 from collections.abc import Callable, Mapping, Sequence
 import copy
-from dataclasses import dataclass
-import math
-import numbers
 from typing import Any
 
 import casadi as ca
@@ -41,27 +38,11 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from nh_tracking import geometry, lean, regularity
+from nh_tracking.family import DynamicsFamily, finite
 from nh_tracking.lagrangian_data import (as_sx, check_name, LagrangianData, pose_axes,
                                          SymbolicMap)
 from nh_tracking.numeric import NumericFunction
 from nh_tracking.regularity import Domain
-
-
-@dataclass(eq=False)
-class DynamicsFamily:
-    """The dynamics of the systems that differ only in the values of the parameters ``names``.
-
-    Those are an input ``p`` here (empty when none is symbolic), so the NLPs built from these
-    functions — cached per family — serve every member: a new value is a new number in the
-    next solve. ``dynamics(q, v, u, p)`` -> (qdot, vdot); ``rho(q, p)``; ``input_matrix(q, p)``;
-    ``velocity(q, qdot, p)`` -> v of qdot's G-orthogonal projection on D.
-    """
-
-    names: tuple[str, ...]
-    dynamics: ca.Function
-    rho: ca.Function
-    input_matrix: ca.Function
-    velocity: ca.Function
 
 
 class NonholonomicSystem:
@@ -189,18 +170,16 @@ class NonholonomicSystem:
         if fixed:
             raise ValueError(f'{self.name}: parameters {sorted(fixed)} are not symbolic in '
                              f'this system ({list(self.family.names)} are)')
-        given = {k: _finite(x, f'{self.name}: parameter {k}') for k, x in values.items()}
+        given = {k: finite(x, f'{self.name}: parameter {k}') for k, x in values.items()}
         if all(self.parameters.get(k) == x for k, x in given.items()):
             return self
         parameters = {**self.parameters, **given}
-        p = [parameters[name] for name in self.family.names]
-        rng = np.random.default_rng(0)
-        for q in regularity.sample_configurations(self.coordinates, self.angles, self.domain):
-            v, u = rng.normal(size=self.k), rng.normal(size=self.r)
-            state = (self.family.rho(q, p), *self.family.dynamics(q, v, u, p))
-            if not all(np.all(np.isfinite(np.array(part))) for part in state):
-                raise ValueError(f'{self.name}: {given} make the model singular (not finite '
-                                 f'at q = {np.round(q, 3).tolist()})')
+        singular = self.family.singular_at(
+            [parameters[name] for name in self.family.names],
+            regularity.sample_configurations(self.coordinates, self.angles, self.domain))
+        if singular is not None:
+            raise ValueError(f'{self.name}: {given} make the model singular (not finite at '
+                             f'q = {np.round(singular, 3).tolist()})')
         changed = copy.copy(self)
         changed.parameters = parameters
         changed._bind(changed.family_values)
@@ -403,12 +382,6 @@ class NonholonomicSystem:
         q = self.as_configuration(q, what)
         self.domain.check(q, what)
         return q
-
-
-def _finite(x: object, what: str) -> float:
-    if isinstance(x, bool) or not isinstance(x, numbers.Real) or not math.isfinite(x):
-        raise ValueError(f'{what} must be a finite number, got {x!r}')
-    return float(x)
 
 
 def _vector(x: ArrayLike, size: int, what: str) -> np.ndarray:

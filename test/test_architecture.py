@@ -26,7 +26,7 @@ import nh_tracking
 ROOT = Path(__file__).resolve().parents[1]
 PACKAGE = ROOT / 'nh_tracking'
 LAYERS = [  # lowest first; a module may import from its own layer and the ones below
-    {'geometry', 'system', 'lagrangian_data',
+    {'geometry', 'system', 'family', 'lagrangian_data',
      'models', 'simulate', 'trajectory', 'problem', 'numeric', 'metrics',
      'settings', 'regularity', 'limits', 'costmap', 'lean', 'reference_checks', 'route',
      'route_shape', 'goal_checking', 'detours', 'disc_tracks', 'parametric', 'estimation',

@@ -15,7 +15,7 @@
 """Compiled solver structures, built once per (owner, structure) and freed with the owner.
 
 The owner is a system, or the family of systems whose NLPs take its parameters' values as
-numbers (:class:`~nh_tracking.system.DynamicsFamily`). Per owner only the structures of the few
+numbers (:class:`~nh_tracking.family.DynamicsFamily`). Per owner only the structures of the few
 horizon sizes used last are kept: a parameter storm (every ``steps`` value in turn) must not
 grow memory without bound (each size holds ~15 MB).
 
@@ -40,7 +40,8 @@ import time
 from typing import Generic, TypeVar
 import weakref
 
-from nh_tracking.system import DynamicsFamily, NonholonomicSystem
+from nh_tracking.family import DynamicsFamily
+from nh_tracking.system import NonholonomicSystem
 
 LOG = logging.getLogger(__name__)
 T = TypeVar('T')

@@ -17,7 +17,7 @@
 Unknowns are the knots x_k = (q_k, v_k) of a curve on D and, per interval, the next velocity and
 the midpoint configuration (and the control, when it cannot be eliminated); see
 :class:`Transcription`. Built once per structure and family of systems
-(:class:`~nh_tracking.system.DynamicsFamily`) and cached; the numbers of a problem, the family's
+(:class:`~nh_tracking.family.DynamicsFamily`) and cached; the numbers of a problem, the family's
 parameter values among them, are its parameters and bounds.
 """
 from __future__ import annotations

@@ -1,0 +1,66 @@
+# Copyright 2026 nh_tracking maintainers
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+
+"""Families of systems that differ only in the values of some physical parameters.
+
+A family's dynamics take those parameters as an input, so whatever is built from them (the
+variational NLPs, cached per family) serves every member: a new value is a new number.
+"""
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+import math
+import numbers
+
+import casadi as ca
+import numpy as np
+
+
+@dataclass(eq=False)
+class DynamicsFamily:
+    """The dynamics of the systems that differ only in the values of the parameters ``names``.
+
+    Those are an input ``p`` here (empty when none is symbolic), so the NLPs built from these
+    functions — cached per family — serve every member: a new value is a new number in the
+    next solve. ``dynamics(q, v, u, p)`` -> (qdot, vdot); ``rho(q, p)``; ``input_matrix(q, p)``;
+    ``velocity(q, qdot, p)`` -> v of qdot's G-orthogonal projection on D.
+    """
+
+    names: tuple[str, ...]
+    dynamics: ca.Function
+    rho: ca.Function
+    input_matrix: ca.Function
+    velocity: ca.Function
+
+    def singular_at(self, p: Sequence[float], configurations: np.ndarray) -> np.ndarray | None:
+        """Return a configuration where the dynamics at values ``p`` are not finite, or None.
+
+        Random velocities and controls at each configuration (seeded: the answer is repeatable).
+        """
+        rng = np.random.default_rng(0)
+        k, r = self.dynamics.size1_in(1), self.dynamics.size1_in(2)
+        for q in configurations:
+            v, u = rng.normal(size=k), rng.normal(size=r)
+            state = (self.rho(q, p), *self.dynamics(q, v, u, p))
+            if not all(np.all(np.isfinite(np.array(part))) for part in state):
+                return q
+        return None
+
+
+def finite(x: object, what: str) -> float:
+    """Return ``x`` as a float; a ValueError naming ``what`` if it is not a finite real number."""
+    if isinstance(x, bool) or not isinstance(x, numbers.Real) or not math.isfinite(x):
+        raise ValueError(f'{what} must be a finite number, got {x!r}')
+    return float(x)
