@@ -79,12 +79,16 @@ class OnlineEstimator:
         when that may have been so. The first sample's controls are not used. Samples closer
         than 1 / rate to the last one, or not after it, are dropped.
         """
-        if self._samples and t - self._samples[-1][0] < 1.0 / self.settings.rate * 0.999:
+        if not self.takes(t):
             return
         readings = np.array([u, u if u_late is None else u_late], dtype=float)
         self._samples.append((float(t), np.array(q, dtype=float), readings))
         while self._samples[0][0] < t - self.settings.window:
             self._samples.popleft()
+
+    def takes(self, t: float) -> bool:
+        """Say whether a sample at ``t`` would be kept: 1 / rate or more after the last one."""
+        return not self._samples or t - self._samples[-1][0] >= 0.999 / self.settings.rate
 
     def clear(self) -> None:
         """Drop the samples: a gap in what is known of the controls."""
@@ -187,9 +191,9 @@ class BackgroundEstimates:
         is not known (the window then starts again).
         """
         with self._lock:
-            since = self.estimator.last_time
-            if since is not None and t - since < 0.999 / self.estimator.settings.rate:
+            if not self.estimator.takes(t):
                 return
+            since = self.estimator.last_time
             readings = controls(t if since is None else since, t)
             if readings is None:
                 self.estimator.clear()

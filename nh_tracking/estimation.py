@@ -113,7 +113,7 @@ def estimate_parameters(
                              'kept; is u what this model takes as controls?')
         residual = measured - x[:plant.n].T
         kept = ~outliers
-        new_noise = np.maximum(RESOLUTION, 1.4826 * np.median(np.abs(residual[kept]), axis=0))
+        new_noise = _robust_scale(residual[kept])
         new_outliers = outliers | np.any(
             (np.abs(residual) > OUTLIER * new_noise) & (np.abs(residual) > RESOLUTION), axis=1)
         settled = np.array_equal(new_outliers, outliers) and np.all(
@@ -151,17 +151,21 @@ def _against_neighbours(measured: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     count = len(measured)
     window = [measured[max(0, i - NEIGHBOURS):i + NEIGHBOURS + 1] for i in range(count)]
     deviation = np.abs(measured - np.array([np.median(w, axis=0) for w in window]))
-    noise = np.maximum(RESOLUTION, 1.4826 * np.median(deviation, axis=0))
+    noise = _robust_scale(deviation)
     typical = np.maximum(noise, np.median(np.abs(np.diff(measured, axis=0)), axis=0))
     return np.any(deviation > 10 * typical, axis=1), noise
+
+
+def _robust_scale(deviations: np.ndarray) -> np.ndarray:
+    """Return each column's standard deviation as its median absolute deviation shows it."""
+    return np.maximum(RESOLUTION, 1.4826 * np.median(np.abs(deviations), axis=0))
 
 
 def _first_guess(plant: ParametricModel, times: np.ndarray, measured: np.ndarray) -> np.ndarray:
     """(n + k, T) states: the measured q, and v from central differences projected on D."""
     rates = np.gradient(measured, times, axis=0)
-    v = np.column_stack([np.array(plant.velocity(qi, ri, plant.start)).ravel()
-                         for qi, ri in zip(measured, rates)])
-    return np.vstack([measured.T, v])
+    v = plant.velocity.map(len(times))(measured.T, rates.T, plant.start)
+    return np.vstack([measured.T, np.array(v)])
 
 
 class _Fit:

@@ -19,7 +19,7 @@ variational NLPs, cached per family) serves every member: a new value is a new n
 """
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
 import math
 import numbers
@@ -45,18 +45,21 @@ class DynamicsFamily:
     velocity: ca.Function
 
     def singular_at(self, p: Sequence[float], configurations: np.ndarray) -> np.ndarray | None:
-        """Return a configuration where the dynamics at values ``p`` are not finite, or None.
-
-        Random velocities and controls at each configuration (seeded: the answer is repeatable).
-        """
-        rng = np.random.default_rng(0)
+        """Return a configuration where the dynamics at values ``p`` are not finite, or None."""
         k, r = self.dynamics.size1_in(1), self.dynamics.size1_in(2)
-        for q in configurations:
-            v, u = rng.normal(size=k), rng.normal(size=r)
+        for q, v, u in sample_states(configurations, k, r):
             state = (self.rho(q, p), *self.dynamics(q, v, u, p))
             if not all(np.all(np.isfinite(np.array(part))) for part in state):
                 return q
         return None
+
+
+def sample_states(configurations: np.ndarray, k: int,
+                  r: int) -> Iterator[tuple[np.ndarray, np.ndarray, np.ndarray]]:
+    """Yield (q, v, u) at each configuration: random velocities and controls, seeded."""
+    rng = np.random.default_rng(0)
+    for q in configurations:
+        yield q, rng.normal(size=k), rng.normal(size=r)
 
 
 def finite(x: object, what: str) -> float:

@@ -36,23 +36,43 @@ class ParametricModel:
     """``ode(x, u, p)`` -> xdot with x = (q, v) and ``p`` the values of ``names``, in order.
 
     ``velocity(q, qdot, p)`` -> v: the quasi-velocities of qdot's G-orthogonal projection on D.
-    ``values`` holds every physical parameter's number (those named: their starting values).
+    ``values`` holds every physical parameter's number (those named: their starting values);
+    ``system`` is the model with ``names`` symbolic, whose family the functions are.
     """
 
     spec: ModelSpec
     names: tuple[str, ...]
     values: dict[str, float]
-    coordinates: tuple[str, ...]
-    angle_mask: np.ndarray
-    n: int
-    k: int
-    r: int
+    system: NonholonomicSystem
     ode: ca.Function
-    velocity: ca.Function
 
     @property
     def start(self) -> np.ndarray:
         return np.array([self.values[name] for name in self.names])
+
+    @property
+    def velocity(self) -> ca.Function:
+        return self.system.family.velocity
+
+    @property
+    def coordinates(self) -> tuple[str, ...]:
+        return self.system.coordinates
+
+    @property
+    def angle_mask(self) -> np.ndarray:
+        return self.system.angle_mask
+
+    @property
+    def n(self) -> int:
+        return self.system.n
+
+    @property
+    def k(self) -> int:
+        return self.system.k
+
+    @property
+    def r(self) -> int:
+        return self.system.r
 
 
 def parametric_model(spec: ModelSpec, names: Sequence[str],
@@ -71,14 +91,12 @@ def parametric_model(spec: ModelSpec, names: Sequence[str],
         raise ValueError(f'model {spec.name} gives no Lagrangian data with symbolic parameters '
                          '(ModelSpec.lagrangian); its parameters can only be fixed')
     checked = spec.check(**dict(values or {}))
-    family = _family(spec, names, tuple((k, x) for k, x in checked.items() if k not in names))
-    n, k, r = family.n, family.k, family.r
-    x, u, p = ca.SX.sym('x', n + k), ca.SX.sym('u', family.r), ca.SX.sym('p', len(names))
-    ode = ca.Function('ode', [x, u, p], [ca.vertcat(*family.family.dynamics(x[:n], x[n:], u, p))],
+    system = _family(spec, names, tuple((k, x) for k, x in checked.items() if k not in names))
+    n, k = system.n, system.k
+    x, u, p = ca.SX.sym('x', n + k), ca.SX.sym('u', system.r), ca.SX.sym('p', len(names))
+    ode = ca.Function('ode', [x, u, p], [ca.vertcat(*system.family.dynamics(x[:n], x[n:], u, p))],
                       ['x', 'u', 'p'], ['xdot'])
-    return ParametricModel(
-        spec=spec, names=names, values=checked, coordinates=family.coordinates,
-        angle_mask=family.angle_mask, n=n, k=k, r=r, ode=ode, velocity=family.family.velocity)
+    return ParametricModel(spec=spec, names=names, values=checked, system=system, ode=ode)
 
 
 @functools.lru_cache(maxsize=8)

@@ -38,7 +38,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from nh_tracking import geometry, lean, regularity
-from nh_tracking.family import DynamicsFamily, finite
+from nh_tracking.family import DynamicsFamily, finite, sample_states
 from nh_tracking.lagrangian_data import (as_sx, check_name, LagrangianData, pose_axes,
                                          SymbolicMap)
 from nh_tracking.numeric import NumericFunction
@@ -111,8 +111,9 @@ class NonholonomicSystem:
         values = np.array([self.parameters[name] for name in symbolic], dtype=float)
         self._bind(values)
         w = ca.SX.sym('qdot', self.n)
-        projected = geometry.basis_coefficients(metric, rho, w)
-        if not symbolic:  # the numeric functions, lean already, with an empty p
+        if symbolic:
+            projected = geometry.basis_coefficients(metric, rho, w)
+        else:  # the numeric functions, lean already, with an empty p
             qdot, vdot = self.dynamics_fn(q, v, u)
             rho, inputs = self.rho_fn(q), self.input_matrix_fn(q)
             projected = self.velocity_fn(q, w)
@@ -296,9 +297,8 @@ class NonholonomicSystem:
             parameters=self.parameters, basis_condition=self.basis_condition, pose=self.pose,
             actuators=actuators, domain=self.domain,
             symbolic=names, p=p)
-        rng = np.random.default_rng(0)
-        for x in regularity.sample_configurations(self.coordinates, self.angles, self.domain):
-            v, u = rng.normal(size=self.k), rng.normal(size=self.r)
+        for x, v, u in sample_states(regularity.sample_configurations(
+                self.coordinates, self.angles, self.domain), self.k, self.r):
             ours, theirs = (np.concatenate([s.rho(x).ravel(), *s.dynamics(x, v, u)])
                             for s in (self, family))
             if not np.allclose(ours, theirs, rtol=1e-9, atol=1e-12):
