@@ -270,7 +270,9 @@ class Solution:
     (cost, times found) of a multi-start search; ``details`` holds method-specific figures
     (e.g. the discrete admissibility residual, ``violation``: by how much a limit is broken);
     ``limit_check`` what its limits call for (a retry, or a least-violating plan);
-    ``multipliers`` the NLP's multipliers, for a warm start from this plan.
+    ``multipliers`` the NLP's multipliers, for a warm start from this plan;
+    ``minimum_check()`` tells whether the KKT matrix's inertia proves it a strict local minimum,
+    from what its solve had at hand (None: the method works it out again, if it can).
     """
 
     t: np.ndarray
@@ -292,6 +294,7 @@ class Solution:
     limit_check: LimitCheck = LimitCheck()
     control_law: Callable[[float], np.ndarray] | None = field(default=None, repr=False)
     multipliers: Multipliers | None = field(default=None, repr=False)
+    minimum_check: Callable[[], bool] | None = field(default=None, repr=False, compare=False)
 
     def trajectory(self) -> Trajectory:
         """Return the plan as a Trajectory (e.g. to use as a reference or to plot)."""

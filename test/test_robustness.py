@@ -22,7 +22,7 @@ import pytest
 
 import nh_tracking as nht
 from nh_tracking.examples.experiments import sleigh_problem
-from nh_tracking.solvers import Variational
+from nh_tracking.solvers import sample_plan, Variational
 from nh_tracking.solvers.search import random_guess
 from nh_tracking.solvers.variational import proven_minimum
 
@@ -174,6 +174,9 @@ def test_the_second_look_is_not_drawn_back_to_the_saddle(sideways):
     newton = Variational().solve(problem, perturbed)
     assert newton.route == 'newton (working set)'
     assert newton.cost == pytest.approx(first.cost, rel=1e-6)  # the saddle again
+    # the inertia check it hands over tells, as the one worked out again from the plan does
+    assert newton.minimum_check is not None and not newton.minimum_check()
+    assert not proven_minimum(problem, dataclasses.replace(newton, minimum_check=None))
     globalised = Variational().globalised().solve(problem, perturbed)
     assert globalised.route == 'fatrop' and globalised.cost < 0.5 * first.cost
 
@@ -196,6 +199,9 @@ def test_the_inertia_check_tells_a_saddle_from_a_minimum_and_spares_the_second_l
         moved = dataclasses.replace(problem, q0=problem.q0 + 1e-2)
         warm = nht.solve(moved, initial_guess=plain)  # a working set: checked afterwards
         assert warm.route == 'newton (working set)' and warm.local_minimum
+        unchecked = Variational().solve(moved, sample_plan(moved, plain))
+        assert unchecked.minimum_check is not None and unchecked.minimum_check()
+        assert proven_minimum(moved, dataclasses.replace(unchecked, minimum_check=None))
         for seed in range(3):
             guess = random_guess(problem, np.random.default_rng(seed),
                                  (plain.q, plain.v, plain.u), 0.05)

@@ -114,13 +114,16 @@ def sample_plan(problem: TrackingProblem, plan: Solution | Trajectory) -> Guess:
         raise ValueError(f'initial_guess has q, v, u of widths {widths}; {sys.name} needs '
                          f'({sys.n}, {sys.k}, {sys.r}): a plan of another system?')
     t = plan.t
-    grid = np.minimum(np.maximum(problem.grid, t[0]), t[-1])
-    i = np.minimum(t.searchsorted(grid, 'right') - 1, len(t) - 2)  # (grid >= t[0]: i >= 0)
-    w = ((grid - t[i]) / (t[i + 1] - t[i]))[:, None]
-    q = (1 - w) * plan.q[i] + w * plan.q[i + 1]
-    v = (1 - w) * plan.v[i] + w * plan.v[i + 1]
+    if t.shape == problem.grid.shape and np.array_equal(t, problem.grid):
+        q, v, u = plan.q, plan.v, plan.u  # the same knots
+    else:
+        grid = np.minimum(np.maximum(problem.grid, t[0]), t[-1])
+        i = np.minimum(t.searchsorted(grid, 'right') - 1, len(t) - 2)  # (grid >= t[0]: i >= 0)
+        w = ((grid - t[i]) / (t[i + 1] - t[i]))[:, None]
+        q = (1 - w) * plan.q[i] + w * plan.q[i + 1]
+        v = (1 - w) * plan.v[i] + w * plan.v[i + 1]
+        mids = problem.grid[:-1] + 0.5 * problem.h
+        u = plan.u[np.minimum(np.maximum(t.searchsorted(mids, 'right') - 1, 0), len(plan.u) - 1)]
     turns = np.rint((problem.q0 - q[0]) / (2 * np.pi)) * sys.angle_mask
-    mids = problem.grid[:-1] + 0.5 * problem.h
-    idx = np.minimum(np.maximum(t.searchsorted(mids, 'right') - 1, 0), len(plan.u) - 1)
-    return Guess(q + 2 * np.pi * turns, v, plan.u[idx],
+    return Guess(q + 2 * np.pi * turns, v, u,
                  plan.multipliers if isinstance(plan, Solution) else None)

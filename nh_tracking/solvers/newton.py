@@ -33,7 +33,6 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from pathlib import Path
-import threading
 from typing import TypeVar
 
 import casadi as ca
@@ -168,6 +167,41 @@ class GaussNewtonStep:
         return self._call(w, p)
 
 
+class Inertia(ca.Callback):
+    """KKT matrix -> its number of negative eigenvalues (an LDLᵀ factorisation's D).
+
+    A callback, so a Function computes the matrix and hands it over as CasADi's own matrix:
+    assembled from numpy arguments through buffers, the check costs a third of a plain
+    Function call's conversions. Its factorisation's pattern is analysed on the first call.
+    """
+
+    def __init__(self, sparsity: ca.Sparsity) -> None:
+        ca.Callback.__init__(self)
+        self._sparsity = sparsity
+        self._linsol: ca.Linsol | None = None
+        self.construct('kkt_inertia', {})
+
+    def get_n_in(self) -> int:
+        return 1
+
+    def get_n_out(self) -> int:
+        return 1
+
+    def get_sparsity_in(self, i: int) -> ca.Sparsity:
+        return self._sparsity
+
+    def get_sparsity_out(self, i: int) -> ca.Sparsity:
+        return ca.Sparsity.dense(1, 1)
+
+    def eval(self, arg: list[ca.DM]) -> list[ca.DM]:  # noqa: A003 (CasADi calls it)
+        matrix = arg[0]
+        if self._linsol is None:
+            self._linsol = ca.Linsol('newton_inertia', 'ldl', self._sparsity)
+            self._linsol.sfact(matrix)
+        self._linsol.nfact(matrix)
+        return [ca.DM(self._linsol.neig(matrix))]
+
+
 class NewtonStep:
     """(w, p, active, target, curvature) -> (w + dw, λ, g + G dw, |stationarity|).
 
@@ -192,10 +226,6 @@ class NewtonStep:
         matrix, vector, jac_g, gradient = _kkt(w, residual, g, active, target, lagrangian,
                                                PROXIMAL_REGULARISATION, curvature)
         inputs = [active, target, curvature]
-        self._sparsity = matrix.sparsity()
-        # a plain call: it returns the DM the factorisation takes (numpy to DM costs ~50 ns an
-        # element, on the way in or out; in, there are fewer)
-        self._kkt = ca.Function('newton_kkt', [w, p, *inputs], [matrix])
         symbols, dw, multipliers, (values, jacobian, grad) = _solve(
             w, p, inputs, matrix, vector, [g, jac_g, gradient])
         stationarity = ca.mmax(ca.fabs(grad + ca.mtimes(jacobian.T, multipliers)))
@@ -210,8 +240,10 @@ class NewtonStep:
         self._direction = NumericFunction(_direction(w, p, inputs, matrix, vector,
                                                      [g, jac_g, gradient], self.inequality,
                                                      merit))
-        self._inertia: ca.Linsol | None = None
-        self._inertia_lock = threading.Lock()  # steps are shared by the planners of a process
+        kkt = ca.Function('newton_kkt', [w, p, *inputs], [matrix])
+        self._inertia = Inertia(matrix.sparsity())  # (kept: the Function below calls it)
+        self._negative = NumericFunction(ca.Function(
+            'newton_inertia', symbols, [self._inertia(kkt(*symbols))]))
 
     def __call__(self, *args: np.ndarray) -> list[np.ndarray]:
         return self._step(*args)
@@ -235,13 +267,7 @@ class NewtonStep:
         along the held limits — a saddle, which Newton's method converges to as readily as
         to a minimum (going round an obstacle is not convex).
         """
-        matrix = self._kkt(*args)
-        with self._inertia_lock:
-            if self._inertia is None:
-                self._inertia = ca.Linsol('newton_inertia', 'ldl', self._sparsity)
-                self._inertia.sfact(matrix)
-            self._inertia.nfact(matrix)
-            return int(self._inertia.neig(matrix)) == self.rows
+        return int(self._negative(*args)[0][0]) == self.rows
 
 
 def newton_steps(step: Callable[[np.ndarray, np.ndarray], list[np.ndarray]], w: np.ndarray,

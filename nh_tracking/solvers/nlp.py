@@ -24,7 +24,7 @@ is :data:`FATROP_CHUNK_INTERIOR`: every restart resets the interior-point barrie
 """
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 import math
 from pathlib import Path
@@ -146,6 +146,7 @@ class Outcome:
     iterations: int
     message: str
     minimum: bool = False  # the KKT matrix's inertia at x proved a strict local minimum
+    minimum_check: Callable[[], bool] | None = None  # ... or how to tell, if not checked
 
 
 def _paced_nlpsol(name: str, backend: str, source: dict[str, ca.SX] | str,

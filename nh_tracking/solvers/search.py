@@ -145,7 +145,8 @@ def _pool_solve(guess: Guess | None) -> Solution:
     solution = method.solve(problem, guess, max_time)
     if solution.success:
         solution.details['replay_gap'] = replay_gap(problem, solution)
-    return dataclasses.replace(solution, control_law=None)  # a closure does not pickle
+    # (closures do not pickle)
+    return dataclasses.replace(solution, control_law=None, minimum_check=None)
 
 
 def multi_start(problem: TrackingProblem, method: Method, guess: Guess | None, starts: int,

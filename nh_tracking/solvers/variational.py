@@ -213,6 +213,7 @@ def _solve_with(problem: TrackingProblem, initial_guess: Guess | None, stop: flo
         iterations=outcome.iterations, solve_time=elapsed,
         terminal_error=float(end_error[0]), method='variational',
         message=message, route=route, local_minimum=outcome.minimum,
+        minimum_check=outcome.minimum_check,
         costates=(lam, mu), multipliers=multipliers_at(tr, problem, lam_g, p),
         details={'admissibility_residual': max_residual, 'violation': violation},
         limit_check=check)
@@ -246,7 +247,7 @@ def _working_set(step: WorkingSetStep, w0: np.ndarray, p: np.ndarray,
     return None if held is None else Outcome(
         {'x': held.w, 'lam_g': held.multipliers}, True, held.factorisations,
         f'converged ({held.active} limit rows active)' if held.limited else 'converged',
-        held.minimum)
+        held.minimum, held.minimum_check)
 
 
 def proven_minimum(problem: TrackingProblem, plan: Solution, solver: str = 'fatrop',
@@ -261,6 +262,8 @@ def proven_minimum(problem: TrackingProblem, plan: Solution, solver: str = 'fatr
         return False
     if plan.local_minimum:  # the route checked it
         return True
+    if plan.minimum_check is not None:  # the route can tell at once
+        return plan.minimum_check()
     tr = transcription(problem.system, problem.steps, problem.terminal, bounded, solver,
                        compiled, Shape.of(problem.limits, False, False, False))
     try:

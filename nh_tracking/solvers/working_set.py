@@ -31,7 +31,9 @@ None, and the caller solves by interior point.
 """
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
+from functools import partial
 
 import numpy as np
 
@@ -78,6 +80,7 @@ class WorkingSetSolution:
     active: int  # inequality rows held at a bound
     limited: bool  # whether g has inequality rows at all
     minimum: bool  # checked a strict local minimum (the KKT matrix's inertia)
+    minimum_check: Callable[[], bool] | None = None  # the same check, where it was not asked
 
 
 class WorkingSet:
@@ -280,10 +283,12 @@ def working_set_solve(step: NewtonStep, constraints: NumericFunction, w: np.ndar
             if not converged:
                 return None
         if converged:
+            check = partial(step.minimum, w, p, *(a.copy() for a in rows.arguments()),
+                            multipliers)
             checked = wandered or bool(np.any(nonconvex & rows.held() & ~guessed))
-            if checked and not step.minimum(w, p, *rows.arguments(), multipliers):
+            if checked and not check():
                 return None  # a saddle: the interior point finds the minimum beside it
             return WorkingSetSolution(w, multipliers, factorisations,
                                       int(np.count_nonzero(rows.state)),
-                                      rows.limited, checked)
+                                      rows.limited, checked, None if checked else check)
     return None
