@@ -31,7 +31,7 @@ next step corrects (docs/theory.md §5).
 """
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import TypeVar
 
@@ -193,7 +193,7 @@ class Inertia(ca.Callback):
     def get_sparsity_out(self, i: int) -> ca.Sparsity:
         return ca.Sparsity.dense(1, 1)
 
-    def eval(self, arg: list[ca.DM]) -> list[ca.DM]:  # noqa: A003 (CasADi calls it)
+    def eval(self, arg: Sequence[ca.DM]) -> list[ca.DM]:  # noqa: A003 (CasADi calls it)
         matrix = arg[0]
         if self._linsol is None:
             self._linsol = ca.Linsol('newton_inertia', 'ldl', self._sparsity)
