@@ -29,6 +29,7 @@ import casadi as ca
 import numpy as np
 from numpy.typing import ArrayLike
 
+from nh_tracking.attempts import Attempt
 from nh_tracking.limits import BoundsLike, Limits
 from nh_tracking.system import NonholonomicSystem
 from nh_tracking.trajectory import Trajectory
@@ -272,7 +273,9 @@ class Solution:
     ``limit_check`` what its limits call for (a retry, or a least-violating plan);
     ``multipliers`` the NLP's multipliers, for a warm start from this plan;
     ``minimum_check()`` tells whether the KKT matrix's inertia proves it a strict local minimum,
-    from what its solve had at hand (None: the method works it out again, if it can).
+    from what its solve had at hand (None: the method works it out again, if it can);
+    ``attempts`` what ran, in order (:class:`~nh_tracking.attempts.Attempt`: backend, status,
+    iterations, time), of which ``route`` and ``message`` are the words.
     """
 
     t: np.ndarray
@@ -295,6 +298,7 @@ class Solution:
     control_law: Callable[[float], np.ndarray] | None = field(default=None, repr=False)
     multipliers: Multipliers | None = field(default=None, repr=False)
     minimum_check: Callable[[], bool] | None = field(default=None, repr=False, compare=False)
+    attempts: list[Attempt] = field(default_factory=list)
 
     def trajectory(self) -> Trajectory:
         """Return the plan as a Trajectory (e.g. to use as a reference or to plot)."""

@@ -319,12 +319,13 @@ class RecedingHorizonPlanner:
         q, _ = joined(problem)
         if left <= 0.0 or not held_up(problem, q, warm.q):
             return warm
-        other, spent = self.method.round_obstacles(problem, deadline_after(left))
+        other, spent, _ = self.method.round_obstacles(problem, deadline_after(left))
         if other is None or avoidance.hits_one_left_out(problem, other, discs) or not (
                 not warm.success or other.cost < (1.0 - SWITCH_MARGIN) * warm.cost):
             warm.details['detour_time'] = spent
             return warm
         other.solve_time += warm.solve_time
+        other.attempts[:0] = warm.attempts
         return other
 
     def brake(self, t: float, q: np.ndarray, v: np.ndarray, why: str) -> PlanOutcome:

@@ -30,7 +30,7 @@ LAYERS = [  # lowest first; a module may import from its own layer and the ones 
      'models', 'simulate', 'trajectory', 'problem', 'numeric', 'metrics',
      'settings', 'regularity', 'limits', 'costmap', 'lean', 'reference_checks', 'route',
      'route_shape', 'goal_checking', 'detours', 'disc_tracks', 'parametric', 'estimation',
-     'estimation_worker', 'adaptation'},
+     'estimation_worker', 'adaptation', 'attempts'},
     {'solvers'},
     {'receding_horizon', 'avoidance', 'fallback', 'poses', 'session', 'session_types', 'health',
      'following', 'joints', 'implied_shape', 'robot_state'},

@@ -218,7 +218,7 @@ def test_a_plan_among_many_discs_is_clear_of_every_one(method, discs):
     """
     from nh_tracking.limits import plan_path
     from nh_tracking.solvers.base import Guess
-    from nh_tracking.solvers.variational import _solve_with
+    from nh_tracking.solvers.routes import Route, solve_route
 
     free = nht.TrackingProblem(nht.models.unicycle(), _line(), [0, 0.3, 0], [0.5, 0], 6.0, 60,
                                terminal='cost', omega=10.0, robot_radius=0.1)
@@ -231,7 +231,7 @@ def test_a_plan_among_many_discs_is_clear_of_every_one(method, discs):
     assert problem.limits.clearance(points).min() >= -TOL
     assert problem.limits.swept(points) <= TOL  # nor between them
     if method == 'variational':
-        every = _solve_with(problem, Guess(plan.q, plan.v, plan.u), None, 'fatrop', every=True)
+        every = solve_route(problem, Guess(plan.q, plan.v, plan.u), None, Route(every=True))
         assert every.success and abs(every.cost - plan.cost) <= 1e-6 * plan.cost
 
 

@@ -25,10 +25,10 @@ import pytest
 
 import nh_tracking as nht
 from nh_tracking.examples.experiments import particle_problem, sleigh_problem
-from nh_tracking.solvers import line_search, Variational, variational
+from nh_tracking.solvers import line_search, routes, Variational
 from nh_tracking.solvers.inequalities import Shape
 from nh_tracking.solvers.midpoint import transcription, working_set_step
-from nh_tracking.solvers.variational import default_guess
+from nh_tracking.solvers.routes import default_guess
 from systems import coupled_system, inclined_knife_edge
 
 LINE_SEARCH = 'newton (line search)'
@@ -147,7 +147,7 @@ def test_the_line_search_runs_only_where_the_interpreted_fatrop_would(monkeypatc
     def refuse(*args):
         raise AssertionError('line search called')
 
-    monkeypatch.setattr(variational, 'line_search_solve', refuse)
+    monkeypatch.setattr(routes, 'line_search_solve', refuse)
     fine = sleigh_problem(wrap_angles=True, steps=100)  # starts from a coarse grid's plan
     assert nht.solve(fine, Variational(newton=False), second_look=False).success
     problem = sleigh_problem(wrap_angles=True)
@@ -230,7 +230,7 @@ def test_bounded_steps_that_crawl_are_given_up_early_for_the_interior_point(monk
         outcomes.append(line_search.line_search_solve(*args))
         return outcomes[-1]
 
-    monkeypatch.setattr(variational, 'line_search_solve', recorded)
+    monkeypatch.setattr(routes, 'line_search_solve', recorded)
     ours = nht.solve(problem, Variational(), second_look=False)
     interior = nht.solve(problem, Variational(newton=False), second_look=False)
     assert [o.message for o in outcomes] == ['crawling']

@@ -25,7 +25,7 @@ import pytest
 
 import nh_tracking as nht
 import nh_tracking.receding_horizon as rh
-from nh_tracking.solvers import sample_plan, variational
+from nh_tracking.solvers import routes, sample_plan, variational
 from nh_tracking.solvers.inequalities import Shape
 from nh_tracking.solvers.midpoint import working_set_step
 from nh_tracking.solvers.newton import NewtonStep
@@ -103,7 +103,7 @@ def test_warm_replans_with_limits_take_the_working_set_and_match_the_interior_po
         if plan.route == 'newton (working set)':
             problem = planner.problem(t, q, v)
             with monkeypatch.context() as patch:
-                patch.setattr(variational, 'working_set_solve', lambda *args: None)
+                patch.setattr(routes, 'working_set_solve', lambda *args: None)
                 reference_plan = variational.solve_variational(problem,
                                                                sample_plan(problem, previous))
             assert reference_plan.success and 'working set' not in reference_plan.route

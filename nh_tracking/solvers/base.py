@@ -31,6 +31,7 @@ from typing import ClassVar, NamedTuple
 
 import numpy as np
 
+from nh_tracking.attempts import Attempt
 from nh_tracking.detours import detour_guesses, joined
 from nh_tracking.problem import Multipliers, Solution, Terminal, TrackingProblem
 from nh_tracking.solvers.cache import builds_until, NotPrepared
@@ -97,13 +98,23 @@ def next_route(failed: Solution, route: str, solve: Callable[[], Solution]) -> S
         return failed
     result.route = route
     result.solve_time += failed.solve_time
+    result.attempts[:0] = failed.attempts
     return result
 
 
 def _after(failed: Solution, retry: Solution, how: str) -> Solution:
     retry.solve_time += failed.solve_time
     retry.route = f'{failed.route} -> again, {how}'
+    retry.attempts[:0] = failed.attempts
     return retry
+
+
+class Detoured(NamedTuple):
+    """The cheapest plan round the obstacles (None: none found), and what finding it took."""
+
+    plan: Solution | None
+    spent: float  # [s] solve time of every detour tried
+    attempts: list[Attempt]
 
 
 @dataclass(frozen=True)
@@ -125,7 +136,7 @@ class Structure:
 
 def unsolved(problem: TrackingProblem, method: str, message: str, elapsed: float = 0.0,
              q: np.ndarray | None = None, v: np.ndarray | None = None,
-             route: str = '') -> Solution:
+             route: str = '', attempts: list[Attempt] | None = None) -> Solution:
     """Return a failed solve's result: the plan it stopped at (default: held at the start)."""
     steps, system = problem.steps, problem.system
     return Solution(
@@ -133,7 +144,7 @@ def unsolved(problem: TrackingProblem, method: str, message: str, elapsed: float
         v=np.tile(problem.v0, (steps + 1, 1)) if v is None else v,
         u=np.zeros((steps, system.r)), cost=float('inf'), success=False, iterations=0,
         solve_time=elapsed, terminal_error=float('inf'), method=method, message=message,
-        route=route)
+        route=route, attempts=[] if attempts is None else attempts)
 
 
 def inside_domain(problem: TrackingProblem, solution: Solution) -> Solution:
@@ -182,41 +193,44 @@ class Method(ABC):
         stop, started = deadline_after(deadline), time.perf_counter()
         try:
             with builds_until(stop):
-                solution, spent = (None, 0.0) if guess is not None else \
+                detoured = Detoured(None, 0.0, []) if guess is not None else \
                     self.round_obstacles(problem, stop)
+                solution = detoured.plan
                 if solution is None:
                     solution = self.solve_until(problem, guess, stop)
-                    solution.solve_time += spent
+                    solution.solve_time += detoured.spent
+                    solution.attempts[:0] = detoured.attempts
         except NotPrepared as exc:
             solution = unsolved(problem, self.name, str(exc), time.perf_counter() - started)
         return inside_domain(problem, solution)
 
-    def round_obstacles(self, problem: TrackingProblem, stop: float | None
-                        ) -> tuple[Solution | None, float]:
+    def round_obstacles(self, problem: TrackingProblem, stop: float | None) -> Detoured:
         """Return the cheapest plan from a detour guess (None: none, or none succeeded).
 
-        And the solve time spent on the detours. Against an absolute ``stop`` or None.
+        With the solve time and the attempts of every detour tried. Against an absolute
+        ``stop`` or None.
         """
         if problem.limits.plane is None or \
                 problem.limits.clearance(problem.q0[None], [0.0]).min(initial=0.0) < 0.0:
-            return None, 0.0  # (from inside a disc: only the least-violating plan exists)
+            return Detoured(None, 0.0, [])  # (from inside a disc: only the least-violating)
         q, v = joined(problem)
-        best, spent = None, 0.0
+        best, spent, attempts = None, 0.0, []
         for knots, sides in detour_guesses(problem, q):
             plan = inside_domain(problem, self.globalised().solve_until(
                 problem, Guess(knots, v, None), stop))
             spent += plan.solve_time
+            attempts += plan.attempts
             if plan.success and (best is None or plan.cost < best[0].cost):
                 best = plan, sides
             if not before(stop):
                 break
         if best is None:
-            return None, spent
+            return Detoured(None, spent, attempts)
         plan, sides = best
         ways = ', '.join('left' if side > 0 else 'right' for side in sides)
         plan.route = f'{plan.route} (the cheapest way round the obstacles: {ways})'
-        plan.solve_time = spent
-        return plan, spent
+        plan.solve_time, plan.attempts = spent, attempts
+        return Detoured(plan, spent, attempts)
 
     def globalised(self) -> Method:
         """Return this method without local shortcuts, for guesses that are not near a minimum.

@@ -25,7 +25,7 @@ is :data:`FATROP_CHUNK_INTERIOR`: every restart resets the interior-point barrie
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 import math
 from pathlib import Path
 import threading
@@ -35,6 +35,7 @@ from typing import Any
 import casadi as ca
 import numpy as np
 
+from nh_tracking.attempts import Status
 from nh_tracking.solvers.compiled import LibraryBuild
 
 MAX_ITERATIONS = 500
@@ -141,12 +142,25 @@ class _Deadline(ca.Callback):
 
 @dataclass
 class Outcome:
+    """One backend's result: its unknowns and multipliers, and how it ended."""
+
     result: dict[str, Any]  # x, lam_g: DM from a solver, arrays from a Newton step
     success: bool
     iterations: int
     message: str
     minimum: bool = False  # the KKT matrix's inertia at x proved a strict local minimum
     minimum_check: Callable[[], bool] | None = None  # ... or how to tell, if not checked
+    readout: list[np.ndarray] = field(default_factory=list)  # the plan read at x, if at hand
+    not_finite: bool = False  # the NLP gives NaN or Inf at the guess, or at x
+    to_convergence: bool = True  # False: a fixed number of steps (a real-time iteration)
+
+    @property
+    def status(self) -> Status:
+        if self.not_finite:
+            return Status.NOT_FINITE
+        if self.success:
+            return Status.CONVERGED if self.to_convergence else Status.ITERATED
+        return Status.DEADLINE if self.message.startswith(DEADLINE) else Status.FAILED
 
 
 def _paced_nlpsol(name: str, backend: str, source: dict[str, ca.SX] | str,

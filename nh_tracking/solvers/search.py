@@ -92,6 +92,7 @@ def second_look(problem: TrackingProblem, method: Method, first: Solution,
         1.0 + abs(first.cost)))
     if not better:
         first.solve_time = total
+        first.attempts += second.attempts
         return first
     if first.success:
         second.message = (f'{second.message}; the first stationary point (cost '
@@ -101,6 +102,7 @@ def second_look(problem: TrackingProblem, method: Method, first: Solution,
         second.message = f'{second.message} (from a perturbed start; first: {first.message})'
     second.route = f'{second.route} -> perturbed restart'
     second.solve_time = total
+    second.attempts[:0] = first.attempts
     return second
 
 

@@ -1,0 +1,123 @@
+# Copyright 2026 nh_tracking maintainers
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+
+"""The variational route table: which backend runs where, and the typed record of what ran."""
+import dataclasses
+
+import numpy as np
+import pytest
+
+import nh_tracking as nht
+from nh_tracking.attempts import Backend, Status
+from nh_tracking.examples.experiments import particle_problem, sleigh_problem
+from nh_tracking.solvers import Variational
+from nh_tracking.solvers.base import Guess
+from nh_tracking.solvers.routes import NOT_FINITE, ROUTES
+from nh_tracking.solvers.variational import RETRIES
+from systems import polar_knife
+
+
+def _record(plan):
+    return [(a.backend, a.status) for a in plan.attempts]
+
+
+def _consistent(plan):
+    """Check that a plan has attempts, and that they sum to no more than its solve time."""
+    assert plan.attempts, plan.route
+    assert sum(a.time for a in plan.attempts) <= plan.solve_time + 1e-9
+    assert all(a.iterations >= 0 and a.time >= 0 for a in plan.attempts)
+
+
+@pytest.mark.parametrize('problem', [sleigh_problem(wrap_angles=False),
+                                     particle_problem(1)],
+                         ids=['sleigh', 'particle'])
+def test_each_row_runs_where_it_applies_and_says_so(problem):
+    """Cold: the line search; warm: the working set; real-time: Gauss-Newton; else the NLP's."""
+    cold = Variational().solve(problem)
+    assert _record(cold) == [(Backend.LINE_SEARCH, Status.CONVERGED)]
+    assert cold.route == Backend.LINE_SEARCH.value and cold.iterations == \
+        cold.attempts[0].iterations
+    moved = dataclasses.replace(problem, q0=problem.q0 + 1e-2)
+    warm = Variational().solve(moved, Guess(cold.q, cold.v, cold.u, cold.multipliers))
+    assert _record(warm) == [(Backend.WORKING_SET, Status.CONVERGED)]
+    assert warm.route == Backend.WORKING_SET.value
+    rti = Variational(iterations=1).solve(moved, Guess(cold.q, cold.v, cold.u))
+    assert _record(rti) == [(Backend.GAUSS_NEWTON, Status.ITERATED)]
+    for method, backend in ((Variational(newton=False), Backend.FATROP),
+                            (Variational(backend='ipopt'), Backend.IPOPT)):
+        plan = method.solve(problem)
+        assert _record(plan) == [(backend, Status.CONVERGED)] and plan.route == backend.value
+        assert plan.cost == pytest.approx(cold.cost, rel=1e-6)
+    for plan in (cold, warm, rti):
+        _consistent(plan)
+
+
+def test_a_line_search_that_does_not_settle_hands_over_to_the_interior_point():
+    """A particle on a 0.2 s horizon at eps = 100: the line search stalls (test_line_search)."""
+    particle = nht.models.nonholonomic_particle()
+    reference = nht.simulate(particle, np.zeros(3), np.array([0.5, 0.4]), np.linspace(0, 5, 101))
+    problem = nht.TrackingProblem(particle, reference, q0=np.array([-0.09, -0.53, 1.67]),
+                                  v0=np.array([0.85, -1.74]), horizon=0.2, steps=40,
+                                  epsilon=100.0, terminal='equality')
+    plan = Variational().solve(problem)
+    assert _record(plan) == [(Backend.LINE_SEARCH, Status.HANDED_OVER),
+                             (Backend.FATROP, Status.CONVERGED)]
+    assert plan.route == 'fatrop'
+    _consistent(plan)
+
+
+def test_a_guess_where_the_nlp_is_not_finite_is_refused_and_recorded():
+    problem = sleigh_problem(wrap_angles=False)
+    q, v = (a.copy() for a in problem.reference_samples[:2])
+    q[5, 0] = np.nan
+    plan = Variational().solve(problem, Guess(q, v, None))
+    assert not plan.success and plan.message.startswith(NOT_FINITE)
+    assert _record(plan)[0] == (Backend.FATROP, Status.NOT_FINITE)
+
+
+def test_the_retries_run_in_the_tables_order_and_every_attempt_is_kept():
+    """Out of the model's domain, then within it as bounds; inside a disc, the soft limits."""
+    knife = polar_knife()
+    t = np.linspace(0.0, 6.0, 121)
+    x, y = -1.5 + 0.5 * t, np.full_like(t, 0.1)
+    q_ref = np.stack([np.hypot(x, y), np.unwrap(np.arctan2(y, x)), np.zeros_like(t)], axis=1)
+    reference = nht.Trajectory(t, q_ref, np.tile([1.0, 0.0], (len(t), 1)),
+                               np.zeros((len(t) - 1, 2)))
+    problem = nht.TrackingProblem(knife, reference, q_ref[0], [0.5, 0.0], horizon=6.0,
+                                  steps=40, terminal='cost')
+    plan = nht.solve(problem, second_look=False)
+    assert plan.success and 'the domain as bounds' in plan.route
+    assert len(plan.attempts) >= 2 and plan.attempts[-1].status is Status.CONVERGED
+    _consistent(plan)
+    unicycle = nht.models.unicycle()
+    line = nht.Trajectory(t, np.c_[t, 0 * t, 0 * t], np.c_[np.ones_like(t), 0 * t],
+                          np.zeros((len(t) - 1, 2)))
+    inside = nht.TrackingProblem(unicycle, line, [3.0, 0.2, 0.0], [1, 0], 6.0, 60,
+                                 terminal='cost', omega=10.0, obstacles=[(3.0, 0.05, 0.5)],
+                                 robot_radius=0.2)
+    plan = nht.solve(inside, second_look=False)
+    assert not plan.success and 'least-violating' in plan.message
+    assert plan.route == 'ipopt (soft limits)'
+    assert plan.attempts[-1].backend is Backend.IPOPT
+    _consistent(plan)
+
+
+def test_the_tables_are_what_the_docs_say():
+    """The README shows both tables; their order is the order solves take them."""
+    assert [row.backend for row in ROUTES] == [Backend.GAUSS_NEWTON, Backend.LINE_SEARCH,
+                                               Backend.WORKING_SET, None]
+    assert len(RETRIES) == 3
+    probe = sleigh_problem(wrap_angles=False)
+    plan = nht.solve(probe)  # the public call: the second look's attempts come along
+    assert plan.attempts and plan.attempts[0].backend is Backend.LINE_SEARCH
