@@ -41,6 +41,7 @@ class Status(enum.Enum):
     CONVERGED = 'converged'
     ITERATED = 'iterated'  # a real-time iteration: the steps asked (and more while inadmissible)
     HANDED_OVER = 'handed over'  # Newton steps that did not settle: the next backend runs
+    PAUSED = 'paused'  # not tried: it kept failing on the plans before (see Guess)
     FAILED = 'failed'
     DEADLINE = 'deadline reached'
     NOT_FINITE = 'not finite'  # the NLP gives NaN or Inf at the guess (not started), or after

@@ -299,6 +299,7 @@ class Solution:
     multipliers: Multipliers | None = field(default=None, repr=False)
     minimum_check: Callable[[], bool] | None = field(default=None, repr=False, compare=False)
     attempts: list[Attempt] = field(default_factory=list)
+    working_set_misses: int = 0  # (for a warm start from this plan: see solvers.base.Guess)
 
     def trajectory(self) -> Trajectory:
         """Return the plan as a Trajectory (e.g. to use as a reference or to plot)."""

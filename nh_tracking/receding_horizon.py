@@ -353,12 +353,12 @@ class RecedingHorizonPlanner:
 
     @staticmethod
     def _shifted(problem: TrackingProblem, previous: Solution) -> Solution:
-        q, v, u, _ = sample_plan(problem, previous)
+        q, v, u = sample_plan(problem, previous)[:3]
         return dataclasses.replace(
             previous, t=problem.grid, q=q, v=v, u=cast(np.ndarray, u),  # (sampled: never None)
             route='shifted', minima=[], local_minimum=False,
             terminal_error=terminal_error(problem, q[-1], v[-1]),
-            costates=None)
+            costates=None, minimum_check=None, attempts=[])
 
 
 def _finite(sol: Solution) -> bool:

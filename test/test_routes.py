@@ -21,9 +21,9 @@ import pytest
 import nh_tracking as nht
 from nh_tracking.attempts import Backend, Status
 from nh_tracking.examples.experiments import particle_problem, sleigh_problem
-from nh_tracking.solvers import Variational
+from nh_tracking.solvers import sample_plan, Variational
 from nh_tracking.solvers.base import Guess
-from nh_tracking.solvers.routes import NOT_FINITE, ROUTES
+from nh_tracking.solvers.routes import NOT_FINITE, PAUSE, PAUSE_AFTER, ROUTES
 from nh_tracking.solvers.variational import RETRIES
 from systems import polar_knife
 
@@ -121,3 +121,29 @@ def test_the_tables_are_what_the_docs_say():
     probe = sleigh_problem(wrap_angles=False)
     plan = nht.solve(probe)  # the public call: the second look's attempts come along
     assert plan.attempts and plan.attempts[0].backend is Backend.LINE_SEARCH
+
+
+def test_a_working_set_that_keeps_missing_pauses_by_the_plans_count_not_a_shared_one():
+    """Misses in a row ride with the plans: the NLPs (shared by every planner) hold no count."""
+    problem = sleigh_problem(wrap_angles=False)
+    cold = Variational().solve(problem)
+    moved = dataclasses.replace(problem, q0=problem.q0 + 1e-2)
+
+    def warm(misses):
+        return Variational().solve(moved, Guess(cold.q, cold.v, cold.u, cold.multipliers,
+                                                misses))
+
+    for misses in range(PAUSE_AFTER + 2 * PAUSE):
+        plan = warm(misses)
+        paused = misses >= PAUSE_AFTER and (misses - PAUSE_AFTER) % PAUSE != PAUSE - 1
+        if paused:
+            assert _record(plan) == [(Backend.WORKING_SET, Status.PAUSED),
+                                     (Backend.FATROP, Status.CONVERGED)]
+            assert plan.working_set_misses == misses + 1
+        else:
+            assert _record(plan) == [(Backend.WORKING_SET, Status.CONVERGED)]
+            assert plan.working_set_misses == 0
+        assert plan.success and plan.cost == pytest.approx(warm(0).cost, rel=1e-7)
+    # the count comes along with a plan used as a warm start
+    paused = warm(PAUSE_AFTER)
+    assert sample_plan(moved, paused).working_set_misses == PAUSE_AFTER + 1

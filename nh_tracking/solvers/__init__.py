@@ -125,5 +125,6 @@ def sample_plan(problem: TrackingProblem, plan: Solution | Trajectory) -> Guess:
         mids = problem.grid[:-1] + 0.5 * problem.h
         u = plan.u[np.minimum(np.maximum(t.searchsorted(mids, 'right') - 1, 0), len(plan.u) - 1)]
     turns = np.rint((problem.q0 - q[0]) / (2 * np.pi)) * sys.angle_mask
-    return Guess(q + 2 * np.pi * turns, v, u,
-                 plan.multipliers if isinstance(plan, Solution) else None)
+    if not isinstance(plan, Solution):
+        return Guess(q + 2 * np.pi * turns, v, u)
+    return Guess(q + 2 * np.pi * turns, v, u, plan.multipliers, plan.working_set_misses)

@@ -44,13 +44,17 @@ class Guess(NamedTuple):
     """A plan to start a solve from: q (N+1, n), v (N+1, k), u (N, r) or None.
 
     With the ``multipliers`` of the NLP that made it, if any (a warm start's Newton steps
-    take them; a plain (q, v, u) tuple serves as a guess without them).
+    take them; a plain (q, v, u) tuple serves as a guess without them), and its
+    ``working_set_misses``: warm solves in a row, up to the plan, whose working set did not
+    settle (past a few, it is tried only now and then: each miss costs up to 24
+    factorisations). The count rides with the plans, not with the shared NLPs.
     """
 
     q: np.ndarray
     v: np.ndarray
     u: np.ndarray | None
     multipliers: Multipliers | None = None
+    working_set_misses: int = 0
 
 
 def clear_of_every_disc(solve: Callable[[Guess | None, bool], Solution], guess: Guess | None,

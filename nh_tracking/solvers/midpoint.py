@@ -285,8 +285,6 @@ class WorkingSetStep:
     step: NewtonStep
     constraints: NumericFunction  # (w, p) -> g
     nonconvex: np.ndarray  # the clearance rows: a plan held at one is checked for a saddle
-    failures: int = 0  # in a row: past PAUSE_AFTER, only every PAUSE-th warm solve tries
-    tries: int = 0
 
 
 _STEPS: PerSystemCache[WorkingSetStep] = PerSystemCache(group=by_steps)

@@ -43,7 +43,7 @@ from nh_tracking.solvers.newton import newton_steps
 from nh_tracking.solvers.nlp import before, halfway, Outcome, Pace
 from nh_tracking.solvers.working_set import working_set_solve
 
-PAUSE_AFTER, PAUSE = 3, 4  # working-set failures in a row, then one try in this many solves
+PAUSE_AFTER, PAUSE = 3, 4  # working-set misses in a row, then one try in this many solves
 RTI_RESIDUAL = 1e-3  # a real-time iteration's plan must be this close to admissible
 RTI_EXTRA_STEPS = 4  # Gauss-Newton steps beyond the budget while a plan is not yet that close
 NOT_FINITE = ('the NLP is not finite at the initial guess (the dynamics or cost give NaN or Inf '
@@ -121,20 +121,40 @@ def _real_time_iteration(start: Start) -> Outcome:
                    not_finite=not finite, to_convergence=False)
 
 
-def _line_search(start: Start) -> Outcome | None:
+def _line_search(start: Start) -> Outcome | Status:
     """Newton steps with a filter line search, leaving the interior point half the time left."""
     assert start.step is not None
     bounds = start.bounds
     held = line_search_solve(start.step.step, start.w0, start.p, bounds['lbg'], bounds['ubg'],
                              halfway(start.stop))
-    return None if not held.success and before(start.stop) else held
+    return Status.HANDED_OVER if not held.success and before(start.stop) else held
 
 
-def _warm_working_set(start: Start) -> Outcome | None:
-    """Newton steps on a working set of the limit rows, from the previous plan's multipliers."""
+def _warm_working_set(start: Start) -> Outcome | Status:
+    """Newton steps on a working set of the limit rows, from the previous plan's multipliers.
+
+    Where it keeps missing (a degenerate set: a robot turning on the spot at a disc's edge),
+    past :data:`PAUSE_AFTER` misses in a row it is tried only every :data:`PAUSE`-th solve.
+    """
     assert start.step is not None
+    misses = working_set_misses(start.guess)
+    if misses >= PAUSE_AFTER and (misses - PAUSE_AFTER) % PAUSE != PAUSE - 1:
+        return Status.PAUSED
     multipliers = carried_multipliers(start.tr, start.problem, start.guess, start.p)
     return _working_set(start.step, start.w0, start.p, start.bounds, start.pace, multipliers)
+
+
+def working_set_misses(guess: Guess | None) -> int:
+    """Return the warm solves in a row up to ``guess`` whose working set did not settle."""
+    return guess.working_set_misses if isinstance(guess, Guess) else 0
+
+
+def misses_after(guess: Guess | None, attempts: list[Attempt]) -> int:
+    """Return the working set's misses in a row after a solve from ``guess`` that ran these."""
+    tried = [a.status for a in attempts if a.backend is Backend.WORKING_SET]
+    if Status.CONVERGED in tried:
+        return 0
+    return working_set_misses(guess) + 1 if tried else working_set_misses(guess)
 
 
 def _interior_point(start: Start) -> Outcome:
@@ -159,7 +179,7 @@ class Row:
 
     backend: Backend | None  # None: the NLP's interior point (:attr:`Start.interior`)
     applies: Callable[[Start], bool]
-    run: Callable[[Start], Outcome | None]
+    run: Callable[[Start], Outcome | Status]  # a status: it handed over (or did not run)
 
 
 # One solve of the NLP: the first row that applies runs; a row that hands over passes to the
@@ -200,12 +220,13 @@ def solve_route(problem: TrackingProblem, initial_guess: Guess | None, stop: flo
         tried = time.perf_counter()
         outcome = row.run(start)
         backend = row.backend or start.interior
-        status = Status.HANDED_OVER if outcome is None else outcome.status
-        attempts.append(Attempt(backend, status, 0 if outcome is None else outcome.iterations,
+        if isinstance(outcome, Status):  # handed over: the next row that applies runs
+            attempts.append(Attempt(backend, outcome, 0, time.perf_counter() - tried))
+            continue
+        attempts.append(Attempt(backend, outcome.status, outcome.iterations,
                                 time.perf_counter() - tried))
-        if outcome is not None:
-            break
-    assert outcome is not None  # (the last row always runs, and never hands over)
+        break
+    assert isinstance(outcome, Outcome)  # (the last row always runs, and never hands over)
     elapsed = time.perf_counter() - began
     if outcome.not_finite and backend is not Backend.GAUSS_NEWTON:
         return unsolved(problem, 'variational', NOT_FINITE, elapsed, q_g, v_g,
@@ -256,19 +277,11 @@ def _held_step(problem: TrackingProblem, tr: Transcription) -> WorkingSetStep | 
 
 def _working_set(step: WorkingSetStep, w0: np.ndarray, p: np.ndarray,
                  bounds: dict[str, np.ndarray], pace: Pace,
-                 multipliers: np.ndarray | None) -> Outcome | None:
-    """Replan by Newton steps on a working set of the limit rows (None: it did not settle).
-
-    Where it keeps failing (a degenerate set: a robot turning on the spot at a disc's edge),
-    it is tried only every PAUSE-th solve: each failure costs up to 24 factorisations.
-    """
-    step.tries += 1
-    if step.failures >= PAUSE_AFTER and step.tries % PAUSE:
-        return None
+                 multipliers: np.ndarray | None) -> Outcome | Status:
+    """Replan by Newton steps on a working set of the limit rows (handed over: not settled)."""
     held = working_set_solve(step.step, step.constraints, w0, p, bounds['lbg'], bounds['ubg'],
                              step.nonconvex, pace, multipliers)
-    step.failures = 0 if held is not None else step.failures + 1
-    return None if held is None else Outcome(
+    return Status.HANDED_OVER if held is None else Outcome(
         {'x': held.w, 'lam_g': held.multipliers}, True, held.factorisations,
         f'converged ({held.active} limit rows active)' if held.limited else 'converged',
         held.minimum, held.minimum_check)

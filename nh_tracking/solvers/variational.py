@@ -42,7 +42,7 @@ from nh_tracking.solvers.duals import carried_multipliers
 from nh_tracking.solvers.inequalities import Shape, start_violation, VIOLATION_TOL
 from nh_tracking.solvers.midpoint import BACKENDS, transcription, working_set_step
 from nh_tracking.solvers.nlp import deadline_after
-from nh_tracking.solvers.routes import Route, RTI_RESIDUAL, solve_route
+from nh_tracking.solvers.routes import misses_after, Route, RTI_RESIDUAL, solve_route
 from nh_tracking.solvers.working_set import WorkingSet
 from nh_tracking.system import NonholonomicSystem
 
@@ -116,6 +116,7 @@ def solve_variational_until(problem: TrackingProblem, initial_guess: Guess | Non
         quick = solve_route(problem, initial_guess, stop,
                             Route(solver, compiled, iterations=iterations))
         if quick.success and quick.details['admissibility_residual'] <= RTI_RESIDUAL:
+            quick.working_set_misses = misses_after(initial_guess, quick.attempts)
             return quick
         earlier.append(quick)
     if initial_guess is None and problem.steps >= CONTINUATION_MIN_STEPS:
@@ -138,6 +139,7 @@ def solve_variational_until(problem: TrackingProblem, initial_guess: Guess | Non
     for retry in RETRIES:
         if time_left(result, stop) and retry.applies(problem, result, first):
             result = next_route(result, retry.why(result), partial(run, retry.route(first)))
+    result.working_set_misses = misses_after(initial_guess, result.attempts)
     return result
 
 
