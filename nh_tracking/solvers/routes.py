@@ -18,7 +18,8 @@
 steps that do not settle hand over to the next row that applies; the interior point, last,
 always applies. Each run is an :class:`~nh_tracking.attempts.Attempt` of the plan's
 ``attempts``. A new backend is one function from a :class:`Start` to an
-:class:`~.nlp.Outcome` (None: handed over) and one row.
+:class:`~.nlp.Outcome` (or a :class:`~nh_tracking.attempts.Status`: handed over, paused) and
+one row.
 """
 from __future__ import annotations
 
