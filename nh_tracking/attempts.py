@@ -32,7 +32,6 @@ class Backend(enum.Enum):
     LINE_SEARCH = 'newton (line search)'  # Newton steps with a filter line search (cold)
     FATROP = 'fatrop'  # the structure-exploiting interior point
     IPOPT = 'ipopt'  # the general interior point
-    FLOW = 'flow'  # PMP: the costate flow shot (whole, or in arcs)
 
 
 class Status(enum.Enum):

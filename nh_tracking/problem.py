@@ -275,7 +275,9 @@ class Solution:
     ``minimum_check()`` tells whether the KKT matrix's inertia proves it a strict local minimum,
     from what its solve had at hand (None: the method works it out again, if it can);
     ``attempts`` what ran, in order (:class:`~nh_tracking.attempts.Attempt`: backend, status,
-    iterations, time), of which ``route`` and ``message`` are the words.
+    iterations, time), of which ``route`` and ``message`` are the words;
+    ``working_set_misses`` how many warm solves in a row, up to this plan, had a working set
+    that did not settle (a warm start from it takes the count on).
     """
 
     t: np.ndarray
@@ -299,7 +301,7 @@ class Solution:
     multipliers: Multipliers | None = field(default=None, repr=False)
     minimum_check: Callable[[], bool] | None = field(default=None, repr=False, compare=False)
     attempts: list[Attempt] = field(default_factory=list)
-    working_set_misses: int = 0  # (for a warm start from this plan: see solvers.base.Guess)
+    working_set_misses: int = 0
 
     def trajectory(self) -> Trajectory:
         """Return the plan as a Trajectory (e.g. to use as a reference or to plot)."""

@@ -250,9 +250,11 @@ class RecedingHorizonPlanner:
                                         else sample_plan(problem, guess), s.max_solve_time)
                 if sol.success and avoidance.hits_one_left_out(problem, sol, discs):
                     nearest = dataclasses.replace(problem, obstacles=avoidance.nearest(sol, discs))
-                    again = self.method.solve(
-                        nearest, Guess(sol.q, sol.v, sol.u, sol.multipliers), s.max_solve_time)
+                    again = self.method.solve(nearest, Guess(
+                        sol.q, sol.v, sol.u, sol.multipliers, sol.working_set_misses),
+                        s.max_solve_time)
                     again.solve_time += sol.solve_time
+                    again.attempts[:0] = sol.attempts
                     sol = again
                     if sol.success and avoidance.hits_one_left_out(nearest, sol, discs):
                         sol.success = False  # (more obstacles about it than an NLP takes)

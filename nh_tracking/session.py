@@ -264,7 +264,8 @@ class TrackingSession:
                     planner.set_reference(reexpressed(old.reference, old.system, system))
                 if same_family and old.previous is not None:  # and new values
                     planner.previous = dataclasses.replace(old.previous, v=carried(
-                        old.system, system, old.previous.q, old.previous.v))
+                        old.system, system, old.previous.q, old.previous.v),
+                        minimum_check=None, attempts=list(old.previous.attempts))
             self.planner = planner
         settle_heap(1)
         with self._lock:

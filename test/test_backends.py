@@ -25,6 +25,7 @@ import pytest
 from scipy.optimize import lsq_linear, minimize
 
 from nh_tracking.numeric import NumericFunction
+from nh_tracking.solvers.compiled import wait_for_builds
 from nh_tracking.solvers.line_search import line_search_solve
 from nh_tracking.solvers.newton import NewtonStep
 from nh_tracking.solvers.nlp import Pace
@@ -38,12 +39,12 @@ C, D = np.array([[1.0, 2.0, -1.0]]), np.array([0.5])
 class Problem:
     """min 1/2 |r(w)|^2 s.t. lower <= g(w) <= upper, its Newton step and g as a function."""
 
-    def __init__(self, residual, g, lower, upper, size):
+    def __init__(self, residual, g, lower, upper, size, compiled=False):
         self.w, p = ca.SX.sym('w', size), ca.SX.sym('p', 0)
         r, rows = residual(self.w), g(self.w)
         self.lower, self.upper = np.asarray(lower, float), np.asarray(upper, float)
         inequality = np.flatnonzero(self.lower != self.upper)
-        self.step = NewtonStep(self.w, p, r, rows, inequality)
+        self.step = NewtonStep(self.w, p, r, rows, inequality, compiled)
         self.g = NumericFunction(ca.Function('g', [self.w, p], [rows]))
         self.cost = ca.Function('f', [self.w], [0.5 * ca.sumsqr(r)])
 
@@ -113,6 +114,31 @@ def test_a_saddle_is_not_called_converged():
     assert not outcome.success and outcome.message in ('a saddle', 'nonconvex')
     outcome, w = problem.line_search([0.8, 0.3])  # where it curves up: the minimum
     assert outcome.success and outcome.minimum and w == pytest.approx([1.0, 0.0], abs=1e-8)
+
+
+def test_the_compiled_step_is_the_interpreted_one_and_tells_the_saddle_by_its_inertia():
+    """The compiled step and its inertia agree with the interpreted ones, and with the formula.
+
+    On the saddle's problem the Hessian's first entry is 6 w1^2 - 2 (+ 1e-10), so the KKT
+    matrix has one negative eigenvalue per row of g (a minimum) exactly where |w1| > 1/sqrt(3).
+    """
+    residual, g = (lambda w: ca.vertcat(w[0] ** 2 - 1, w[1])), (lambda w: w[1])
+    interpreted = Problem(residual, g, [-10.0], [10.0], 2)
+    compiled = Problem(residual, g, [-10.0], [10.0], 2, compiled=True)
+    wait_for_builds()
+    assert compiled.step.compiled and not interpreted.step.compiled
+    for w1 in (-1.3, -0.6, -0.5, 0.0, 0.3, 0.58, 0.6, 1.0):
+        for active in (0.0, 1.0):
+            args = (np.array([w1, 0.3]), np.zeros(0), np.array([active]), np.array([0.0]),
+                    np.array([0.2]))
+            expected = 6 * w1 ** 2 - 2 > 0
+            assert compiled.step.minimum(*args) == interpreted.step.minimum(*args) == expected
+            for a, b in zip(compiled.step(*args), interpreted.step(*args)):
+                assert np.asarray(a) == pytest.approx(np.asarray(b), abs=1e-12)
+    outcome, w = compiled.line_search([0.8, 0.3])  # (its direction stays interpreted)
+    assert outcome.success and outcome.minimum and w == pytest.approx([1.0, 0.0], abs=1e-8)
+    held = compiled.working_set([0.9, 0.1])
+    assert held is not None and held.w == pytest.approx([1.0, 0.0], abs=1e-8)
 
 
 def test_infeasible_bounds_are_no_success():

@@ -73,6 +73,7 @@ def test_a_line_search_that_does_not_settle_hands_over_to_the_interior_point():
     plan = Variational().solve(problem)
     assert _record(plan) == [(Backend.LINE_SEARCH, Status.HANDED_OVER),
                              (Backend.FATROP, Status.CONVERGED)]
+    assert plan.attempts[0].iterations > 0  # the factorisations it spent are on record
     assert plan.route == 'fatrop'
     _consistent(plan)
 
@@ -121,6 +122,8 @@ def test_the_tables_are_what_the_docs_say():
     probe = sleigh_problem(wrap_angles=False)
     plan = nht.solve(probe)  # the public call: the second look's attempts come along
     assert plan.attempts and plan.attempts[0].backend is Backend.LINE_SEARCH
+    shooting = nht.solve(probe, 'multiple_shooting', second_look=False)
+    assert _record(shooting) == [(Backend.IPOPT, Status.CONVERGED)]
 
 
 def test_a_working_set_that_keeps_missing_pauses_by_the_plans_count_not_a_shared_one():

@@ -233,7 +233,7 @@ class Method(ABC):
         plan, sides = best
         ways = ', '.join('left' if side > 0 else 'right' for side in sides)
         plan.route = f'{plan.route} (the cheapest way round the obstacles: {ways})'
-        plan.solve_time, plan.attempts = spent, attempts
+        plan.solve_time, plan.attempts = spent, list(attempts)
         return Detoured(plan, spent, attempts)
 
     def globalised(self) -> Method:

@@ -291,24 +291,24 @@ _STEPS: PerSystemCache[WorkingSetStep] = PerSystemCache(group=by_steps)
 
 
 def working_set_step(system: NonholonomicSystem, steps: int, terminal: str,
-                     shape: Shape) -> WorkingSetStep:
+                     shape: Shape, compiled: bool = False) -> WorkingSetStep:
     """Return the step for warm replans with hard limits of this shape, built on first use.
 
     A planner prepares it for the limits it has when it starts (its obstacles included); a
     shape met later inside a replanning loop is built in the background (NotPrepared until
-    then: those replans are interior points).
+    then: those replans are interior points). ``compiled``: its step as C (:class:`.NewtonStep`).
     """
-    return _STEPS.get(system.family, (steps, terminal, shape),
-                      lambda: _working_set_step(system, steps, terminal, shape))
+    return _STEPS.get(system.family, (steps, terminal, shape, compiled),
+                      lambda: _working_set_step(system, steps, terminal, shape, compiled))
 
 
 def _working_set_step(system: NonholonomicSystem, steps: int, terminal: str,
-                      shape: Shape) -> WorkingSetStep:
+                      shape: Shape, compiled: bool) -> WorkingSetStep:
     form = _shared_form(system, steps, terminal, shape)
     rows = form.constraints.shape[0]
     return WorkingSetStep(
         NewtonStep(form.unknowns, form.p, form.cost_residuals, form.constraints,
-                   np.flatnonzero(form.limits.inequality_mask(rows))),
+                   np.flatnonzero(form.limits.inequality_mask(rows)), compiled),
         NumericFunction(ca.Function('constraints', [form.unknowns, form.p],
                                     [form.constraints])),
         form.limits.inequality_mask(rows, ('clear',)))

@@ -26,6 +26,7 @@ from typing import ClassVar
 import casadi as ca
 import numpy as np
 
+from nh_tracking.attempts import Attempt, Backend
 from nh_tracking.limits import clearance_points, plane
 from nh_tracking.problem import (Solution, terminal_cost, terminal_error, tracking_lagrangian,
                                  TrackingProblem)
@@ -201,7 +202,8 @@ def _solve_once(problem: TrackingProblem, initial_guess: Guess | None,
         iterations=outcome.iterations, solve_time=elapsed,
         terminal_error=terminal_error(problem, q[-1], v[-1]), method='multiple_shooting',
         message=message, route='ipopt' if tr.soft_index is None else 'ipopt (soft limits)',
-        details={'violation': violation}, limit_check=check)
+        details={'violation': violation}, limit_check=check,
+        attempts=[Attempt(Backend.IPOPT, outcome.status, outcome.iterations, elapsed)])
 
 
 def _domain_bounds(system: NonholonomicSystem, steps: int) -> tuple[np.ndarray, np.ndarray]:

@@ -153,9 +153,12 @@ class Outcome:
     readout: list[np.ndarray] = field(default_factory=list)  # the plan read at x, if at hand
     not_finite: bool = False  # the NLP gives NaN or Inf at the guess, or at x
     to_convergence: bool = True  # False: a fixed number of steps (a real-time iteration)
+    handed_over: bool = False  # Newton steps that did not settle: the next backend solves
 
     @property
     def status(self) -> Status:
+        if self.handed_over:
+            return Status.HANDED_OVER
         if self.not_finite:
             return Status.NOT_FINITE
         if self.success:

@@ -66,18 +66,18 @@ def solve_pmp(problem: TrackingProblem, max_time: float = 60.0,
     shooter = Shooter(problem, deadline=stop)
     n, k = problem.system.n, problem.system.k
     p0 = np.zeros(n + k) if initial_costates is None else np.asarray(initial_costates, float)
-    attempts: list[str] = []
+    tried: list[str] = []
     nodes = np.array([0, problem.steps])
     starts, ok = [np.concatenate([problem.q0, problem.v0, p0])], False
     try:
         if guess is None or initial_costates is not None:
-            attempts.append('zero-costates' if initial_costates is None else 'given-costates')
+            tried.append('zero-costates' if initial_costates is None else 'given-costates')
             starts, ok = shoot_whole(shooter, p0)
         if not ok:
             variational = fallback.solve_until(problem, guess, stop)
             assert variational.costates is not None  # the fallback is Variational
             lam, mu = variational.costates
-            attempts.append('variational-costates')
+            tried.append('variational-costates')
             starts, ok = shoot_whole(shooter, np.concatenate([lam[0], mu_knots(mu)[0]]))
             # a few segments, then one per interval for a strongly unstable flow (between
             # the two, root finding fails slowly: the snakeboard's 20 segments took 45 s)
@@ -85,16 +85,16 @@ def solve_pmp(problem: TrackingProblem, max_time: float = 60.0,
                 if ok or not variational.success:
                     break
                 nodes = np.unique(np.linspace(0, problem.steps, segments + 1).round().astype(int))
-                attempts.append(f'multiple-shooting-pmp ({segments} segments)')
+                tried.append(f'multiple-shooting-pmp ({segments} segments)')
                 starts, ok = shoot_arcs(shooter, variational, nodes)
     except OutOfTime:
-        attempts.append(f'{DEADLINE} (after {max_time:g} s)')
+        tried.append(f'{DEADLINE} (after {max_time:g} s)')
         ok = False
-    return _solution(problem, shooter, starts, nodes, ok, time.perf_counter() - start, attempts)
+    return _solution(problem, shooter, starts, nodes, ok, time.perf_counter() - start, tried)
 
 
 def _solution(problem: TrackingProblem, shooter: Shooter, starts: list[np.ndarray],
-              nodes: np.ndarray, ok: bool, elapsed: float, attempts: list[str]) -> Solution:
+              nodes: np.ndarray, ok: bool, elapsed: float, tried: list[str]) -> Solution:
     """Read the plan out segment by segment.
 
     An unstable flow is never re-integrated across the whole horizon from p(t0) alone.
@@ -124,9 +124,9 @@ def _solution(problem: TrackingProblem, shooter: Shooter, starts: list[np.ndarra
         u = held_controls(problem.system, grid, q, v, u, problem.limits.controls)
     return Solution(
         t=grid, q=q, v=v, u=u, cost=cost + terminal_cost(problem, q[-1]) if ok else np.inf,
-        success=bool(ok), iterations=len(attempts), solve_time=elapsed,
+        success=bool(ok), iterations=len(tried), solve_time=elapsed,
         terminal_error=terminal_error(problem, q[-1], v[-1]), method='pmp',
-        message=' -> '.join(attempts), route=attempts[-1] if ok else 'failed',
+        message=' -> '.join(tried), route=tried[-1] if ok else 'failed',
         costates=(z[:, n + k:2 * n + k], z[:, 2 * n + k:]),
         details={'shooting_residual': residual,
                  'violation': problem.limits.violation(q, v, u, grid - grid[0])},

@@ -122,13 +122,14 @@ def _real_time_iteration(start: Start) -> Outcome:
                    not_finite=not finite, to_convergence=False)
 
 
-def _line_search(start: Start) -> Outcome | Status:
+def _line_search(start: Start) -> Outcome:
     """Newton steps with a filter line search, leaving the interior point half the time left."""
     assert start.step is not None
     bounds = start.bounds
     held = line_search_solve(start.step.step, start.w0, start.p, bounds['lbg'], bounds['ubg'],
                              halfway(start.stop))
-    return Status.HANDED_OVER if not held.success and before(start.stop) else held
+    held.handed_over = not held.success and before(start.stop)
+    return held
 
 
 def _warm_working_set(start: Start) -> Outcome | Status:
@@ -176,7 +177,11 @@ def _interior_point(start: Start) -> Outcome:
 
 @dataclass(frozen=True)
 class Row:
-    """A row of :data:`ROUTES`: the backend, when it runs, and how (None: it handed over)."""
+    """A row of :data:`ROUTES`: the backend, when it runs, and how.
+
+    ``run`` returns the backend's outcome (``handed_over``: the next row that applies runs), or
+    a status where it has none (the working set handed over, or was paused).
+    """
 
     backend: Backend | None  # None: the NLP's interior point (:attr:`Start.interior`)
     applies: Callable[[Start], bool]
@@ -213,7 +218,7 @@ def solve_route(problem: TrackingProblem, initial_guess: Guess | None, stop: flo
     # the Newton steps' KKT step, built outside the timing (none from a guess with NaN: their
     # failing there would count against the structure)
     if route.newton and (warm or start.searched) and np.isfinite(w0).all():
-        start.step = _held_step(problem, tr)
+        start.step = _held_step(problem, tr, route.compiled)
     began, attempts = time.perf_counter(), []
     for row in ROUTES:
         if not row.applies(start):
@@ -221,13 +226,15 @@ def solve_route(problem: TrackingProblem, initial_guess: Guess | None, stop: flo
         tried = time.perf_counter()
         outcome = row.run(start)
         backend = row.backend or start.interior
-        if isinstance(outcome, Status):  # handed over: the next row that applies runs
+        if isinstance(outcome, Status):  # handed over (or paused): the next row that applies
             attempts.append(Attempt(backend, outcome, 0, time.perf_counter() - tried))
             continue
         attempts.append(Attempt(backend, outcome.status, outcome.iterations,
                                 time.perf_counter() - tried))
-        break
-    assert isinstance(outcome, Outcome)  # (the last row always runs, and never hands over)
+        if not outcome.handed_over:
+            break
+    # (the last row always runs, and never hands over)
+    assert isinstance(outcome, Outcome) and not outcome.handed_over
     elapsed = time.perf_counter() - began
     if outcome.not_finite and backend is not Backend.GAUSS_NEWTON:
         return unsolved(problem, 'variational', NOT_FINITE, elapsed, q_g, v_g,
@@ -252,7 +259,8 @@ def solve_route(problem: TrackingProblem, initial_guess: Guess | None, stop: flo
         iterations=outcome.iterations, solve_time=elapsed,
         terminal_error=float(end_error[0]), method='variational',
         message=message, route=_route_name(backend, tr), local_minimum=outcome.minimum,
-        minimum_check=outcome.minimum_check,
+        # (the check of this NLP's rows; other rows' plans are not the nominal problem's)
+        minimum_check=None if route.every or route.domain else outcome.minimum_check,
         costates=(lam, mu), multipliers=multipliers_at(tr, problem, lam_g, p),
         details={'admissibility_residual': max_residual, 'violation': violation},
         limit_check=check, attempts=attempts)
@@ -265,13 +273,14 @@ def _route_name(backend: Backend, tr: Transcription) -> str:
     return backend.value
 
 
-def _held_step(problem: TrackingProblem, tr: Transcription) -> WorkingSetStep | None:
+def _held_step(problem: TrackingProblem, tr: Transcription,
+               compiled: bool) -> WorkingSetStep | None:
     """Return the working set's step of a warm solve (hard limits or none; None: none yet)."""
     if tr.soft_index is not None:
         return None
     try:
         return working_set_step(problem.system, problem.steps, problem.terminal,
-                                tr.limits.shape)
+                                tr.limits.shape, compiled)
     except NotPrepared:  # built in the background (replanning, or out of time)
         return None
 

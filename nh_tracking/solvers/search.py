@@ -191,5 +191,6 @@ def _best_with_minima(solutions: list[Solution]) -> Solution:
     best = ok[0]
     best.minima = [(float(c), int(n)) for c, n in minima]
     best.solve_time = sum(s.solve_time for s in solutions)
+    best.attempts = [a for s in solutions for a in s.attempts]  # every start's, in turn
     best.details['artefacts'] = float(artefacts)
     return best

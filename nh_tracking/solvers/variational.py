@@ -161,7 +161,7 @@ def proven_minimum(problem: TrackingProblem, plan: Solution, solver: str = 'fatr
                        compiled, Shape.of(problem.limits, False, False, False))
     try:
         held = working_set_step(problem.system, problem.steps, problem.terminal,
-                                tr.limits.shape)
+                                tr.limits.shape, compiled)
     except NotPrepared:
         return False
     p = tr.parameters(problem, plan.q)
@@ -216,7 +216,7 @@ class Variational(Method):
                           structure.limits, iterations)
         limits = structure.limits
         if self.newton and structure.replanned and not limits.soft:
-            working_set_step(system, structure.steps, structure.terminal, limits)
+            working_set_step(system, structure.steps, structure.terminal, limits, self.compiled)
 
     def proves_minimum(self, problem: TrackingProblem, plan: Solution,
                        stop: float | None = None) -> bool:
