@@ -50,6 +50,7 @@ DETOUR_EVERY = 5  # replans: while the reference runs through a disc, the ways r
 DETOUR_BUDGET = 0.5  # of what a replan has left: the most its detour solves may take
 SWITCH_MARGIN = 0.05  # of the warm plan's cost: another way round must be this much cheaper
 HISTORY = 10_000  # recent solves kept for statistics: a long-running node must not grow
+NO_DISCS = np.zeros((0, 5))  # (x, y, r, vx, vy): a replan without obstacles
 
 
 class PlanStatus(str, Enum):
@@ -208,7 +209,8 @@ class RecedingHorizonPlanner:
         """
         s = self.settings
         seen = t if self.obstacles_time is None else self.obstacles_time
-        discs = moved(obstacle_discs(self.obstacles), t - np.asarray(seen))
+        discs = NO_DISCS if not len(self.obstacles) else moved(obstacle_discs(self.obstacles),
+                                                               t - np.asarray(seen))
         return Avoidance(self.system, discs, self.limits['robot_radius'], self.reference,
                          s.horizon, s.steps)
 
