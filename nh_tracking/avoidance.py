@@ -27,14 +27,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from nh_tracking.limits import (clear_of_start, Limits, plan_path, plan_times, plane,
-                                relevant_discs)
+from nh_tracking.limits import Limits, plan_path, plan_times, plane
 from nh_tracking.problem import Solution, TrackingProblem
 from nh_tracking.solvers.inequalities import VIOLATION_TOL
+from nh_tracking.solvers.obstacles import clear_of_start, MAX_OBSTACLES, relevant_discs
 from nh_tracking.system import NonholonomicSystem
 from nh_tracking.trajectory import Trajectory
-
-MAX_OBSTACLES = 8  # nearest obstacles a plan avoids: a bounded NLP
 
 
 @dataclass(frozen=True)

@@ -269,31 +269,6 @@ def bounds_from_lists(lo: tuple, hi: tuple, size: int, name: str) -> tuple | Non
     return pair
 
 
-def relevant_discs(discs: np.ndarray, robot: np.ndarray, path: np.ndarray,
-                   robot_radius: float, count: int, horizon: float = 0.0) -> np.ndarray:
-    """Return at most ``count`` discs, nearest the robot first, that can bend a plan on ``path``.
-
-    ``discs``: (x, y, r) or (x, y, r, vx, vy) at the start; ``robot``: the robot's (x, y);
-    ``path``: (., 2) the reference's positions, evenly over the ``horizon`` (seconds: where
-    moving discs are when the reference is there). A plan runs from the robot to the path and
-    swerves around the obstacles near it, so a disc farther from the path than the robot's
-    offset from it plus 0.5 m, plus twice the largest disc near the path, cannot touch it:
-    leaving it out keeps the last-resort NLP (every disc at every point) small. The caller
-    checks the plan against every disc all the same.
-    """
-    if not len(discs):
-        return discs
-    points = np.vstack([np.asarray(robot, dtype=float)[None, :2], path[:, :2]])
-    t = np.r_[0.0, np.linspace(0.0, horizon, len(path))]
-    centres = centres_at(discs[:, :2], obstacle_discs(discs)[:, 3:5], t)  # (points, M, 2)
-    grown = discs[:, 2] + robot_radius
-    to_path = np.linalg.norm(points[:, None, :] - centres, axis=2).min(axis=0) - grown
-    margin = 0.5 + float(np.hypot(*(points[0] - points[1])))
-    near = to_path < margin
-    margin += 2.0 * float(np.max(grown[near], initial=0.0))
-    return nearest_discs(discs[to_path < margin], points[0], count)
-
-
 def nearest_discs(discs: np.ndarray, point: np.ndarray, count: int,
                   reach: float = np.inf) -> np.ndarray:
     """Return the ``count`` discs whose edges are nearest ``point`` (x, y), nearest first.
@@ -326,27 +301,3 @@ def plan_path(q: np.ndarray) -> np.ndarray:
 def plan_times(steps: int, h: float) -> np.ndarray:
     """Return the times of :func:`plan_path`'s points from the start, for knots ``h`` apart."""
     return 0.5 * h * np.arange(2 * steps + 1)
-
-
-def clear_of_start(discs: np.ndarray, point: np.ndarray, velocity: np.ndarray,
-                   robot_radius: float, interval: float) -> np.ndarray:
-    """Shrink the discs whose clearance the robot at ``point`` (moving at ``velocity``) is inside.
-
-    Each such disc is shrunk to leave the robot where it is, less what its approach speed
-    carries it in one ``interval`` (so the plan's first midpoint can be clear too): a
-    replanning robot that drifted a little inside the margin it keeps (model error, a disc
-    redrawn) gets a plan from the NLP it has, instead of no plan; it comes closer by at most
-    that one interval's approach per replan, while the plan brakes it (a robot at 0.41 m of a
-    disc when its clearance became 0.5 m stopped at 0.36 m). At rest nothing is given away, so
-    replans cannot ratchet a stopped robot in. A disc the robot is within
-    its radius of is shrunk to a point and still breaks the limit: the least-violating plan's.
-    ``discs``: (x, y, r, vx, vy), the approach is the robot's relative to the disc.
-    """
-    discs = obstacle_discs(discs)
-    offset = np.asarray(point, dtype=float)[:2] - discs[:, :2]
-    distance = np.hypot(*offset.T)
-    closing = np.asarray(velocity, dtype=float)[None, :2] - discs[:, 3:5]
-    approach = np.maximum(-np.sum(offset * closing, axis=1) / np.maximum(distance, 1e-12), 0.0)
-    allowed = np.maximum(distance - robot_radius - approach * interval, 0.0)
-    discs[:, 2] = np.minimum(discs[:, 2], allowed)
-    return discs

@@ -31,7 +31,7 @@ from typing import Any, cast
 
 import numpy as np
 
-from nh_tracking.avoidance import Avoidance, MAX_OBSTACLES
+from nh_tracking.avoidance import Avoidance
 from nh_tracking.detours import held_up, joined
 from nh_tracking.fallback import braking_plan, fallback, stop_plan
 from nh_tracking.limits import (bounds_from_lists, in_the_plane, Limits, moved,
@@ -40,9 +40,9 @@ from nh_tracking.problem import Solution, Terminal, terminal_error, TrackingProb
 from nh_tracking.settings import check_fields, setting
 from nh_tracking.solvers import Guess, make_method, Method, METHODS, sample_plan, Structure
 from nh_tracking.solvers.cache import builds_deferred, builds_inline
-from nh_tracking.solvers.inequalities import (obstacle_slots, Shape, start_violation,
-                                              VIOLATION_TOL)
+from nh_tracking.solvers.inequalities import Shape, start_violation, VIOLATION_TOL
 from nh_tracking.solvers.nlp import deadline_after
+from nh_tracking.solvers.obstacles import MAX_OBSTACLES, obstacle_slots
 from nh_tracking.system import NonholonomicSystem
 from nh_tracking.trajectory import Trajectory
 

@@ -123,7 +123,7 @@ def test_inconsistent_limits_are_refused_naming_the_argument(disc, change, messa
 
 def test_only_obstacles_that_can_bend_the_plan_enter_its_nlp():
     """Discs far from the path stay out of the NLP (small and fast); the nearest come first."""
-    from nh_tracking.limits import relevant_discs
+    from nh_tracking.solvers.obstacles import relevant_discs
 
     path = np.c_[np.linspace(0.0, 5.0, 51), np.zeros(51)]
     discs = np.array([[3.0, 0.3, 0.2],     # on the path

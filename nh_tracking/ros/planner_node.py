@@ -33,7 +33,6 @@ from sensor_msgs.msg import JointState
 from trajectory_msgs.msg import JointTrajectory, MultiDOFJointTrajectory
 from visualization_msgs.msg import MarkerArray
 
-from nh_tracking.avoidance import MAX_OBSTACLES
 from nh_tracking.health import HealthLevel, session_health
 from nh_tracking.joints import JointsRejected
 from nh_tracking.receding_horizon import PlannerSettings
@@ -54,6 +53,7 @@ from nh_tracking.ros.reference_receiver import ReferenceReceiver
 from nh_tracking.ros.runner import autostart
 from nh_tracking.session import TrackingSession
 from nh_tracking.session_types import ClockSkew
+from nh_tracking.solvers.obstacles import MAX_OBSTACLES
 
 
 AT_REST = 0.01  # [m/s, rad/s] slower than this, a robot being stopped is at rest

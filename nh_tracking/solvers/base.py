@@ -33,59 +33,12 @@ import numpy as np
 
 from nh_tracking.attempts import Attempt
 from nh_tracking.detours import detour_guesses, joined
-from nh_tracking.problem import Multipliers, Solution, Terminal, TrackingProblem
+from nh_tracking.problem import Solution, Terminal, TrackingProblem
 from nh_tracking.solvers.cache import builds_until, NotPrepared
+from nh_tracking.solvers.guess import Guess
 from nh_tracking.solvers.inequalities import Shape
 from nh_tracking.solvers.nlp import before, DEADLINE, deadline_after
 from nh_tracking.system import NonholonomicSystem
-
-
-class Guess(NamedTuple):
-    """A plan to start a solve from: q (N+1, n), v (N+1, k), u (N, r) or None.
-
-    With the ``multipliers`` of the NLP that made it, if any (a warm start's Newton steps
-    take them; a plain (q, v, u) tuple serves as a guess without them), and its
-    ``working_set_misses``: warm solves in a row, up to the plan, whose working set did not
-    settle (past a few, it is tried only now and then: each miss costs up to 24
-    factorisations). The count rides with the plans, not with the shared NLPs.
-    """
-
-    q: np.ndarray
-    v: np.ndarray
-    u: np.ndarray | None
-    multipliers: Multipliers | None = None
-    working_set_misses: int = 0
-
-
-def clear_of_every_disc(solve: Callable[[Guess | None, bool], Solution], guess: Guess | None,
-                        stop: float | None, problem: TrackingProblem) -> Solution:
-    """Solve from ``guess``; again where the plan converged into a disc it was not given.
-
-    ``solve(guess, every)``. Each knot and midpoint keeps clear of the discs nearest it on a
-    guess that is a plan (:data:`.inequalities.POINT_SLOTS`); a plan that went far from its
-    guess (round an obstacle, into a crowd of them) may meet another. Solved again from that
-    plan, its points get the discs nearest them there; if it still meets one (a point among
-    more discs), a last solve from ``guess`` gives every point every disc (``every``; started
-    from the plan that ran into the crowd, it often ended infeasible). A
-    cold solve (no guess: the reference, which runs through the obstacles and tells little of
-    where the plan will pass) has every disc at once. A plan that went through a disc between
-    its points (fast: from the reference, a jump over an obstacle lying on it can look cheaper
-    than the way round) is solved again from rest at the start (every disc), where the steps
-    start slow (seen: 13.8 m/s and cost 386 from the reference, 0.5 m/s and 3.97 from rest).
-    """
-    result = solve(guess, guess is None)
-    for every in (False, True):
-        if not result.limit_check.other_disc or not before(stop):
-            break
-        retry = solve(guess if every else Guess(result.q, result.v, result.u), every)
-        result = _after(result, retry, 'every disc at every point' if every
-                        else 'the discs nearest its plan')
-    if result.limit_check.through_disc and before(stop):
-        steps, sys = problem.steps, problem.system
-        rest = Guess(np.tile(problem.q0, (steps + 1, 1)), np.zeros((steps + 1, sys.k)),
-                     np.zeros((steps, sys.r)))
-        result = _after(result, solve(rest, True), 'from rest (it went through a disc)')
-    return result
 
 
 def time_left(previous: Solution, stop: float | None) -> bool:
@@ -104,13 +57,6 @@ def next_route(failed: Solution, route: str, solve: Callable[[], Solution]) -> S
     result.solve_time += failed.solve_time
     result.attempts[:0] = failed.attempts
     return result
-
-
-def _after(failed: Solution, retry: Solution, how: str) -> Solution:
-    retry.solve_time += failed.solve_time
-    retry.route = f'{failed.route} -> again, {how}'
-    retry.attempts[:0] = failed.attempts
-    return retry
 
 
 class Detoured(NamedTuple):

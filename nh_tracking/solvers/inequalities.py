@@ -17,9 +17,11 @@
 An NLP is built for a *shape* of limits — which kinds are bounded, how many obstacle slots
 each clearance point has — so replanning with new bound values or moving obstacles only changes
 numbers. Each knot and midpoint has slots of its own, filled with the discs nearest it on the
-guess (parameters of the solve): all of them while they fit, the nearest :data:`POINT_SLOTS`
-of more, so past 4 obstacles the NLP's size does not grow with them (8 discs in every point's
-rows would make every replan about 2x a free one, in contact or not). The plan is then checked
+guess (parameters of the solve): all of them while they fit, the nearest
+:data:`.obstacles.POINT_SLOTS` of more, so past 4 obstacles the NLP's size does not grow with
+them (8 discs in every point's rows would make every replan about 2x a free one, in contact or
+not); how many, which, and what a plan that meets another calls for is :mod:`.obstacles`'s
+policy. The plan is then checked
 against every disc, and re-solved where it touches one it was not given. Clearance is written
 squared, |p - c|^2 - R^2 >= 0, which is smooth.
 
@@ -37,27 +39,11 @@ import numpy as np
 from nh_tracking.limits import Limits, plan_times
 from nh_tracking.problem import LimitCheck, TrackingProblem
 from nh_tracking.regularity import Domain
+from nh_tracking.solvers.obstacles import limit_check, nearest_per_point, obstacle_slots
 
 SOFT_WEIGHT = 1e4  # per unit of violation: above the multipliers of any sane tracking cost
-MIN_SLOTS = 2  # obstacle slots of an NLP with obstacles (then 4, 8: one NLP per size)
-POINT_SLOTS = 4  # discs a knot or midpoint keeps clear of at most (those nearest it)
 VIOLATION_TOL = 1e-6  # a plan breaking a limit by more is no success
 DOMAIN_MARGIN = 1e-3  # a bounded plan stays this fraction of its interval inside the domain
-
-
-def obstacle_slots(count: int, every: bool = False) -> int:
-    """Return the discs per clearance point of an NLP for ``count`` obstacles.
-
-    Room for all of them (powers of two from 2: a changing count rarely rebuilds), up to
-    :data:`POINT_SLOTS`: past that each point has the nearest ones only. ``every``: room for
-    all of them past it too, for a crowd where a point's nearest are not enough
-    (:func:`.base.clear_of_every_disc`), and for the least-violating plan of a soft NLP
-    (whose plan may break a disc it was not given).
-    """
-    if not count:
-        return 0
-    room = max(MIN_SLOTS, 1 << (count - 1).bit_length())
-    return room if every else min(room, POINT_SLOTS)
 
 
 @dataclass(frozen=True)
@@ -176,9 +162,7 @@ class Rows:
             values[:, :len(discs), :2], values[:, :len(discs), 2] = centres, discs[:, 2]
             values[:, :len(discs), 3] = 1.0
             return values.ravel()
-        at = points[:, None, list(self.plane)]
-        edge = np.linalg.norm(at - centres, axis=2) - discs[None, :, 2]
-        nearest = np.sort(np.argpartition(edge, slots - 1, axis=1)[:, :slots], axis=1)
+        nearest = nearest_per_point(points[:, list(self.plane)], centres, discs[:, 2], slots)
         values[:, :, :2] = np.take_along_axis(centres, nearest[..., None], axis=1)
         values[:, :, 2], values[:, :, 3] = discs[nearest, 2], 1.0
         return values.ravel()
@@ -256,13 +240,9 @@ def judged(rows: Rows, limits: Limits, soft: bool, converged: bool, path: np.nda
     """Return whether a plan succeeded within its limits, why not, its violation and check.
 
     ``path``: its configurations at the start and the clearance points, in time order (knots
-    ``h`` apart: :func:`.limits.plan_path`). A soft
-    NLP's plan is the least-violating one (its start breaks a limit); a hard NLP's plan that
-    converged into a disc went into one its clearance points were not given (``other_disc``:
-    solved again, :func:`.base.clear_of_every_disc`), and one clear at its points may still
-    pass through a disc between two of them (:meth:`.Limits.swept`: ``through_disc``, which a
-    soft NLP, blind to it as well, does not mend). The violation: the most any limit is broken,
-    at the points or between them.
+    ``h`` apart: :func:`.limits.plan_path`). What the plan calls for is
+    :func:`.obstacles.limit_check`'s. The violation: the most any limit is broken, at the
+    points or between them.
     """
     t = plan_times(len(path) // 2, h)
     at_points, swept = limits.violation(path, v, u, t), limits.swept(path, t)
@@ -274,11 +254,9 @@ def judged(rows: Rows, limits: Limits, soft: bool, converged: bool, path: np.nda
         message = (f'{message}; but the plan passes through a disc between its knots and '
                    f'midpoints (by {swept:.3g} m: they are too far apart for its speed; more '
                    'steps or velocity bounds)')
-    return success, message, violation, LimitCheck(
-        least_violating=soft and converged,
-        other_disc=not soft and converged and at_points > VIOLATION_TOL
-        and len(limits.obstacles) > rows.shape.slots,
-        through_disc=converged and at_points <= VIOLATION_TOL < swept)
+    return success, message, violation, limit_check(
+        soft, converged, at_points, swept, len(limits.obstacles) > rows.shape.slots,
+        VIOLATION_TOL)
 
 
 def _broken(limits: Limits, path: np.ndarray, v: np.ndarray, u: np.ndarray | None,

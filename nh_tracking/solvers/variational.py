@@ -35,13 +35,14 @@ from functools import partial
 from typing import ClassVar, Literal
 
 from nh_tracking.problem import Solution, TrackingProblem
-from nh_tracking.solvers.base import (clear_of_every_disc, Guess, Method, next_route, Structure,
+from nh_tracking.solvers.base import (Guess, Method, next_route, Structure,
                                       time_left)
 from nh_tracking.solvers.cache import builds_until, NotPrepared
 from nh_tracking.solvers.duals import carried_multipliers
 from nh_tracking.solvers.inequalities import Shape, start_violation, VIOLATION_TOL
 from nh_tracking.solvers.midpoint import BACKENDS, transcription, working_set_step
 from nh_tracking.solvers.nlp import deadline_after
+from nh_tracking.solvers.obstacles import clear_of_every_disc
 from nh_tracking.solvers.routes import misses_after, Route, RTI_RESIDUAL, solve_route
 from nh_tracking.solvers.working_set import WorkingSet
 from nh_tracking.system import NonholonomicSystem
