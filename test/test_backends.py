@@ -26,10 +26,10 @@ from scipy.optimize import lsq_linear, minimize
 
 from nh_tracking.numeric import NumericFunction
 from nh_tracking.solvers.compiled import wait_for_builds
-from nh_tracking.solvers.line_search import line_search_solve
+from nh_tracking.solvers.line_search import line_search_solve, LineSearchOptions
 from nh_tracking.solvers.newton import NewtonStep
 from nh_tracking.solvers.nlp import Pace
-from nh_tracking.solvers.working_set import working_set_solve
+from nh_tracking.solvers.working_set import working_set_solve, WorkingSetOptions
 
 RNG = np.random.default_rng(7)
 A, B = RNG.normal(size=(5, 3)), RNG.normal(size=5)
@@ -75,6 +75,21 @@ def test_an_equality_constrained_least_squares_qp():
     assert w == pytest.approx(expected, abs=1e-9)
     held = problem.working_set(expected + 0.01)
     assert held is not None and held.w == pytest.approx(expected, abs=1e-9)
+
+
+def test_each_backend_takes_its_options():
+    """Budgets from the options dataclasses: one too small hands the solve over, and says so."""
+    problem = Problem(lambda w: ca.mtimes(ca.DM(A), w) - B,
+                      lambda w: ca.mtimes(ca.DM(C), w) - D, [0.0], [0.0], 3)
+    expected = _kkt_solution(A, B, C, D)
+    held = problem.working_set(expected + 0.01)
+    assert held is not None and held.factorisations >= 2
+    assert working_set_solve(problem.step, problem.g, expected + 0.01, np.zeros(0),
+                             problem.lower, problem.upper, np.zeros(1, dtype=bool), Pace(None),
+                             options=WorkingSetOptions(max_factorisations=1)) is None
+    outcome = line_search_solve(problem.step, np.zeros(3), np.zeros(0), problem.lower,
+                                problem.upper, None, LineSearchOptions(max_iterations=1))
+    assert not outcome.success and outcome.message == 'iteration budget spent'
 
 
 def test_a_bounded_least_squares_qp_with_active_bounds():

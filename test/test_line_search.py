@@ -106,7 +106,7 @@ def test_a_saddle_is_not_taken_and_the_interior_point_solves_instead():
 
 def test_a_line_search_out_of_iterations_hands_over_to_the_interior_point(monkeypatch):
     problem = sleigh_problem(wrap_angles=False)
-    monkeypatch.setattr(line_search, 'MAX_ITERATIONS', 3)
+    monkeypatch.setattr(line_search, 'DEFAULTS', line_search.LineSearchOptions(max_iterations=3))
     alone = _line_search_alone(problem)
     assert not alone.success and alone.message == 'iteration budget spent'
     ours = nht.solve(problem, Variational(), second_look=False)

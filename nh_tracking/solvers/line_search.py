@@ -34,12 +34,13 @@ reference, which runs through them, the way round is too nonconvex for these ste
 Hessian needed more shifts than allowed in every case).
 
 There is no restoration phase and no second-order correction: a step the filter still rejects
-at :data:`ALPHA_MIN`, the iteration budget, too many shifts (a nonconvex stretch), a step that
-is not finite, a final step that leaves the infeasibility above :data:`FINAL_INFEASIBILITY`
-(an ill-conditioned KKT matrix whose LDLᵀ stalls the steps short of the solution), a
-stationary point that is not a minimum, a working set that keeps cycling or steps that crawl
-(:data:`MAX_UNSETTLED`, :data:`MAX_CRAWLED`), or the deadline end it unconverged, and the caller
-solves by interior point from the same guess (but not past its deadline). A local method with
+at ``alpha_min``, the iteration budget, too many shifts (a nonconvex stretch), a step that is
+not finite, a final step that leaves the infeasibility above ``final_infeasibility`` (an
+ill-conditioned KKT matrix whose LDLᵀ stalls the steps short of the solution), a stationary
+point that is not a minimum, a working set that keeps cycling or steps that crawl
+(``max_unsettled``, ``max_crawled``; all in :class:`LineSearchOptions`), or the deadline end
+it unconverged, and the caller solves by interior point from the same guess (but not past its
+deadline). A local method with
 another globalisation than fatrop's: on nonconvex problems it may settle in another local
 minimum than fatrop from the same guess (a review: 5 of 80 problems with jumps in the
 reference and headings turns away, 4 lower, 1 higher by 9.5 %).
@@ -54,32 +55,69 @@ from nh_tracking.solvers.newton import NewtonStep
 from nh_tracking.solvers.nlp import DEADLINE, Outcome, Pace
 from nh_tracking.solvers.working_set import WorkingSet
 
-MAX_ITERATIONS = 20  # fatrop takes 10 on the paper's sleigh from the reference, 11 with a terminal
-# cost (these steps: 11 and 17, the last one counted)
-ALPHA_MIN = 1e-6  # the shortest step tried before giving up to the interior point
-GAMMA_THETA = GAMMA_F = 1e-5  # a trial must improve infeasibility or cost by this margin
-ARMIJO = 1e-4  # sufficient decrease of f, once nearly feasible and the step descends
-S_THETA, S_F, DELTA = 1.1, 2.3, 1.0  # the switching rule between the two (IPOPT's values)
-THETA_MAX, THETA_MIN = 1e4, 1e-4  # relative to max(1, the guess's infeasibility)
-CURVATURE = 1e-8  # dwᵀ(H + shift I)dw >= this |dw|², or the Hessian is shifted
-MAX_SHIFTED = 6  # shifted factorisations in all: past this the way is nonconvex, where this test
-# lets the steps end on saddles and fatrop's inertia correction does better (seen: 0-4 in
-# solves that converge, 5-37 in those that end on a saddle or run out of iterations); it also
-# bounds the shift, 1e-4 * 100^6 at most
-# the shift's first try, its growth (x100 while no shift was needed last time, else x8) and
-# its decay from one iteration's to the next's first try (IPOPT's inertia correction)
-SHIFT_FIRST, SHIFT_JUMP, SHIFT_GROWTH, SHIFT_DECAY = 1e-4, 100.0, 8.0, 1 / 3
-STEP_TOL = 1e-6  # converged: an unshifted step moves no unknown by more (relative to the
-FEASIBILITY_TOL = 1e-6  # largest) and no row is broken by more; the step is taken, and as
-# Newton's convergence is quadratic, the plan is then within about 1e-12 of the solution ...
-FINAL_INFEASIBILITY = 1e-9  # ... which the infeasibility after that step must show
-MAX_QP_FACTORISATIONS = 2  # tries to settle a step's working set; then the last try is the
-# step (on the paper's sleigh with |u| bounded: 11 factorisations in all; 4 tries: 15; 8: 17)
-# With bounds the steps are given up early where they fail (then fatrop takes over, the attempt
-# paid on top): a review's 34 random bounded problems failed in 12, which cost up to 4.5x fatrop
-# alone; with these, at most 2.1x, and all 34 together 0.91x fatrop's time (1.07x before)
-MAX_UNSETTLED = 10  # unsettled steps in a row: the set cycles (converged solves: 7 at most)
-CRAWL, MAX_CRAWLED = 0.05, 2  # unsettled steps taken this short: the QP's direction is poor
+
+@dataclass(frozen=True)
+class LineSearchOptions:
+    """The line search's tuning: its budget, the filter, the Hessian's shift, convergence."""
+
+    max_iterations: int = 20
+    """fatrop takes 10 on the paper's sleigh from the reference, 11 with a terminal cost (these
+    steps: 11 and 17, the last one counted)."""
+    alpha_min: float = 1e-6
+    """The shortest step tried before giving up to the interior point."""
+    gamma_theta: float = 1e-5
+    """A trial must improve the infeasibility by this margin, ..."""
+    gamma_f: float = 1e-5
+    """... or the cost."""
+    armijo: float = 1e-4
+    """Sufficient decrease of f, once nearly feasible and the step descends."""
+    s_theta: float = 1.1
+    """The switching rule between the two (IPOPT's values): this exponent, ..."""
+    s_f: float = 2.3
+    """... this one, ..."""
+    delta: float = 1.0
+    """... and this factor."""
+    theta_max: float = 1e4
+    """The largest infeasibility a trial may have, relative to max(1, the guess's)."""
+    theta_min: float = 1e-4
+    """Relative likewise: below it, f decides."""
+    curvature: float = 1e-8
+    """dwᵀ(H + shift I)dw >= this |dw|², or the Hessian is shifted."""
+    max_shifted: int = 6
+    """Shifted factorisations in all: past this the way is nonconvex, where this test lets the
+    steps end on saddles and fatrop's inertia correction does better (seen: 0-4 in solves that
+    converge, 5-37 in those that end on a saddle or run out of iterations); it also bounds the
+    shift, 1e-4 * 100^6 at most."""
+    shift_first: float = 1e-4
+    """The shift's first try (IPOPT's inertia correction), ..."""
+    shift_jump: float = 100.0
+    """... its growth while no shift was needed the iteration before, ..."""
+    shift_growth: float = 8.0
+    """... its growth otherwise, ..."""
+    shift_decay: float = 1 / 3
+    """... and from one iteration's shift to the next's first try."""
+    step_tol: float = 1e-6
+    """Converged: an unshifted step moves no unknown by more (relative to the largest) ..."""
+    feasibility_tol: float = 1e-6
+    """... and no row is broken by more; the step is taken, and as Newton's convergence is
+    quadratic, the plan is then within about 1e-12 of the solution ..."""
+    final_infeasibility: float = 1e-9
+    """... which the infeasibility after that step must show."""
+    max_qp_factorisations: int = 2
+    """Tries to settle a step's working set; then the last try is the step (on the paper's
+    sleigh with |u| bounded: 11 factorisations in all; 4 tries: 15; 8: 17). With bounds the
+    steps are given up early where they fail (then fatrop takes over, the attempt paid on top):
+    a review's 34 random bounded problems failed in 12, which cost up to 4.5x fatrop alone;
+    with these, at most 2.1x, and all 34 together 0.91x fatrop's time (1.07x before)."""
+    max_unsettled: int = 10
+    """Unsettled steps in a row: the set cycles (converged solves: 7 at most)."""
+    crawl: float = 0.05
+    """Unsettled steps taken this short ..."""
+    max_crawled: int = 2
+    """... this many times: the QP's direction is poor."""
+
+
+DEFAULTS = LineSearchOptions()
 
 
 @dataclass
@@ -89,6 +127,7 @@ class _Filter:
     The infeasibility: |g|₁ of the equalities plus how far the bounds are broken.
     """
 
+    options: LineSearchOptions
     theta_max: float
     theta_min: float
     pairs: list[tuple[float, float]]
@@ -101,55 +140,60 @@ class _Filter:
                 theta_trial > self.theta_max or any(
                     theta_trial >= t and f_trial >= g for t, g in self.pairs):
             return False, False
+        o = self.options
         if theta <= self.theta_min and slope < 0 and \
-                alpha * (-slope) ** S_F > DELTA * theta ** S_THETA:
-            return f_trial <= f + ARMIJO * alpha * slope, True
-        return (theta_trial <= (1 - GAMMA_THETA) * theta
-                or f_trial <= f - GAMMA_F * theta), False
+                alpha * (-slope) ** o.s_f > o.delta * theta ** o.s_theta:
+            return f_trial <= f + o.armijo * alpha * slope, True
+        return (theta_trial <= (1 - o.gamma_theta) * theta
+                or f_trial <= f - o.gamma_f * theta), False
 
 
 def line_search_solve(step: NewtonStep, w: np.ndarray, p: np.ndarray, lower: np.ndarray,
-                      upper: np.ndarray, stop: float | None) -> Outcome:
+                      upper: np.ndarray, stop: float | None,
+                      options: LineSearchOptions | None = None) -> Outcome:
     """Solve min 1/2 |r|^2 s.t. lower <= g <= upper from w (see the module).
 
     The step's inequality rows are bounded by lower, upper; the others are equalities (g = 0). A
     guess may break the bounds (a cold start). The outcome's iterations are the factorisations
     (one a step without limits, more where the Hessian had to be shifted or the working set
     changed); its multipliers have CasADi's sign, as an NLP solver's. Not converged, it says
-    why, with the last iterate (the plan, if the deadline is reached).
+    why, with the last iterate (the plan, if the deadline is reached). ``options``: default
+    :data:`DEFAULTS`.
     """
+    o = DEFAULTS if options is None else options
     rows = WorkingSet(lower, upper, step.inequality)
     multipliers = np.zeros(len(lower))
     shift_last, shifted, short, factorisations = 0.0, 0, False, 0  # short: a small step left g
     (f,), (theta,) = step.merit(w, p, rows.lower, rows.upper)  # above
     scale = max(1.0, float(theta))
-    search = _Filter(THETA_MAX * scale, THETA_MIN * scale, [])
-    unsettled, crawled = 0, 0  # unsettled steps in a row, unsettled steps shorter than CRAWL
+    search = _Filter(o, o.theta_max * scale, o.theta_min * scale, [])
+    unsettled, crawled = 0, 0  # unsettled steps in a row, unsettled steps shorter than o.crawl
     pace = Pace(stop)
-    for _ in range(MAX_ITERATIONS):
+    for _ in range(o.max_iterations):
         if not pace.room():
             return _unsettled(w, multipliers, factorisations, DEADLINE)
         shift = 0.0
         while True:
-            direction, tries, settled = _qp_step(step, rows, w, p, multipliers, shift)
+            direction, tries, settled = _qp_step(step, rows, w, p, multipliers, shift,
+                                                 o.max_qp_factorisations)
             dw, new_multipliers, (slope,), (curvature,), (infeasible,), (f_full,), \
                 (theta_full,), _ = direction
             factorisations += tries
             if not (np.isfinite(curvature) and np.isfinite(dw).all()):
                 return _unsettled(w, multipliers, factorisations, 'a step not finite')
-            if curvature >= CURVATURE * float(dw @ dw):
+            if curvature >= o.curvature * float(dw @ dw):
                 break
             if shift == 0.0:
-                shift = max(SHIFT_FIRST, SHIFT_DECAY * shift_last)
+                shift = max(o.shift_first, o.shift_decay * shift_last)
             else:
-                shift *= SHIFT_GROWTH if shift_last else SHIFT_JUMP
+                shift *= o.shift_growth if shift_last else o.shift_jump
             shifted += 1
-            if shifted > MAX_SHIFTED:
+            if shifted > o.max_shifted:
                 return _unsettled(w, multipliers, factorisations, 'nonconvex')
         shift_last = shift
-        small = shift == 0.0 and settled and infeasible <= FEASIBILITY_TOL and \
-            np.max(np.abs(dw)) <= STEP_TOL * max(1.0, float(np.max(np.abs(w))))
-        if small and theta_full <= FINAL_INFEASIBILITY:
+        small = shift == 0.0 and settled and infeasible <= o.feasibility_tol and \
+            np.max(np.abs(dw)) <= o.step_tol * max(1.0, float(np.max(np.abs(w))))
+        if small and theta_full <= o.final_infeasibility:
             w = w + dw
             if not step.minimum(w, p, *rows.arguments(), new_multipliers):
                 return _unsettled(w, new_multipliers, factorisations, 'a saddle')
@@ -159,7 +203,7 @@ def line_search_solve(step: NewtonStep, w: np.ndarray, p: np.ndarray, lower: np.
             return _unsettled(w, multipliers, factorisations, 'stalled short of admissible')
         short = small
         unsettled = 0 if settled else unsettled + 1
-        if unsettled > MAX_UNSETTLED:
+        if unsettled > o.max_unsettled:
             return _unsettled(w, multipliers, factorisations, 'the working set cycles')
         alpha, trial = 1.0, (float(theta_full), float(f_full))
         while True:
@@ -167,15 +211,15 @@ def line_search_solve(step: NewtonStep, w: np.ndarray, p: np.ndarray, lower: np.
             if taken:
                 break
             alpha /= 2
-            if alpha < ALPHA_MIN:
+            if alpha < o.alpha_min:
                 return _unsettled(w, multipliers, factorisations, 'no step accepted')
             f_trial, theta_trial = step.merit(w + alpha * dw, p, rows.lower, rows.upper)
             trial = (float(theta_trial[0]), float(f_trial[0]))
-        crawled += not settled and alpha < CRAWL
-        if crawled >= MAX_CRAWLED:
+        crawled += not settled and alpha < o.crawl
+        if crawled >= o.max_crawled:
             return _unsettled(w, multipliers, factorisations, 'crawling')
         if not by_cost:
-            search.pairs.append(((1 - GAMMA_THETA) * theta, f - GAMMA_F * theta))
+            search.pairs.append(((1 - o.gamma_theta) * theta, f - o.gamma_f * theta))
         w = w + alpha * dw
         theta, f = trial
         multipliers = multipliers + alpha * (new_multipliers - multipliers)
@@ -183,13 +227,14 @@ def line_search_solve(step: NewtonStep, w: np.ndarray, p: np.ndarray, lower: np.
 
 
 def _qp_step(step: NewtonStep, rows: WorkingSet, w: np.ndarray, p: np.ndarray,
-             curvature: np.ndarray, shift: float) -> tuple[list[np.ndarray], int, bool]:
+             curvature: np.ndarray, shift: float,
+             most: int) -> tuple[list[np.ndarray], int, bool]:
     """Return the step's direction with the limits linearised: its QP, by a primal-dual set.
 
     Each try holds every free row the last one took beyond a bound and lets go of every held
     row whose multiplier has the wrong sign, all at once (Hintermüller, Ito & Kunisch 2002): a
     cold start has dozens of rows to take in, which a primal active set takes one per
-    factorisation. After :data:`MAX_QP_FACTORISATIONS` tries the direction is the last one's,
+    factorisation. After ``most`` tries the direction is the last one's,
     unsettled: the filter judges it like any other, and it is never the last step. Returns
     :meth:`.newton.NewtonStep.direction`'s outputs, the tries and whether the set settled.
     Without inequality rows: one factorisation.
@@ -202,7 +247,7 @@ def _qp_step(step: NewtonStep, rows: WorkingSet, w: np.ndarray, p: np.ndarray,
         if not rows.limited:
             return direction, tries, True
         changed = rows.hold_broken(direction[-1]) | rows.let_go(direction[1])
-        if not changed or tries == MAX_QP_FACTORISATIONS:
+        if not changed or tries == most:
             return direction, tries, not changed
 
 

@@ -41,32 +41,54 @@ from nh_tracking.numeric import NumericFunction
 from nh_tracking.solvers.newton import NewtonStep
 from nh_tracking.solvers.nlp import Pace
 
-MAX_STEPS = 12  # Newton steps (a warm plan needs 2-5)
-MAX_FACTORISATIONS = 24  # in all: a set that needs more is not near the previous plan's
-DIVERGING = 2.0  # a step this many times longer than the last: diverging, given up
-SLOW = 0.3  # two steps in a row longer than this fraction of the one before, the set unchanged:
-# converging linearly (an inexact factorisation), slower than the interior point
-WANDERED = 0.05  # a first step longer than this (relative to the largest unknown): the guess
-# was not near a stationary point, and the one the steps reach is checked to be a minimum
-STEP_TOL = 1e-5  # converged once a step moves no unknown by more (relative to the largest);
-# it is taken, and as the convergence is quadratic there (a step of 3e-7 is followed by one of
-# 2e-12) the plan is then within about 1e-9 of the solution (1e-7 cost a confirming step more)
-STATIONARITY_TOL = 1e-4  # |Jᵀr + Gᵀλ|∞ at the step's start with its multipliers: about |H dw|
-# ... or converged once two steps on the same set shrink quadratically, |dw₂| <= CONTRACTION
-# |dw₁|, so far that the next, about |dw₂|³/|dw₁|², would move less than NEXT_TOL (relative):
-# the plan is then as close as STEP_TOL's, a factorisation sooner (a unicycle sliding along a
-# disc: steps of 1e-2, 5e-5, then 3e-9)
-CONTRACTION, NEXT_TOL = 0.1, 1e-9
-FEASIBLE_TOL = 1e-8  # ... and g at the plan within this of the set (equalities, held rows,
-# free rows' bounds): the estimate runs up to 44x optimistic, and this keeps an
-# optimistic one from ending the solve short of admissible (one evaluation of g: 20 us). Past
-# two discs g was within 3.5e-10 in the median where the estimate held, 1.1e-8 at worst; 1e-9
-# here made those replans 1.88x the free ones instead of about 1.6x
-CONTRADICTION_TOL = 1e-6  # settled steps with g further off the set: limits that cannot all hold
-NEAR_BOUND = 1e-6  # a row this close to a bound (or beyond) at a step's start is held there
-ACTIVE_TOL = 1e-9  # a free row a step takes further beyond its bound than this stops it
-TOGETHER = 1e-9  # rows reached within this fraction of a step of the first are held with it
-DUAL_TOL = 1e-10  # a held row whose multiplier has the wrong sign by more is let go
+
+@dataclass(frozen=True)
+class WorkingSetOptions:
+    """The working set's tuning: budgets, convergence tests and how rows are held."""
+
+    max_steps: int = 12
+    """Newton steps (a warm plan needs 2-5)."""
+    max_factorisations: int = 24
+    """In all: a set that needs more is not near the previous plan's."""
+    diverging: float = 2.0
+    """A step this many times longer than the last: diverging, given up."""
+    slow: float = 0.3
+    """Two steps in a row longer than this fraction of the one before, the set unchanged:
+    converging linearly (an inexact factorisation), slower than the interior point."""
+    wandered: float = 0.05
+    """A first step longer than this (relative to the largest unknown): the guess was not near
+    a stationary point, and the one the steps reach is checked to be a minimum."""
+    step_tol: float = 1e-5
+    """Converged once a step moves no unknown by more (relative to the largest); it is taken,
+    and as the convergence is quadratic there (a step of 3e-7 is followed by one of 2e-12) the
+    plan is then within about 1e-9 of the solution (1e-7 cost a confirming step more)."""
+    stationarity_tol: float = 1e-4
+    """|Jᵀr + Gᵀλ|∞ at the step's start with its multipliers, for that test: about |H dw|."""
+    contraction: float = 0.1
+    """Or converged once two steps on the same set shrink quadratically, |dw₂| <= this |dw₁|,
+    so far that the next, about |dw₂|³/|dw₁|², would move less than ``next_tol``."""
+    next_tol: float = 1e-9
+    """(Relative.) The plan is then as close as ``step_tol``'s, a factorisation sooner (a
+    unicycle sliding along a disc: steps of 1e-2, 5e-5, then 3e-9)."""
+    feasible_tol: float = 1e-8
+    """... and g at the plan within this of the set (equalities, held rows, free rows' bounds):
+    the estimate runs up to 44x optimistic, and this keeps an optimistic one from ending the
+    solve short of admissible (one evaluation of g: 20 us). Past two discs g was within 3.5e-10
+    in the median where the estimate held, 1.1e-8 at worst; 1e-9 here made those replans 1.88x
+    the free ones instead of about 1.6x."""
+    contradiction_tol: float = 1e-6
+    """Settled steps with g further off the set: limits that cannot all hold."""
+    near_bound: float = 1e-6
+    """A row this close to a bound (or beyond) at a step's start is held there."""
+    active_tol: float = 1e-9
+    """A free row a step takes further beyond its bound than this stops it."""
+    together: float = 1e-9
+    """Rows reached within this fraction of a step of the first are held with it."""
+    dual_tol: float = 1e-10
+    """A held row whose multiplier has the wrong sign by more is let go."""
+
+
+DEFAULTS = WorkingSetOptions()
 NO_ROWS = np.zeros(0, dtype=int)
 
 
@@ -95,8 +117,9 @@ class WorkingSet:
     once.
     """
 
-    def __init__(self, lower: np.ndarray, upper: np.ndarray,
-                 rows: np.ndarray | None = None) -> None:
+    def __init__(self, lower: np.ndarray, upper: np.ndarray, rows: np.ndarray | None = None,
+                 options: WorkingSetOptions | None = None) -> None:
+        self.options = DEFAULTS if options is None else options
         self.rows = np.flatnonzero(lower != upper) if rows is None else rows
         self.limited = bool(len(self.rows))
         self.lower, self.upper = lower[self.rows], upper[self.rows]
@@ -119,7 +142,8 @@ class WorkingSet:
         """
         if self.limited:
             value = values[self.rows]
-            self._hold(value <= self.lower + NEAR_BOUND, value >= self.upper - NEAR_BOUND)
+            tol = self.options.near_bound
+            self._hold(value <= self.lower + tol, value >= self.upper - tol)
 
     def residual(self, values: np.ndarray) -> float:
         """Return how far g (``values``) is off the set.
@@ -148,15 +172,16 @@ class WorkingSet:
             return 1.0, NO_ROWS
         now, full = now[self.rows], full[self.rows]
         free = self.state == 0
-        down = free & (full < self.lower - ACTIVE_TOL) & (full < now)
-        up = free & (full > self.upper + ACTIVE_TOL) & (full > now)
+        tol = self.options.active_tol
+        down = free & (full < self.lower - tol) & (full < now)
+        up = free & (full > self.upper + tol) & (full > now)
         if not (down.any() or up.any()):
             return 1.0, NO_ROWS
         fraction = np.full(len(now), np.inf)
         fraction[down] = (self.lower[down] - now[down]) / (full[down] - now[down])
         fraction[up] = (self.upper[up] - now[up]) / (full[up] - now[up])
         first = float(np.clip(np.min(fraction), 0.0, 1.0))
-        return first, np.flatnonzero(fraction <= first + TOGETHER)
+        return first, np.flatnonzero(fraction <= first + self.options.together)
 
     def hold(self, positions: np.ndarray, full: np.ndarray) -> None:
         """Hold the free rows at ``positions`` (from :meth:`blocking`) at the bound passed."""
@@ -168,7 +193,8 @@ class WorkingSet:
         """Hold every free row a step takes beyond a bound (``reached``: g + G dw of the rows)."""
         if not self.limited:
             return False
-        return self._hold(reached < self.lower - ACTIVE_TOL, reached > self.upper + ACTIVE_TOL)
+        tol = self.options.active_tol
+        return self._hold(reached < self.lower - tol, reached > self.upper + tol)
 
     def let_go(self, multipliers: np.ndarray) -> bool:
         """Free the held inequality rows whose multipliers have the wrong sign (True if any).
@@ -179,8 +205,9 @@ class WorkingSet:
         if not self.limited:
             return False
         multiplier = multipliers[self.rows]
-        wrong = (((self.state == -1) & (multiplier > DUAL_TOL))
-                 | ((self.state == 1) & (multiplier < -DUAL_TOL)))
+        tol = self.options.dual_tol
+        wrong = (((self.state == -1) & (multiplier > tol))
+                 | ((self.state == 1) & (multiplier < -tol)))
         if not wrong.any():
             return False
         self.state[wrong] = 0
@@ -206,28 +233,31 @@ class WorkingSet:
 def working_set_solve(step: NewtonStep, constraints: NumericFunction, w: np.ndarray,
                       p: np.ndarray, lower: np.ndarray, upper: np.ndarray,
                       nonconvex: np.ndarray, pace: Pace,
-                      multipliers: np.ndarray | None = None) -> WorkingSetSolution | None:
+                      multipliers: np.ndarray | None = None,
+                      options: WorkingSetOptions | None = None) -> WorkingSetSolution | None:
     """Solve min 1/2 |r|^2 s.t. lower <= g <= upper from w, or None (see the module).
 
     ``constraints``: (w, p) -> g. Rows with lower == upper are equalities, held throughout.
     A plan converged with a row of ``nonconvex`` held (clearance: the way round an obstacle,
     where saddles are generic), or reached from a guess far from it (a first step longer than
-    :data:`WANDERED`: a push, a jump of the reference), is checked to be a minimum, not a saddle
-    (a factorisation more, through a slow path: 0.2-0.5 ms); plans continued from a nearby
-    guess (the previous plan, shifted) are not. Without inequality rows the
+    ``options.wandered``: a push, a jump of the reference), is checked to be a minimum, not a
+    saddle (a factorisation more, about 0.1 ms); plans continued from a nearby guess (the
+    previous plan, shifted) are not, and carry the check instead. Without inequality rows the
     set never changes: the steps are Newton's on the KKT system, and g is not looked at.
     ``multipliers``: estimates at w (the previous plan's, :mod:`.duals`) for the first step's
     Hessian; without them it is Gauss-Newton's, and the steps end only by the first test
-    (STEP_TOL), not by the quadratic estimate, which needs a first step in Newton's regime.
+    (``options.step_tol``), not by the quadratic estimate, which needs a first step in
+    Newton's regime.
     """
-    rows = WorkingSet(lower, upper)
+    o = DEFAULTS if options is None else options  # (:class:`WorkingSetOptions`)
+    rows = WorkingSet(lower, upper, options=o)
     factorisations, wandered, settled, slow = 0, False, False, 0  # settled: the last set too
     estimated = multipliers is not None  # the first step had the Lagrangian's curvature
     multipliers = np.zeros(len(lower)) if multipliers is None else multipliers
     moved = np.inf
     guessed: np.ndarray | None = None
     at_w: np.ndarray | None = None  # g at w, if the last convergence test read it
-    for _ in range(MAX_STEPS):
+    for _ in range(o.max_steps):
         curvature = multipliers
         if not rows.limited:
             now = lower  # (g unused without limits)
@@ -237,7 +267,7 @@ def working_set_solve(step: NewtonStep, constraints: NumericFunction, w: np.ndar
         guessed = rows.held() if guessed is None else guessed  # the guess's contacts
         changed, offset = False, np.zeros_like(w)
         while True:
-            if factorisations >= MAX_FACTORISATIONS or not pace.room():
+            if factorisations >= o.max_factorisations or not pace.room():
                 return None
             w_full, multipliers, full, stationarity = step(w, p, *rows.arguments(), curvature)
             factorisations += 1
@@ -257,29 +287,29 @@ def working_set_solve(step: NewtonStep, constraints: NumericFunction, w: np.ndar
             return None
         w = w + offset
         scale = max(1.0, float(np.max(np.abs(w))))
-        tolerance = STEP_TOL * scale
+        tolerance = o.step_tol * scale
         moved, last = float(np.max(np.abs(offset))), moved
-        wandered = wandered or (last == np.inf and moved > WANDERED * scale)
-        if moved > DIVERGING * max(last, tolerance):
+        wandered = wandered or (last == np.inf and moved > o.wandered * scale)
+        if moved > o.diverging * max(last, tolerance):
             return None  # far from the previous plan's optimum: Newton without a line search
-        slow = slow + 1 if settled and not changed and moved > max(SLOW * last, tolerance) else 0
+        slow = slow + 1 if settled and not changed and moved > max(o.slow * last, tolerance) else 0
         if slow >= 2:
             return None
-        # converging quadratically: the step after this one would move less than NEXT_TOL
-        quadratic = estimated and settled and moved <= CONTRACTION * last and \
-            moved**3 <= NEXT_TOL * scale * last**2
+        # converging quadratically: the step after this one would move less than next_tol
+        quadratic = estimated and settled and moved <= o.contraction * last and \
+            moved**3 <= o.next_tol * scale * last**2
         settled = not changed
         # (never on the first step: it is the reference the second is measured against)
         converged = not changed and last < np.inf and \
-            stationarity[0] <= STATIONARITY_TOL and moved <= tolerance
+            stationarity[0] <= o.stationarity_tol and moved <= tolerance
         at_w = None
         if not (converged or changed) and quadratic:  # (quadratic: a second step at least)
             at_w = constraints(w, p)[0]
-            converged = rows.residual(at_w) <= FEASIBLE_TOL
+            converged = rows.residual(at_w) <= o.feasible_tol
         if converged and rows.limited and at_w is None:
             # held rows that cannot all hold (contradictory limits) still let the steps settle,
             # the regularised multipliers growing without bound: g tells
-            converged = rows.residual(constraints(w, p)[0]) <= CONTRADICTION_TOL
+            converged = rows.residual(constraints(w, p)[0]) <= o.contradiction_tol
             if not converged:
                 return None
         if converged:
