@@ -90,6 +90,11 @@ def test_each_backend_takes_its_options():
     outcome = line_search_solve(problem.step, np.zeros(3), np.zeros(0), problem.lower,
                                 problem.upper, None, LineSearchOptions(max_iterations=1))
     assert not outcome.success and outcome.message == 'iteration budget spent'
+    for bad in ({'max_qp_factorisations': 0}, {'max_iterations': 2.5}):
+        with pytest.raises(ValueError, match='must be an integer >= 1'):
+            LineSearchOptions(**bad)
+    with pytest.raises(ValueError, match='max_factorisations must be an integer >= 1'):
+        WorkingSetOptions(max_factorisations=0)
 
 
 def test_a_bounded_least_squares_qp_with_active_bounds():

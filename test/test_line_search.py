@@ -214,7 +214,7 @@ def test_bounded_steps_that_crawl_are_given_up_early_for_the_interior_point(monk
     """A review's worst case: the working set never settled and the steps crawled.
 
     They went on for 40 factorisations (4.2x fatrop's time); now they stop at the second step
-    shorter than CRAWL, and the plan is fatrop's own.
+    shorter than ``LineSearchOptions.crawl``, and the plan is fatrop's own.
     """
     unicycle = nht.models.unicycle()
     reference = nht.simulate(unicycle, [-0.2301, 0.2065, 0.1792], [-0.7722, -0.6769],

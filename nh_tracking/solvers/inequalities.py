@@ -18,8 +18,8 @@ An NLP is built for a *shape* of limits — which kinds are bounded, how many ob
 each clearance point has — so replanning with new bound values or moving obstacles only changes
 numbers. Each knot and midpoint has slots of its own, filled with the discs nearest it on the
 guess (parameters of the solve): all of them while they fit, the nearest
-:data:`.obstacles.POINT_SLOTS` of more, so past 4 obstacles the NLP's size does not grow with
-them (8 discs in every point's rows would make every replan about 2x a free one, in contact or
+:data:`.obstacles.POINT_SLOTS` of more, so past that many obstacles the NLP's size does not grow
+with them (8 discs in every point's rows would make every replan about 2x a free one, in contact or
 not); how many, which, and what a plan that meets another calls for is :mod:`.obstacles`'s
 policy. The plan is then checked
 against every disc, and re-solved where it touches one it was not given. Clearance is written

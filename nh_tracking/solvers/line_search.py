@@ -53,12 +53,16 @@ import numpy as np
 
 from nh_tracking.solvers.newton import NewtonStep
 from nh_tracking.solvers.nlp import DEADLINE, Outcome, Pace
-from nh_tracking.solvers.working_set import WorkingSet
+from nh_tracking.solvers.working_set import at_least_one, WorkingSet
 
 
 @dataclass(frozen=True)
 class LineSearchOptions:
-    """The line search's tuning: its budget, the filter, the Hessian's shift, convergence."""
+    """The line search's tuning: its budget, the filter, the Hessian's shift, convergence.
+
+    (Its working set holds and lets go of rows by :class:`.working_set.WorkingSetOptions`'
+    defaults.)
+    """
 
     max_iterations: int = 20
     """fatrop takes 10 on the paper's sleigh from the reference, 11 with a terminal cost (these
@@ -115,6 +119,9 @@ class LineSearchOptions:
     """Unsettled steps taken this short ..."""
     max_crawled: int = 2
     """... this many times: the QP's direction is poor."""
+
+    def __post_init__(self) -> None:
+        at_least_one(self, 'max_iterations', 'max_qp_factorisations')
 
 
 DEFAULTS = LineSearchOptions()
@@ -247,7 +254,7 @@ def _qp_step(step: NewtonStep, rows: WorkingSet, w: np.ndarray, p: np.ndarray,
         if not rows.limited:
             return direction, tries, True
         changed = rows.hold_broken(direction[-1]) | rows.let_go(direction[1])
-        if not changed or tries == most:
+        if not changed or tries >= most:
             return direction, tries, not changed
 
 

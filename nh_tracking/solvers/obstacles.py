@@ -24,7 +24,8 @@
   start breaks a limit.
 - **The retry loop** (:func:`clear_of_every_disc`) that acts on it.
 
-Discs are (x, y, r, vx, vy) at the start (moving ones: :mod:`nh_tracking.limits`).
+Discs are (x, y, r, vx, vy), or (x, y, r) at rest, at the start (moving ones:
+:mod:`nh_tracking.limits`).
 """
 from __future__ import annotations
 

@@ -87,6 +87,18 @@ class WorkingSetOptions:
     dual_tol: float = 1e-10
     """A held row whose multiplier has the wrong sign by more is let go."""
 
+    def __post_init__(self) -> None:
+        at_least_one(self, 'max_steps', 'max_factorisations')
+
+
+def at_least_one(options: object, *budgets: str) -> None:
+    """Refuse an options dataclass whose ``budgets`` are not whole numbers >= 1."""
+    for name in budgets:
+        value = getattr(options, name)
+        if isinstance(value, bool) or not isinstance(value, int) or value < 1:
+            raise ValueError(f'{type(options).__name__}.{name} must be an integer >= 1, '
+                             f'got {value!r}')
+
 
 DEFAULTS = WorkingSetOptions()
 NO_ROWS = np.zeros(0, dtype=int)
