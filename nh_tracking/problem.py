@@ -303,6 +303,12 @@ class Solution:
     attempts: list[Attempt] = field(default_factory=list)
     working_set_misses: int = 0
 
+    def follows(self, *earlier: Solution) -> Solution:
+        """Count the solves that ran before this one in its time and attempts; return it."""
+        self.solve_time += sum(plan.solve_time for plan in earlier)
+        self.attempts[:0] = [attempt for plan in earlier for attempt in plan.attempts]
+        return self
+
     def trajectory(self) -> Trajectory:
         """Return the plan as a Trajectory (e.g. to use as a reference or to plot)."""
         return Trajectory(t=self.t, q=self.q, v=self.v, u=self.u)

@@ -255,9 +255,7 @@ class RecedingHorizonPlanner:
                     again = self.method.solve(nearest, Guess(
                         sol.q, sol.v, sol.u, sol.multipliers, sol.working_set_misses),
                         s.max_solve_time)
-                    again.solve_time += sol.solve_time
-                    again.attempts[:0] = sol.attempts
-                    sol = again
+                    sol = again.follows(sol)
                     if sol.success and avoidance.hits_one_left_out(nearest, sol, discs):
                         sol.success = False  # (more obstacles about it than an NLP takes)
                         sol.message = f'{sol.message}; the plan touches an obstacle left out'
@@ -328,9 +326,7 @@ class RecedingHorizonPlanner:
                 not warm.success or other.cost < (1.0 - SWITCH_MARGIN) * warm.cost):
             warm.details['detour_time'] = spent
             return warm
-        other.solve_time += warm.solve_time
-        other.attempts[:0] = warm.attempts
-        return other
+        return other.follows(warm)
 
     def brake(self, t: float, q: np.ndarray, v: np.ndarray, why: str) -> PlanOutcome:
         """Plan braking to rest from the last state known, (q, v) at t.

@@ -107,6 +107,17 @@ def polar_knife(J: float = 0.5, r_max: float = 100.0) -> nht.NonholonomicSystem:
         angles=['phi', 'theta'], domain={'r': (0.2, r_max)}, name='polar_knife')
 
 
+def polar_knife_past_the_origin() -> nht.TrackingProblem:
+    """Return a polar knife asked along a line 0.1 m from the origin: r dips below its 0.2."""
+    t = np.linspace(0.0, 6.0, 121)
+    x, y = -1.5 + 0.5 * t, np.full_like(t, 0.1)
+    q_ref = np.stack([np.hypot(x, y), np.unwrap(np.arctan2(y, x)), np.zeros_like(t)], axis=1)
+    reference = nht.Trajectory(t, q_ref, np.tile([1.0, 0.0], (len(t), 1)),
+                               np.zeros((len(t) - 1, 2)))
+    return nht.TrackingProblem(polar_knife(), reference, q_ref[0], [0.5, 0.0], horizon=6.0,
+                               steps=40, terminal='cost')
+
+
 def euler_ball(m: float = 1.0, R: float = 0.2) -> nht.NonholonomicSystem:
     """Build a ball rolling without slipping: q = (x, y, phi, theta, psi), ZXZ Euler angles.
 

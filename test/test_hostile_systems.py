@@ -20,7 +20,8 @@ import numpy as np
 import pytest
 
 import nh_tracking as nht
-from systems import inclined_knife_edge, polar_knife, roller_racer, rotor_sleigh
+from systems import (inclined_knife_edge, polar_knife, polar_knife_past_the_origin, roller_racer,
+                     rotor_sleigh)
 
 
 def test_a_polar_chart_whose_constraint_row_grows_with_r_is_a_valid_system():
@@ -38,14 +39,7 @@ def test_a_reference_through_the_edge_of_the_domain_is_tracked_inside_it():
     The transcriptions hold the plan inside the domain (the variational one on a second route,
     the domain as bounds) and agree; PMP cannot bound its states and says its plan leaves.
     """
-    knife = polar_knife()
-    t = np.linspace(0.0, 6.0, 121)
-    x, y = -1.5 + 0.5 * t, np.full_like(t, 0.1)
-    q_ref = np.stack([np.hypot(x, y), np.unwrap(np.arctan2(y, x)), np.zeros_like(t)], axis=1)
-    reference = nht.Trajectory(t, q_ref, np.tile([1.0, 0.0], (len(t), 1)),
-                               np.zeros((len(t) - 1, 2)))
-    problem = nht.TrackingProblem(knife, reference, q_ref[0], [0.5, 0.0], horizon=6.0, steps=40,
-                                  terminal='cost')
+    problem = polar_knife_past_the_origin()
     costs = {}
     for method in ('variational', 'multiple_shooting'):
         solution = nht.solve(problem, method=method, max_time=30.0)

@@ -25,7 +25,7 @@ from nh_tracking.solvers import sample_plan, Variational
 from nh_tracking.solvers.base import Guess
 from nh_tracking.solvers.routes import NOT_FINITE, PAUSE, PAUSE_AFTER, ROUTES
 from nh_tracking.solvers.variational import RETRIES
-from systems import polar_knife
+from systems import polar_knife_past_the_origin
 
 
 def _record(plan):
@@ -89,19 +89,11 @@ def test_a_guess_where_the_nlp_is_not_finite_is_refused_and_recorded():
 
 def test_the_retries_run_in_the_tables_order_and_every_attempt_is_kept():
     """Out of the model's domain, then within it as bounds; inside a disc, the soft limits."""
-    knife = polar_knife()
-    t = np.linspace(0.0, 6.0, 121)
-    x, y = -1.5 + 0.5 * t, np.full_like(t, 0.1)
-    q_ref = np.stack([np.hypot(x, y), np.unwrap(np.arctan2(y, x)), np.zeros_like(t)], axis=1)
-    reference = nht.Trajectory(t, q_ref, np.tile([1.0, 0.0], (len(t), 1)),
-                               np.zeros((len(t) - 1, 2)))
-    problem = nht.TrackingProblem(knife, reference, q_ref[0], [0.5, 0.0], horizon=6.0,
-                                  steps=40, terminal='cost')
-    plan = nht.solve(problem, second_look=False)
+    plan = nht.solve(polar_knife_past_the_origin(), second_look=False)
     assert plan.success and 'the domain as bounds' in plan.route
     assert len(plan.attempts) >= 2 and plan.attempts[-1].status is Status.CONVERGED
     _consistent(plan)
-    unicycle = nht.models.unicycle()
+    unicycle, t = nht.models.unicycle(), np.linspace(0.0, 6.0, 121)
     line = nht.Trajectory(t, np.c_[t, 0 * t, 0 * t], np.c_[np.ones_like(t), 0 * t],
                           np.zeros((len(t) - 1, 2)))
     inside = nht.TrackingProblem(unicycle, line, [3.0, 0.2, 0.0], [1, 0], 6.0, 60,

@@ -54,8 +54,7 @@ def next_route(failed: Solution, route: str, solve: Callable[[], Solution]) -> S
         failed.message = f'{failed.message}; {route} skipped: {exc}'
         return failed
     result.route = route
-    result.solve_time += failed.solve_time
-    result.attempts[:0] = failed.attempts
+    result.follows(failed)
     return result
 
 

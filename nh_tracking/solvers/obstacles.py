@@ -167,7 +167,6 @@ def clear_of_every_disc(solve: Callable[[Guess | None, bool], Solution], guess: 
 
 
 def _after(failed: Solution, retry: Solution, how: str) -> Solution:
-    retry.solve_time += failed.solve_time
+    retry.follows(failed)
     retry.route = f'{failed.route} -> again, {how}'
-    retry.attempts[:0] = failed.attempts
     return retry

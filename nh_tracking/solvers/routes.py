@@ -142,8 +142,14 @@ def _warm_working_set(start: Start) -> Outcome | Status:
     misses = working_set_misses(start.guess)
     if misses >= PAUSE_AFTER and (misses - PAUSE_AFTER) % PAUSE != PAUSE - 1:
         return Status.PAUSED
-    multipliers = carried_multipliers(start.tr, start.problem, start.guess, start.p)
-    return _working_set(start.step, start.w0, start.p, start.bounds, start.pace, multipliers)
+    step, bounds = start.step, start.bounds
+    held = working_set_solve(step.step, step.constraints, start.w0, start.p, bounds['lbg'],
+                             bounds['ubg'], step.nonconvex, start.pace, carried_multipliers(
+                                 start.tr, start.problem, start.guess, start.p))
+    return Status.HANDED_OVER if held is None else Outcome(
+        {'x': held.w, 'lam_g': held.multipliers}, True, held.factorisations,
+        f'converged ({held.active} limit rows active)' if held.limited else 'converged',
+        held.minimum, held.minimum_check)
 
 
 def working_set_misses(guess: Guess | None) -> int:
@@ -283,15 +289,3 @@ def _held_step(problem: TrackingProblem, tr: Transcription,
                                 tr.limits.shape, compiled)
     except NotPrepared:  # built in the background (replanning, or out of time)
         return None
-
-
-def _working_set(step: WorkingSetStep, w0: np.ndarray, p: np.ndarray,
-                 bounds: dict[str, np.ndarray], pace: Pace,
-                 multipliers: np.ndarray | None) -> Outcome | Status:
-    """Replan by Newton steps on a working set of the limit rows (handed over: not settled)."""
-    held = working_set_solve(step.step, step.constraints, w0, p, bounds['lbg'], bounds['ubg'],
-                             step.nonconvex, pace, multipliers)
-    return Status.HANDED_OVER if held is None else Outcome(
-        {'x': held.w, 'lam_g': held.multipliers}, True, held.factorisations,
-        f'converged ({held.active} limit rows active)' if held.limited else 'converged',
-        held.minimum, held.minimum_check)

@@ -101,8 +101,7 @@ def second_look(problem: TrackingProblem, method: Method, first: Solution,
     else:
         second.message = f'{second.message} (from a perturbed start; first: {first.message})'
     second.route = f'{second.route} -> perturbed restart'
-    second.solve_time = total
-    second.attempts[:0] = first.attempts
+    second.follows(first)
     return second
 
 

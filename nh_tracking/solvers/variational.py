@@ -134,9 +134,7 @@ def solve_variational_until(problem: TrackingProblem, initial_guess: Guess | Non
             problem, guess, stop, dataclasses.replace(route, every=every)), initial_guess, stop,
             problem)
 
-    result = run(first)
-    result.solve_time += sum(plan.solve_time for plan in earlier)
-    result.attempts[:0] = [a for plan in earlier for a in plan.attempts]
+    result = run(first).follows(*earlier)
     for retry in RETRIES:
         if time_left(result, stop) and retry.applies(problem, result, first):
             result = next_route(result, retry.why(result), partial(run, retry.route(first)))
