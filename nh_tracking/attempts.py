@@ -39,7 +39,8 @@ class Status(enum.Enum):
 
     CONVERGED = 'converged'
     ITERATED = 'iterated'  # a real-time iteration: the steps asked (and more while inadmissible)
-    HANDED_OVER = 'handed over'  # Newton steps that did not settle: the next backend runs
+    HANDED_OVER = 'handed over'  # steps that did not settle (or an inadmissible real-time
+    # iteration): the next backend runs
     PAUSED = 'paused'  # not tried: it kept failing on the plans before (see Guess)
     FAILED = 'failed'
     DEADLINE = 'deadline reached'

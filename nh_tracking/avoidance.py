@@ -17,9 +17,10 @@
 Each knot and midpoint of an NLP keeps clear of the discs nearest it, and its last resort (a
 crowd) has a slot for every disc at every point: a bounded number, so each replan takes only
 the discs that can bend its plan; the plan is then checked against every disc the planner
-knows of. A robot already inside a disc's clearance (it drifted, or the disc was redrawn) has
-that disc shrunk for this replan, so the prepared NLP still has a solution. Discs are
-(x, y, r, vx, vy) where they are at the replan's start (moving ones: see :mod:`.limits`).
+knows of (:func:`.obstacles.clear_of_discs_left_out`). A robot already inside a disc's
+clearance (it drifted, or the disc was redrawn) has that disc shrunk for this replan, so the
+prepared NLP still has a solution. Discs are (x, y, r, vx, vy) where they are at the replan's
+start (moving ones: see :mod:`.limits`).
 """
 from __future__ import annotations
 
@@ -27,9 +28,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from nh_tracking.limits import Limits, plan_path, plan_times, plane
+from nh_tracking.limits import Limits, plan_path, plan_times, plane, VIOLATION_TOL
 from nh_tracking.problem import Solution, TrackingProblem
-from nh_tracking.solvers.inequalities import VIOLATION_TOL
 from nh_tracking.solvers.obstacles import clear_of_start, MAX_OBSTACLES, relevant_discs
 from nh_tracking.system import NonholonomicSystem
 from nh_tracking.trajectory import Trajectory
@@ -62,26 +62,6 @@ class Avoidance:
         path = self.reference.sample(np.linspace(t, t + self.horizon, self.steps + 1))[0]
         return relevant_discs(discs, q[axes], path[:, axes], self.robot_radius, MAX_OBSTACLES,
                               self.horizon)
-
-    def nearest(self, plan: Solution, discs: np.ndarray) -> np.ndarray:
-        """Return the discs an NLP can take that come nearest a plan (those it touches first).
-
-        (Nearest the robot instead, a plan through a crowd of more could touch a ninth.)
-        """
-        grown = self.limits(discs).clearance(plan_path(plan.q), self.times).min(axis=0)
-        return discs[np.argsort(grown, kind='stable')[:MAX_OBSTACLES]]
-
-    def hits_one_left_out(self, problem: TrackingProblem, sol: Solution,
-                          discs: np.ndarray) -> bool:
-        """Whether a plan built with some of ``discs`` touches one left out.
-
-        At its knots and midpoints, or between them (:meth:`.Limits.swept`).
-        """
-        if len(problem.limits.obstacles) == len(discs):
-            return False
-        every, path = self.limits(discs), plan_path(sol.q)
-        return bool(every.clearance(path, self.times).min() < -VIOLATION_TOL
-                    or every.swept(path, self.times) > VIOLATION_TOL)
 
     def no_deeper(self, problem: TrackingProblem, sol: Solution, discs: np.ndarray) -> bool:
         """Whether a plan from a start that breaks a limit breaks none more than the start does.

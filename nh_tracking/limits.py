@@ -90,6 +90,7 @@ def _checked_discs(discs: np.ndarray, name: str) -> np.ndarray:
     return discs
 
 
+VIOLATION_TOL = 1e-6  # a plan breaking a limit by more is no success
 PREDICTION = 2.0  # [s] a moving disc not seen again for longer is held where it would be then
 
 

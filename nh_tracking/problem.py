@@ -29,7 +29,7 @@ import casadi as ca
 import numpy as np
 from numpy.typing import ArrayLike
 
-from nh_tracking.attempts import Attempt
+from nh_tracking.attempts import Attempt, Status
 from nh_tracking.limits import BoundsLike, Limits
 from nh_tracking.system import NonholonomicSystem
 from nh_tracking.trajectory import Trajectory
@@ -308,6 +308,11 @@ class Solution:
         self.solve_time += sum(plan.solve_time for plan in earlier)
         self.attempts[:0] = [attempt for plan in earlier for attempt in plan.attempts]
         return self
+
+    @property
+    def ran_out_of_time(self) -> bool:
+        """Whether its last attempt stopped at its deadline (no other route has time after)."""
+        return bool(self.attempts) and self.attempts[-1].status is Status.DEADLINE
 
     def trajectory(self) -> Trajectory:
         """Return the plan as a Trajectory (e.g. to use as a reference or to plot)."""

@@ -35,14 +35,15 @@ from nh_tracking.avoidance import Avoidance
 from nh_tracking.detours import held_up, joined
 from nh_tracking.fallback import braking_plan, fallback, stop_plan
 from nh_tracking.limits import (bounds_from_lists, in_the_plane, Limits, moved,
-                                obstacle_discs)
+                                obstacle_discs, VIOLATION_TOL)
 from nh_tracking.problem import Solution, Terminal, terminal_error, TrackingProblem
 from nh_tracking.settings import check_fields, setting
 from nh_tracking.solvers import Guess, make_method, Method, METHODS, sample_plan, Structure
 from nh_tracking.solvers.cache import builds_deferred, builds_inline
-from nh_tracking.solvers.inequalities import Shape, start_violation, VIOLATION_TOL
+from nh_tracking.solvers.inequalities import Shape, start_violation
 from nh_tracking.solvers.nlp import deadline_after
-from nh_tracking.solvers.obstacles import MAX_OBSTACLES, obstacle_slots
+from nh_tracking.solvers.obstacles import (clear_of_discs_left_out, MAX_OBSTACLES,
+                                           obstacle_slots, touches_one_left_out)
 from nh_tracking.system import NonholonomicSystem
 from nh_tracking.trajectory import Trajectory
 
@@ -80,8 +81,9 @@ class PlannerSettings:
     omega: float = setting(10.0, 'terminal cost weight (terminal: cost)', '', (1e-9, 1e9))
     terminal: Terminal = setting('cost', 'terminal condition', choices=('cost', 'equality'))
     method: str = setting('variational', 'tracking method', choices=tuple(METHODS))
-    max_solve_time: float = setting(0.25, 'deadline of one solve; a later solve is discarded '
-                                    'and the previous plan kept', 's', (1e-6, 3600.0))
+    max_solve_time: float = setting(0.25, "deadline of one replan's solves, its retries "
+                                    'included; a later plan is discarded and the previous one '
+                                    'kept', 's', (1e-6, 3600.0))
     wrap_angles: bool = setting(True, 'compare angles modulo 2 pi')
     compiled: bool = setting(False, 'variational NLP compiled to C (built in the background '
                              'while plans go on interpreted, then cached)')
@@ -237,7 +239,6 @@ class RecedingHorizonPlanner:
             self.stats.plan_durations.append(time.perf_counter() - started)
 
     def _plan(self, t: float, q: np.ndarray, v: np.ndarray) -> PlanOutcome:
-        started = time.perf_counter()
         avoidance = self.avoidance(t)
         discs = avoidance.from_start(q, v)
         problem = self.problem(t, q, v, avoidance.relevant(t, q, discs))
@@ -248,20 +249,12 @@ class RecedingHorizonPlanner:
             guess = None
         try:
             with builds_deferred() if self.prepared else builds_inline():  # never stalls
-                sol = self.method.solve(problem, None if guess is None
-                                        else sample_plan(problem, guess), s.max_solve_time)
-                if sol.success and avoidance.hits_one_left_out(problem, sol, discs):
-                    nearest = dataclasses.replace(problem, obstacles=avoidance.nearest(sol, discs))
-                    again = self.method.solve(nearest, Guess(
-                        sol.q, sol.v, sol.u, sol.multipliers, sol.working_set_misses),
-                        s.max_solve_time)
-                    sol = again.follows(sol)
-                    if sol.success and avoidance.hits_one_left_out(nearest, sol, discs):
-                        sol.success = False  # (more obstacles about it than an NLP takes)
-                        sol.message = f'{sol.message}; the plan touches an obstacle left out'
+                sol = clear_of_discs_left_out(
+                    self._within_budget, problem,
+                    None if guess is None else sample_plan(problem, guess), discs)
                 if guess is not None and len(problem.limits.obstacles) and \
                         self.stats.plans % DETOUR_EVERY == 0:
-                    sol = self._other_way_round(problem, sol, avoidance, discs, started)
+                    sol = self._other_way_round(problem, sol, discs)
             error = '' if sol.success else f'solver: {sol.message}'
         except (ArithmeticError, RuntimeError, ValueError) as exc:  # a numerical failure
             sol, error = None, f'solver raised {type(exc).__name__}: {exc}'
@@ -306,23 +299,31 @@ class RecedingHorizonPlanner:
         self.stats.fallbacks += 1
         return PlanOutcome(plan, status, solve_time, missed, f'{what} ({error})', reference)
 
-    def _other_way_round(self, problem: TrackingProblem, warm: Solution, avoidance: Avoidance,
-                         discs: np.ndarray, started: float) -> Solution:
+    def _within_budget(self, problem: TrackingProblem, guess: Guess | None,
+                       spent: float) -> Solution:
+        """Solve with what is left of the replan's one solve budget after ``spent`` [s].
+
+        (At least a microsecond: a solve begun past the budget reports its deadline.)
+        """
+        return self.method.solve(problem, guess, max(self.settings.max_solve_time - spent, 1e-6))
+
+    def _other_way_round(self, problem: TrackingProblem, warm: Solution,
+                         discs: np.ndarray) -> Solution:
         """Return the plan round the obstacles another way if it is cheaper by SWITCH_MARGIN.
 
         Tried where the warm plan stops short of a disc the reference runs through: a warm
         start stays in its local minimum, and pressed against the disc's near side a robot
         would wait there for good. The margin keeps it from dithering between two ways of
-        about the same cost. Within :data:`DETOUR_BUDGET` of what is left of the replan (from
-        ``started``); a plan not taken keeps its own solve time (its detours' in ``details``).
+        about the same cost. Within :data:`DETOUR_BUDGET` of what is left of the replan's solve
+        budget; a plan not taken keeps its own solve time (its detours' in ``details``).
         ``discs``: every obstacle, which a plan taken must keep clear of.
         """
-        left = DETOUR_BUDGET * (self.settings.max_solve_time - (time.perf_counter() - started))
+        left = DETOUR_BUDGET * (self.settings.max_solve_time - warm.solve_time)
         q, _ = joined(problem)
         if left <= 0.0 or not held_up(problem, q, warm.q):
             return warm
         other, spent, _ = self.method.round_obstacles(problem, deadline_after(left))
-        if other is None or avoidance.hits_one_left_out(problem, other, discs) or not (
+        if other is None or touches_one_left_out(problem, other, discs) or not (
                 not warm.success or other.cost < (1.0 - SWITCH_MARGIN) * warm.cost):
             warm.details['detour_time'] = spent
             return warm

@@ -165,6 +165,45 @@ def test_a_plan_that_touches_a_left_out_obstacle_is_replanned_with_it(monkeypatc
     assert grown.clearance(np.vstack([plan.q, 0.5 * (plan.q[1:] + plan.q[:-1])])).min() > -TOL
 
 
+def test_a_plan_that_meets_a_disc_left_out_of_its_nlp_is_solved_again_with_those_nearest_it():
+    """The replan's obstacle loop, on real solves, names what it did.
+
+    A plan given only a far disc drives through one on the line; solved again with the discs
+    nearest that plan, it keeps clear of both; every solve shows in its attempts, and the
+    second is told what the first spent. Left-out discs it does not touch change nothing.
+    """
+    from nh_tracking.solvers.obstacles import clear_of_discs_left_out, touches_one_left_out
+    from nh_tracking.solvers.variational import Variational
+
+    method = Variational()
+    problem = nht.TrackingProblem(nht.models.unicycle(), _line(), np.zeros(3), [0.5, 0.0],
+                                  5.0, 50, terminal='cost', robot_radius=0.2)
+    on_line, far = [1.5, 0.05, 0.3], [4.0, 3.0, 0.2]
+    discs = np.array([on_line, far])
+    given = dataclasses.replace(problem, obstacles=[far])
+    first = method.solve(given)
+    assert first.success and touches_one_left_out(given, first, discs)
+    spent = []
+
+    def solve(problem, guess, before):
+        spent.append(before)
+        return method.solve(problem, guess)
+
+    plan = clear_of_discs_left_out(solve, given, None, discs)
+    assert plan.success, plan.message
+    assert '(it touched one left out)' in plan.route
+    assert spent[0] == 0.0 and 0.0 < spent[1] < plan.solve_time  # the second gets what is left
+    assert len(plan.attempts) > len(first.attempts)
+    every = dataclasses.replace(problem, obstacles=discs).limits
+    assert every.clearance(np.vstack([plan.q, 0.5 * (plan.q[1:] + plan.q[:-1])])).min() > -TOL
+
+    aside = np.array([far, [2.0, -3.0, 0.3]])  # none near the line: one solve, as it was
+    untouched = clear_of_discs_left_out(lambda p, g, spent: method.solve(p, g), given, None,
+                                        aside)
+    assert untouched.success and untouched.route == first.route
+    assert untouched.cost == pytest.approx(first.cost)
+
+
 def test_each_knot_and_midpoint_keeps_clear_of_the_discs_nearest_it():
     """A clearance point's rows take the discs whose edges are nearest it on the guess.
 

@@ -63,6 +63,19 @@ def test_each_row_runs_where_it_applies_and_says_so(problem):
         _consistent(plan)
 
 
+def test_a_real_time_iteration_left_off_the_model_hands_over_to_a_converged_solve():
+    """The sleigh from a guess at rest on the origin: the steps do not reach a trajectory."""
+    problem = sleigh_problem(wrap_angles=False)
+    steps, k, r = problem.steps, problem.system.k, problem.system.r
+    guess = Guess(np.zeros((steps + 1, problem.system.n)), np.ones((steps + 1, k)),
+                  np.zeros((steps, r)))
+    plan = Variational(iterations=1).solve(problem, guess)
+    assert plan.success
+    assert _record(plan)[0] == (Backend.GAUSS_NEWTON, Status.HANDED_OVER)
+    assert plan.attempts[-1].status is Status.CONVERGED
+    _consistent(plan)
+
+
 def test_a_line_search_that_does_not_settle_hands_over_to_the_interior_point():
     """A particle on a 0.2 s horizon at eps = 100: the line search stalls (test_line_search)."""
     particle = nht.models.nonholonomic_particle()

@@ -21,8 +21,6 @@ transcription, §5; options ``backend``, ``compiled``), :class:`Pontryagin` (sho
 """
 from __future__ import annotations
 
-import time
-
 import numpy as np
 
 from nh_tracking.problem import Solution, TrackingProblem
@@ -85,16 +83,14 @@ def solve(problem: TrackingProblem, method: str | Method = 'variational', *, sta
     solver = make_method(method, **options)
     if isinstance(starts, bool) or not isinstance(starts, (int, np.integer)) or starts < 1:
         raise ValueError(f'starts must be an integer >= 1, got {starts!r}')
-    deadline_after(max_time)  # checked before any work
+    stop = deadline_after(max_time)  # one deadline: every route, retry and the second look
     guess = None if initial_guess is None else sample_plan(problem, initial_guess)
     if starts > 1:
         return search.replay_checked(problem, search.multi_start(
             problem, solver, guess, int(starts), seed, processes, max_time))
-    started = time.perf_counter()
-    solution = solver.solve(problem, guess, max_time)
+    solution = solver.solve_before(problem, guess, stop)
     if second_look:
-        left = None if max_time is None else max_time - (time.perf_counter() - started)
-        solution = search.second_look(problem, solver, solution, left, seed)
+        solution = search.second_look(problem, solver, solution, stop, seed)
     return search.replay_checked(problem, solution)
 
 

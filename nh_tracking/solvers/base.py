@@ -37,13 +37,13 @@ from nh_tracking.problem import Solution, Terminal, TrackingProblem
 from nh_tracking.solvers.cache import builds_until, NotPrepared
 from nh_tracking.solvers.guess import Guess
 from nh_tracking.solvers.inequalities import Shape
-from nh_tracking.solvers.nlp import before, DEADLINE, deadline_after
+from nh_tracking.solvers.nlp import before, deadline_after
 from nh_tracking.system import NonholonomicSystem
 
 
 def time_left(previous: Solution, stop: float | None) -> bool:
     """Whether another route may start after ``previous``: neither it nor the clock ran out."""
-    return not previous.message.startswith(DEADLINE) and before(stop)
+    return not previous.ran_out_of_time and before(stop)
 
 
 def next_route(failed: Solution, route: str, solve: Callable[[], Solution]) -> Solution:
@@ -139,7 +139,12 @@ class Method(ABC):
         stops and reports failure; a build goes on in the background, ready for a later call).
         A plan that leaves the model's domain is no success.
         """
-        stop, started = deadline_after(deadline), time.perf_counter()
+        return self.solve_before(problem, guess, deadline_after(deadline))
+
+    def solve_before(self, problem: TrackingProblem, guess: Guess | None,
+                     stop: float | None) -> Solution:
+        """:meth:`solve` against an absolute ``stop`` (perf_counter clock) or None."""
+        started = time.perf_counter()
         try:
             with builds_until(stop):
                 detoured = Detoured(None, 0.0, []) if guess is not None else \
@@ -163,23 +168,23 @@ class Method(ABC):
                 problem.limits.clearance(problem.q0[None], [0.0]).min(initial=0.0) < 0.0:
             return Detoured(None, 0.0, [])  # (from inside a disc: only the least-violating)
         q, v = joined(problem)
-        best, spent, attempts = None, 0.0, []
+        best, tried = None, []
         for knots, sides in detour_guesses(problem, q):
             plan = inside_domain(problem, self.globalised().solve_until(
                 problem, Guess(knots, v, None), stop))
-            spent += plan.solve_time
-            attempts += plan.attempts
+            tried.append(plan)
             if plan.success and (best is None or plan.cost < best[0].cost):
                 best = plan, sides
             if not before(stop):
                 break
+        spent = sum(plan.solve_time for plan in tried)
         if best is None:
-            return Detoured(None, spent, attempts)
+            return Detoured(None, spent, [a for plan in tried for a in plan.attempts])
         plan, sides = best
         ways = ', '.join('left' if side > 0 else 'right' for side in sides)
         plan.route = f'{plan.route} (the cheapest way round the obstacles: {ways})'
-        plan.solve_time, plan.attempts = spent, list(attempts)
-        return Detoured(plan, spent, attempts)
+        plan.follows(*(other for other in tried if other is not plan))  # (its attempts last)
+        return Detoured(plan, spent, plan.attempts)
 
     def globalised(self) -> Method:
         """Return this method without local shortcuts, for guesses that are not near a minimum.

@@ -22,7 +22,8 @@
 - **What a plan calls for** (:func:`limit_check`): another solve where it met a disc its points
   were not given, or went through one between its points; the least-violating plan where its
   start breaks a limit.
-- **The retry loop** (:func:`clear_of_every_disc`) that acts on it.
+- **The retry loops** that act on it: :func:`clear_of_every_disc` (one NLP's discs, at its
+  points) and :func:`clear_of_discs_left_out` (a replan's discs, of which an NLP takes some).
 
 Discs are (x, y, r, vx, vy), or (x, y, r) at rest, at the start (moving ones:
 :mod:`nh_tracking.limits`).
@@ -30,10 +31,12 @@ Discs are (x, y, r, vx, vy), or (x, y, r) at rest, at the start (moving ones:
 from __future__ import annotations
 
 from collections.abc import Callable
+import dataclasses
 
 import numpy as np
 
-from nh_tracking.limits import centres_at, nearest_discs, obstacle_discs
+from nh_tracking.limits import (centres_at, Limits, nearest_discs, obstacle_discs, plan_path,
+                                plan_times, VIOLATION_TOL)
 from nh_tracking.problem import LimitCheck, Solution, TrackingProblem
 from nh_tracking.solvers.guess import Guess
 from nh_tracking.solvers.nlp import before
@@ -170,3 +173,58 @@ def _after(failed: Solution, retry: Solution, how: str) -> Solution:
     retry.follows(failed)
     retry.route = f'{failed.route} -> again, {how}'
     return retry
+
+
+def clear_of_discs_left_out(
+        solve: Callable[[TrackingProblem, Guess | None, float], Solution],
+        problem: TrackingProblem, guess: Guess | None, discs: np.ndarray) -> Solution:
+    """Solve ``problem`` (some of ``discs``); again where its plan touches one left out.
+
+    ``solve(problem, guess, spent)``: ``spent`` [s] is what the solves before took (the
+    replan's budget is one). A replan gives its NLP at most :data:`MAX_OBSTACLES` of the
+    discs about it (:func:`relevant_discs`), nearest the robot first; a plan that swerved
+    may then touch another. Solved again from that plan with the discs nearest it (those it
+    touches first); a plan that still touches one left out (more discs about it than an NLP
+    takes) is no success.
+    """
+    plan = solve(problem, guess, 0.0)
+    if not plan.success or not touches_one_left_out(problem, plan, discs):
+        return plan
+    nearest = dataclasses.replace(problem, obstacles=_nearest_to_plan(problem, plan, discs))
+    again = solve(nearest, Guess(plan.q, plan.v, plan.u, plan.multipliers,
+                                 plan.working_set_misses), plan.solve_time).follows(plan)
+    again.route = (f'{plan.route} -> again, the discs nearest its plan (it touched one left out): '
+                   f'{again.route}')
+    if again.success and touches_one_left_out(nearest, again, discs):
+        again.success = False
+        again.message = f'{again.message}; the plan touches an obstacle left out'
+    return again
+
+
+def touches_one_left_out(problem: TrackingProblem, plan: Solution, discs: np.ndarray) -> bool:
+    """Whether ``plan`` of ``problem``, built with some of ``discs``, touches one left out.
+
+    At its knots and midpoints, or between them (:meth:`.Limits.swept`).
+    """
+    if len(problem.limits.obstacles) == len(discs):
+        return False
+    every, path, times = _every(problem, discs), plan_path(plan.q), _times(problem)
+    return bool(every.clearance(path, times).min() < -VIOLATION_TOL
+                or every.swept(path, times) > VIOLATION_TOL)
+
+
+def _nearest_to_plan(problem: TrackingProblem, plan: Solution, discs: np.ndarray) -> np.ndarray:
+    """Return the discs an NLP can take that come nearest ``plan`` (those it touches first).
+
+    (Nearest the robot instead, a plan through a crowd of more could touch a ninth.)
+    """
+    grown = _every(problem, discs).clearance(plan_path(plan.q), _times(problem)).min(axis=0)
+    return discs[np.argsort(grown, kind='stable')[:MAX_OBSTACLES]]
+
+
+def _every(problem: TrackingProblem, discs: np.ndarray) -> Limits:
+    return Limits.of(problem.system, None, None, discs, problem.robot_radius)
+
+
+def _times(problem: TrackingProblem) -> np.ndarray:
+    return plan_times(problem.steps, problem.h)

@@ -31,12 +31,12 @@ import time
 import numpy as np
 
 from nh_tracking.attempts import Attempt, Backend, Status
-from nh_tracking.limits import plan_path
+from nh_tracking.limits import plan_path, VIOLATION_TOL
 from nh_tracking.problem import Solution, TrackingProblem
 from nh_tracking.solvers.base import Guess, unsolved
 from nh_tracking.solvers.cache import NotPrepared
 from nh_tracking.solvers.duals import carried_multipliers, multipliers_at
-from nh_tracking.solvers.inequalities import judged, Shape, VIOLATION_TOL
+from nh_tracking.solvers.inequalities import judged, Shape
 from nh_tracking.solvers.line_search import line_search_solve
 from nh_tracking.solvers.midpoint import (Transcription, transcription, working_set_step,
                                           WorkingSetStep)

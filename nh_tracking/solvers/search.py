@@ -33,7 +33,6 @@ import numpy as np
 from nh_tracking.problem import Solution, TrackingProblem
 from nh_tracking.simulate import simulate
 from nh_tracking.solvers.base import Guess, Method, Structure, time_left
-from nh_tracking.solvers.nlp import deadline_after
 from nh_tracking.solvers.replay import interval_gap, REPLAY_RTOL
 
 DISTINCT_RTOL = 1e-4  # two local minima are the same when their costs agree to this
@@ -65,17 +64,14 @@ def random_guess(problem: TrackingProblem, rng: np.random.Generator,
 
 
 def second_look(problem: TrackingProblem, method: Method, first: Solution,
-                max_time: float | None, seed: int) -> Solution:
+                stop: float | None, seed: int) -> Solution:
     """Re-solve from a perturbed copy of ``first`` (or of the reference, if it failed).
 
-    Within what is left of the call's ``max_time`` [s] (none left, or ``first`` ran out of
+    Before the call's ``stop`` (perf_counter clock, or None; past it, or ``first`` ran out of
     time: ``first`` as it is). The perturbation is scaled by the extent of the reference's
     motion (not by where it lies: a heading wound several turns, far coordinates) and kept
     inside the model's domain.
     """
-    if max_time is not None and max_time <= 0:
-        return first
-    stop = deadline_after(max_time)
     if not time_left(first, stop):
         return first
     if method.proves_minimum(problem, first, stop):
@@ -86,7 +82,7 @@ def second_look(problem: TrackingProblem, method: Method, first: Solution,
     guess = random_guess(problem, rng, base, LOOK_SCALE * motion_extent(problem))
     system = problem.system
     guess = Guess(system.domain.inside(guess.q, range(system.n)), guess.v, guess.u)
-    second = method.globalised().solve(problem, guess, max_time)
+    second = method.globalised().solve_before(problem, guess, stop)
     total = first.solve_time + second.solve_time
     better = second.success and (not first.success or second.cost < first.cost - LOWER_RTOL * (
         1.0 + abs(first.cost)))

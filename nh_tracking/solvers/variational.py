@@ -34,12 +34,14 @@ from dataclasses import dataclass
 from functools import partial
 from typing import ClassVar, Literal
 
+from nh_tracking.attempts import Status
+from nh_tracking.limits import VIOLATION_TOL
 from nh_tracking.problem import Solution, TrackingProblem
 from nh_tracking.solvers.base import (Guess, Method, next_route, Structure,
                                       time_left)
 from nh_tracking.solvers.cache import builds_until, NotPrepared
 from nh_tracking.solvers.duals import carried_multipliers
-from nh_tracking.solvers.inequalities import Shape, start_violation, VIOLATION_TOL
+from nh_tracking.solvers.inequalities import Shape, start_violation
 from nh_tracking.solvers.midpoint import BACKENDS, transcription, working_set_step
 from nh_tracking.solvers.nlp import deadline_after
 from nh_tracking.solvers.obstacles import clear_of_every_disc
@@ -119,6 +121,9 @@ def solve_variational_until(problem: TrackingProblem, initial_guess: Guess | Non
         if quick.success and quick.details['admissibility_residual'] <= RTI_RESIDUAL:
             quick.working_set_misses = misses_after(initial_guess, quick.attempts)
             return quick
+        if quick.success:  # not yet a trajectory of the model: the converged solve takes over
+            quick.attempts[-1] = dataclasses.replace(quick.attempts[-1],
+                                                     status=Status.HANDED_OVER)
         earlier.append(quick)
     if initial_guess is None and problem.steps >= CONTINUATION_MIN_STEPS:
         coarse = dataclasses.replace(problem, steps=COARSE_STEPS)
