@@ -51,7 +51,7 @@ class Problem:
     def line_search(self, w0):
         outcome = line_search_solve(self.step, np.asarray(w0, float), np.zeros(0), self.lower,
                                     self.upper, None)
-        return outcome, np.array(outcome.result['x']).ravel()
+        return outcome, outcome.iterate.w
 
     def working_set(self, w0):
         return working_set_solve(self.step, self.g, np.asarray(w0, float), np.zeros(0),

@@ -14,6 +14,7 @@
 
 """The variational route table: which backend runs where, and the typed record of what ran."""
 import dataclasses
+import time
 
 import numpy as np
 import pytest
@@ -155,3 +156,15 @@ def test_a_working_set_that_keeps_missing_pauses_by_the_plans_count_not_a_shared
     # the count comes along with a plan used as a warm start
     paused = warm(PAUSE_AFTER)
     assert sample_plan(moved, paused).working_set_misses == PAUSE_AFTER + 1
+
+
+@pytest.mark.parametrize('backend', ['fatrop', 'ipopt'])
+def test_an_interior_point_stopped_by_its_deadline_says_so_in_its_attempts(backend):
+    """Stopped before it began or between iterations, the attempt's status is DEADLINE."""
+    problem = sleigh_problem(wrap_angles=False)
+    method = Variational(backend=backend, newton=False)
+    assert method.solve(problem, deadline=60.0).success  # (builds the NLP under a deadline)
+    for ahead in (-1.0, 1e-6):
+        plan = method.solve_before(problem, None, time.perf_counter() + ahead)
+        assert not plan.success and plan.ran_out_of_time, (ahead, plan.attempts)
+        assert plan.attempts[-1].status is Status.DEADLINE

@@ -52,7 +52,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from nh_tracking.solvers.newton import NewtonStep
-from nh_tracking.solvers.nlp import DEADLINE, Outcome, Pace
+from nh_tracking.solvers.nlp import DEADLINE, Iterate, Outcome, Pace
 from nh_tracking.solvers.working_set import at_least_one, WorkingSet
 
 
@@ -178,7 +178,8 @@ def line_search_solve(step: NewtonStep, w: np.ndarray, p: np.ndarray, lower: np.
     pace = Pace(stop)
     for _ in range(o.max_iterations):
         if not pace.room():
-            return _unsettled(w, multipliers, factorisations, DEADLINE)
+            return Outcome(Iterate(w, multipliers), False, factorisations, DEADLINE,
+                           ran_out=True)
         shift = 0.0
         while True:
             direction, tries, settled = _qp_step(step, rows, w, p, multipliers, shift,
@@ -204,7 +205,7 @@ def line_search_solve(step: NewtonStep, w: np.ndarray, p: np.ndarray, lower: np.
             w = w + dw
             if not step.minimum(w, p, *rows.arguments(), new_multipliers):
                 return _unsettled(w, new_multipliers, factorisations, 'a saddle')
-            return Outcome({'x': w, 'lam_g': new_multipliers}, True, factorisations,
+            return Outcome(Iterate(w, new_multipliers), True, factorisations,
                            'converged', minimum=True)
         if small and short:  # a second small step that leaves g above: the steps stall
             return _unsettled(w, multipliers, factorisations, 'stalled short of admissible')
@@ -259,4 +260,4 @@ def _qp_step(step: NewtonStep, rows: WorkingSet, w: np.ndarray, p: np.ndarray,
 
 
 def _unsettled(w: np.ndarray, multipliers: np.ndarray, iterations: int, why: str) -> Outcome:
-    return Outcome({'x': w, 'lam_g': multipliers}, False, iterations, why)
+    return Outcome(Iterate(w, multipliers), False, iterations, why)

@@ -187,7 +187,7 @@ def _solve_once(problem: TrackingProblem, initial_guess: Guess | None,
     outcome = tr.nlp.solve(Pace(stop), x0=w0, p=p, lbx=lbw, ubx=ubw, lbg=lbg, ubg=ubg)
     elapsed = time.perf_counter() - start
     slacks = 0 if tr.soft_index is None else len(tr.soft_index)
-    w = np.array(outcome.result['x']).ravel()[:len(w0) - slacks]
+    w = outcome.iterate.w[:len(w0) - slacks]
     stage = w[:-(n + k)].reshape(big_n, n + k + r)
     x = np.vstack([stage[:, :n + k], w[-(n + k):]])
     q, v, u = x[:, :n], x[:, n:], stage[:, n + k:]

@@ -30,7 +30,7 @@ import math
 from pathlib import Path
 import threading
 import time
-from typing import Any
+from typing import Any, NamedTuple
 
 import casadi as ca
 import numpy as np
@@ -57,6 +57,7 @@ FATROP_STATUS = ('converged', 'maximum iterations reached', 'stopped at a tiny s
                  'feasible point found', 'diverging iterates', 'error in the step computation',
                  'invalid option', 'internal error')
 DEADLINE = 'deadline reached'
+STOPPED = 'User_Requested_Stop'  # IPOPT's status when the deadline's callback stopped it
 
 
 def deadline_after(max_time: float | None) -> float | None:
@@ -107,7 +108,7 @@ def words(status: object) -> str:
     if text.isdigit():
         code = int(text)
         return FATROP_STATUS[code] if code < len(FATROP_STATUS) else f'status {code}'
-    if text == 'User_Requested_Stop':
+    if text == STOPPED:
         return DEADLINE
     return 'converged' if text == 'Solve_Succeeded' else text.replace('_', ' ').lower()
 
@@ -140,20 +141,33 @@ class _Deadline(ca.Callback):
         return [ca.DM(0.0 if self.pace.room() else 1.0)]
 
 
+class Iterate(NamedTuple):
+    """A primal-dual point of an NLP: its unknowns w and the multipliers of its rows g."""
+
+    w: np.ndarray
+    lam_g: np.ndarray
+
+    @classmethod
+    def of(cls, result: dict[str, Any]) -> Iterate:
+        """Return the iterate of a CasADi NLP solver's result (x, lam_g)."""
+        return cls(np.array(result['x']).ravel(), np.array(result['lam_g']).ravel())
+
+
 @dataclass
 class Outcome:
-    """One backend's result: its unknowns and multipliers, and how it ended."""
+    """One backend's result: the iterate it ended at, and how it ended."""
 
-    result: dict[str, Any]  # x, lam_g: DM from a solver, arrays from a Newton step
+    iterate: Iterate
     success: bool
     iterations: int
-    message: str
+    message: str  # in words (the status below is read from the flags, not from these)
     minimum: bool = False  # the KKT matrix's inertia at x proved a strict local minimum
     minimum_check: Callable[[], bool] | None = None  # ... or how to tell, if not checked
     readout: list[np.ndarray] = field(default_factory=list)  # the plan read at x, if at hand
     not_finite: bool = False  # the NLP gives NaN or Inf at the guess, or at x
     to_convergence: bool = True  # False: a fixed number of steps (a real-time iteration)
     handed_over: bool = False  # Newton steps that did not settle: the next backend solves
+    ran_out: bool = False  # stopped at its deadline (a step more would have passed it)
 
     @property
     def status(self) -> Status:
@@ -163,7 +177,7 @@ class Outcome:
             return Status.NOT_FINITE
         if self.success:
             return Status.CONVERGED if self.to_convergence else Status.ITERATED
-        return Status.DEADLINE if self.message.startswith(DEADLINE) else Status.FAILED
+        return Status.DEADLINE if self.ran_out else Status.FAILED
 
 
 def _paced_nlpsol(name: str, backend: str, source: dict[str, ca.SX] | str,
@@ -244,8 +258,8 @@ class BoundedNlp:
         ahead).
         """
         if not pace.room():  # not started
-            return Outcome({'x': args['x0'], 'lam_g': np.zeros(len(args['lbg']))}, False, 0,
-                           DEADLINE)
+            return Outcome(Iterate(args['x0'], np.zeros(len(args['lbg']))), False, 0, DEADLINE,
+                           ran_out=True)
         solver = self._solvers[warm and self._warm]  # (the set may be swapped meanwhile)
         if self._chunked:
             return self._chunks(solver, pace, args)
@@ -253,12 +267,13 @@ class BoundedNlp:
             self._callback.pace = pace
         result = solver(**args)
         stats = solver.stats()
-        message = words(stats.get('return_status', 'failed'))
-        success = bool(stats['success'])
+        status = stats.get('return_status', 'failed')
+        message, success = words(status), bool(stats['success'])
         if self.iterations and message in (FATROP_STATUS[1], 'maximum number of iterations '
                                            'exceeded'):
             success, message = True, 'real-time iteration'
-        return Outcome(result, success, int(stats.get('iter_count', -1)), message)
+        return Outcome(Iterate.of(result), success, int(stats.get('iter_count', -1)), message,
+                       ran_out=status == STOPPED)
 
     def _chunks(self, chunk: ca.Function, pace: Pace, args: dict[str, Any]) -> Outcome:
         """Solve in chunks of iterations, the next only if it ends before the pace's stop."""
@@ -269,9 +284,9 @@ class BoundedNlp:
             iterations += int(stats.get('iter_count', 0))
             message = words(stats.get('return_status', 'failed'))
             if stats['success'] or message != FATROP_STATUS[1]:
-                return Outcome(result, bool(stats['success']), iterations, message)
+                return Outcome(Iterate.of(result), bool(stats['success']), iterations, message)
             if iterations >= MAX_ITERATIONS:
-                return Outcome(result, False, iterations, message)
+                return Outcome(Iterate.of(result), False, iterations, message)
             if not pace.room():
-                return Outcome(result, False, iterations, DEADLINE)
+                return Outcome(Iterate.of(result), False, iterations, DEADLINE, ran_out=True)
             args = {**args, 'x0': result['x'], 'lam_g0': result['lam_g']}

@@ -17,9 +17,10 @@
 :data:`ROUTES` lists (backend, when it runs, how). The first row that applies runs; Newton
 steps that do not settle hand over to the next row that applies; the interior point, last,
 always applies. Each run is an :class:`~nh_tracking.attempts.Attempt` of the plan's
-``attempts``. A new backend is one function from a :class:`Start` to an
-:class:`~.nlp.Outcome` (or a :class:`~nh_tracking.attempts.Status`: handed over, paused) and
-one row.
+``attempts``. A new backend is one function from a :class:`Start` (the NLP, the guess as its
+unknowns ``w0`` and parameters ``p``, the deadline's pace) to an :class:`~.nlp.Outcome` (the
+primal-dual :class:`~.nlp.Iterate` it ended at, and flags its status is read from), or a
+:class:`~nh_tracking.attempts.Status` where it has none (handed over, paused), and one row.
 """
 from __future__ import annotations
 
@@ -41,7 +42,7 @@ from nh_tracking.solvers.line_search import line_search_solve
 from nh_tracking.solvers.midpoint import (Transcription, transcription, working_set_step,
                                           WorkingSetStep)
 from nh_tracking.solvers.newton import newton_steps
-from nh_tracking.solvers.nlp import before, halfway, Outcome, Pace
+from nh_tracking.solvers.nlp import before, halfway, Iterate, Outcome, Pace
 from nh_tracking.solvers.working_set import working_set_solve
 
 PAUSE_AFTER, PAUSE = 3, 4  # working-set misses in a row, then one try in this many solves
@@ -117,7 +118,7 @@ def _real_time_iteration(start: Start) -> Outcome:
         start.tr.newton, start.w0, start.p, iterations,  # type: ignore[arg-type]
         lambda read: float(read[3][0]), RTI_RESIDUAL, iterations + RTI_EXTRA_STEPS)
     finite = bool(np.isfinite(w).all())  # (a NaN at the guess spreads through)
-    return Outcome({'x': w, 'lam_g': lam_g}, finite, taken,
+    return Outcome(Iterate(w, lam_g), finite, taken,
                    'real-time iteration' if finite else NOT_FINITE, readout=read,
                    not_finite=not finite, to_convergence=False)
 
@@ -147,7 +148,7 @@ def _warm_working_set(start: Start) -> Outcome | Status:
                              bounds['ubg'], step.nonconvex, start.pace, carried_multipliers(
                                  start.tr, start.problem, start.guess, start.p))
     return Status.HANDED_OVER if held is None else Outcome(
-        {'x': held.w, 'lam_g': held.multipliers}, True, held.factorisations,
+        Iterate(held.w, held.multipliers), True, held.factorisations,
         f'converged ({held.active} limit rows active)' if held.limited else 'converged',
         held.minimum, held.minimum_check)
 
@@ -173,7 +174,7 @@ def _interior_point(start: Start) -> Outcome:
     """
     tr = start.tr
     if not all(np.all(np.isfinite(a)) for a in tr.readout(start.w0, start.p)):
-        return Outcome({'x': start.w0, 'lam_g': np.zeros(0)}, False, 0, NOT_FINITE,
+        return Outcome(Iterate(start.w0, np.zeros(0)), False, 0, NOT_FINITE,
                        not_finite=True)
     slacks = 0 if tr.soft_index is None else len(tr.soft_index)
     assert tr.nlp is not None
@@ -245,10 +246,10 @@ def solve_route(problem: TrackingProblem, initial_guess: Guess | None, stop: flo
     if outcome.not_finite and backend is not Backend.GAUSS_NEWTON:
         return unsolved(problem, 'variational', NOT_FINITE, elapsed, q_g, v_g,
                         route.solver, attempts)
-    w = np.array(outcome.result['x']).ravel()[:tr.unknowns]
+    w = outcome.iterate.w[:tr.unknowns]
     q, v, u, residual, cost, end_error = outcome.readout or tr.readout(w, p)
     q, v, u, max_residual = q.T.copy(), v.T.copy(), u.T.copy(), float(residual[0])
-    lam_g = np.array(outcome.result['lam_g']).ravel()
+    lam_g = outcome.iterate.lam_g
     # The paper's multipliers are lambda^k = (h/2) c_k (c_k: multiplier of the stage form of
     # the admissibility constraint); the reported costates are lambda = -lambda^k / h. For
     # mu: u* = -B^T mu / eps, so mu = -eps u fully actuated, else minus the multiplier of
