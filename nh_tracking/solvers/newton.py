@@ -151,8 +151,7 @@ class GaussNewtonStep:
             'gauss_newton_step', symbols, [stepped, multipliers, *read(stepped, symbols[1])]))
         self.compiled = False
         if compiled:
-            d, lt, order = ca.ldl(matrix, True)
-            step = ca.ldl_solve(vector, d, lt, order)
+            step, _ = _written_out_ldl(matrix, vector)
             new = w + step[:w.shape[0]]
             function = ca.Function('gauss_newton_step_ldl', [w, p],
                                    [new, step[w.shape[0]:], *read(new, p)])
@@ -204,6 +203,12 @@ class Inertia(ca.Callback):
         return [ca.DM(self._linsol.neig(matrix))]
 
 
+def _written_out_ldl(matrix: ca.SX, vector: ca.SX) -> tuple[ca.SX, ca.SX]:
+    """Return matrix⁻¹ vector and D, by CasADi's fill-reducing LDLᵀ written out symbolically."""
+    d, lt, order = ca.ldl(matrix, True)
+    return ca.ldl_solve(vector, d, lt, order), d
+
+
 def _written_out_step(inputs: list[ca.SX], matrix: ca.SX, vector: ca.SX, g: ca.SX,
                       jac_g: ca.SX, gradient: ca.SX) -> ca.Function:
     """Return :class:`NewtonStep`'s step with its inertia, the LDLᵀ written out (to compile).
@@ -212,8 +217,7 @@ def _written_out_step(inputs: list[ca.SX], matrix: ca.SX, vector: ca.SX, g: ca.S
     entries count the KKT matrix's negative eigenvalues.
     """
     w = inputs[0]
-    d, lt, order = ca.ldl(matrix, True)
-    solution = ca.ldl_solve(vector, d, lt, order)
+    solution, d = _written_out_ldl(matrix, vector)
     dw, multipliers = solution[:w.shape[0]], solution[w.shape[0]:]
     return ca.Function('newton_step_ldl', inputs, [
         w + dw, multipliers, g + ca.mtimes(jac_g, dw),
