@@ -137,16 +137,19 @@ def test_a_saddle_is_not_called_converged():
 
 
 def test_the_compiled_step_is_the_interpreted_one_and_tells_the_saddle_by_its_inertia():
-    """The compiled step and its inertia agree with the interpreted ones, and with the formula.
+    """The compiled step, its inertia and direction agree with the interpreted ones.
 
-    On the saddle's problem the Hessian's first entry is 6 w1^2 - 2 (+ 1e-10), so the KKT
-    matrix has one negative eigenvalue per row of g (a minimum) exactly where |w1| > 1/sqrt(3).
+    The line search's direction shifted or not, its rows inside or outside their bounds; the
+    inertia also with the formula. On the saddle's problem the Hessian's first entry is
+    6 w1^2 - 2 (+ 1e-10), so the KKT matrix has one negative eigenvalue per row of g (a
+    minimum) exactly where |w1| > 1/sqrt(3).
     """
     residual, g = (lambda w: ca.vertcat(w[0] ** 2 - 1, w[1])), (lambda w: w[1])
     interpreted = Problem(residual, g, [-10.0], [10.0], 2)
     compiled = Problem(residual, g, [-10.0], [10.0], 2, compiled=True)
     wait_for_builds()
-    assert compiled.step.compiled and not interpreted.step.compiled
+    assert compiled.step.compiled and compiled.step.direction_compiled
+    assert not interpreted.step.compiled and not interpreted.step.direction_compiled
     for w1 in (-1.3, -0.6, -0.5, 0.0, 0.3, 0.58, 0.6, 1.0):
         for active in (0.0, 1.0):
             args = (np.array([w1, 0.3]), np.zeros(0), np.array([active]), np.array([0.0]),
@@ -155,7 +158,12 @@ def test_the_compiled_step_is_the_interpreted_one_and_tells_the_saddle_by_its_in
             assert compiled.step.minimum(*args) == interpreted.step.minimum(*args) == expected
             for a, b in zip(compiled.step(*args), interpreted.step(*args)):
                 assert np.asarray(a) == pytest.approx(np.asarray(b), abs=1e-12)
-    outcome, w = compiled.line_search([0.8, 0.3])  # (its direction stays interpreted)
+            for shift, bounds in ((0.0, ([-10.0], [10.0])), (2.5, ([0.4], [0.5]))):
+                view = (*args, shift, *map(np.array, bounds))
+                for a, b in zip(compiled.step.direction(*view),
+                                interpreted.step.direction(*view)):
+                    assert np.asarray(a) == pytest.approx(np.asarray(b), rel=1e-9, abs=1e-12)
+    outcome, w = compiled.line_search([0.8, 0.3])
     assert outcome.success and outcome.minimum and w == pytest.approx([1.0, 0.0], abs=1e-8)
     held = compiled.working_set([0.9, 0.1])
     assert held is not None and held.w == pytest.approx([1.0, 0.0], abs=1e-8)

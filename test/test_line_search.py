@@ -142,8 +142,8 @@ def test_steps_stalled_short_of_admissible_are_not_taken_for_converged():
     assert ours.details['admissibility_residual'] < 1e-9
 
 
-def test_the_line_search_runs_only_where_the_interpreted_fatrop_would(monkeypatch):
-    """``newton=False`` (its coarse grid too) and IPOPT never take it (nor does compiled)."""
+def test_the_line_search_runs_only_where_fatrop_would(monkeypatch):
+    """``newton=False`` (its coarse grid too) and IPOPT never take it."""
     def refuse(*args):
         raise AssertionError('line search called')
 

@@ -33,7 +33,7 @@ from __future__ import annotations
 
 from collections.abc import Callable, Sequence
 from pathlib import Path
-from typing import TypeVar
+from typing import Any, TypeVar
 
 import casadi as ca
 import numpy as np
@@ -49,6 +49,7 @@ DUAL_REGULARISATION = 1e-13  # of the (2, 2) block: the solution moves by about 
 # -δ(λ - λ_last), so the solution does not move, and a δ large enough for the unpivoted LDLᵀ to
 # stay accurate on an indefinite Hessian (at 1e-13 the snakeboard's steps shrank by only 0.45)
 PROXIMAL_REGULARISATION = 1e-10
+DIRECTION_LDL = 'newton_direction_ldl'  # the line search's direction, written out (compiled)
 
 
 def _kkt(w: ca.SX, residual: ca.SX, g: ca.SX, active: ca.SX | ca.DM, target: ca.SX | ca.DM,
@@ -84,6 +85,13 @@ def _solve(w: ca.SX, p: ca.SX, inputs: list[ca.SX], matrix: ca.SX, vector: ca.SX
     return symbols, step[:w.shape[0]], step[w.shape[0]:], extra_mx
 
 
+def _written_out_solve(w: ca.SX, p: ca.SX, inputs: list[ca.SX], matrix: ca.SX, vector: ca.SX,
+                       extra: list[ca.SX]) -> tuple[list[ca.SX], ca.SX, ca.SX, list[ca.SX]]:
+    """:func:`_solve` with the LDLᵀ written out: expressions throughout (to compile)."""
+    solution, _ = _written_out_ldl(matrix, vector)
+    return [w, p, *inputs], solution[:w.shape[0]], solution[w.shape[0]:], extra
+
+
 def _violation(g: Symbolic, inequality: np.ndarray, lower: Symbolic,
                upper: Symbolic) -> tuple[Symbolic, Symbolic]:
     """Return how far g breaks its rows: |g| of the equalities, and the inequality rows'.
@@ -107,17 +115,20 @@ def _merit(residual: ca.SX, g: ca.SX, inequality: np.ndarray, lower: ca.SX,
 
 
 def _direction(w: ca.SX, p: ca.SX, inputs: list[ca.SX], matrix: ca.SX, vector: ca.SX,
-               extra: list[ca.SX], inequality: np.ndarray, merit: ca.Function) -> ca.Function:
+               extra: list[ca.SX], inequality: np.ndarray, merit: ca.Function,
+               written_out: bool = False) -> ca.Function:
     """Return the step of ``matrix`` with a shift on its Hessian block, and its merits.
 
     dwᵀ(H + shift I)dw comes from the KKT rows themselves, -∇fᵀdw - λᵀG dw: no product
-    with the Hessian is formed.
+    with the Hessian is formed. ``written_out``: the LDLᵀ as expressions (to compile).
     """
     n, rows = w.shape[0], matrix.shape[0] - w.shape[0]
     shift = ca.SX.sym('shift')
     lower, upper = (ca.SX.sym(name, len(inequality)) for name in ('lower', 'upper'))
     shifted = matrix + ca.diagcat(shift * ca.SX.eye(n), ca.SX(rows, rows))
-    symbols, dw, multipliers, (g, jac_g, gradient) = _solve(
+    solve: Callable[..., tuple[list[Any], Any, Any, list[Any]]] = \
+        _written_out_solve if written_out else _solve
+    symbols, dw, multipliers, (g, jac_g, gradient) = solve(
         w, p, [*inputs, shift, lower, upper], shifted, vector, extra)
     slope = ca.dot(gradient, dw)
     linearised = ca.mtimes(jac_g, dw)
@@ -126,7 +137,7 @@ def _direction(w: ca.SX, p: ca.SX, inputs: list[ca.SX], matrix: ca.SX, vector: c
     worst = ca.mmax(ca.vertcat(*_violation(g, inequality, lower_mx, upper_mx)))
     full = merit(symbols[0] + dw, symbols[1], lower_mx, upper_mx)
     reached = (g + linearised)[inequality.tolist()]
-    return ca.Function('newton_direction', symbols,
+    return ca.Function(DIRECTION_LDL if written_out else 'newton_direction', symbols,
                        [dw, multipliers, slope, curvature, worst, *full, reached])
 
 
@@ -243,9 +254,9 @@ class NewtonStep:
     = ``curvature`` (the last multipliers) — an obstacle's curvature 2λ on the held positions
     is what Gauss-Newton leaves out. Stationarity is |Jᵀr + Gᵀλ|∞ at w with the new
     multipliers: zero at a KKT point. ``compiled``: the step, its factorisation written out
-    (the same fill-reducing LDLᵀ) with the inertia beside it, as C built in the background
-    and swapped in when ready (a third of the interpreted step's time); the line search's
-    direction stays interpreted.
+    (the same fill-reducing LDLᵀ) with the inertia beside it, and the line search's direction
+    likewise, as C built in the background and swapped in when ready (a third of the
+    interpreted step's time).
     """
 
     def __init__(self, w: ca.SX, p: ca.SX, residual: ca.SX, g: ca.SX,
@@ -275,6 +286,7 @@ class NewtonStep:
         self._direction = NumericFunction(_direction(w, p, inputs, matrix, vector,
                                                      [g, jac_g, gradient], self.inequality,
                                                      merit))
+        self.direction_compiled = False
         kkt = ca.Function('newton_kkt', [w, p, *inputs], [matrix])
         self._inertia = Inertia(matrix.sparsity())  # (kept: the Function below calls it)
         self._negative: Callable[..., list[np.ndarray]] = NumericFunction(ca.Function(
@@ -284,12 +296,20 @@ class NewtonStep:
             LibraryBuild.of_function(_written_out_step(
                 [w, p, *inputs], matrix, vector, g, jac_g, gradient)).when_ready(
                     self._use_library)
+            LibraryBuild.of_function(_direction(
+                w, p, inputs, matrix, vector, [g, jac_g, gradient], self.inequality, merit,
+                written_out=True)).when_ready(self._use_direction_library)
 
     def _use_library(self, library: Path) -> None:
         """Switch to the compiled step (on the compiler's thread; steps go on meanwhile)."""
         step = NumericFunction(ca.external('newton_step_ldl', str(library)))
         self._step, self._negative = _Outputs(step, slice(0, 4)), _Outputs(step, slice(4, 5))
         self.compiled = True
+
+    def _use_direction_library(self, library: Path) -> None:
+        """Switch to the compiled direction (on the compiler's thread)."""
+        self._direction = NumericFunction(ca.external(DIRECTION_LDL, str(library)))
+        self.direction_compiled = True
 
     def __call__(self, *args: np.ndarray) -> list[np.ndarray]:
         return self._step(*args)

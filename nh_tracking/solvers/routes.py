@@ -96,8 +96,7 @@ class Start:
     def searched(self) -> bool:
         """Whether Newton steps here would be a line search's (cold, no obstacles)."""
         return (self.route.newton and not self.warm and not len(self.problem.limits.obstacles)
-                and self.tr.soft_index is None and self.route.solver == 'fatrop'
-                and not self.route.compiled)
+                and self.tr.soft_index is None and self.route.solver == 'fatrop')
 
     @property
     def interior(self) -> Backend:

@@ -66,7 +66,7 @@ def solve_variational(problem: TrackingProblem, initial_guess: Guess | None = No
     guess: a real-time iteration — that many Newton steps on the guess (a warm-started previous
     plan), converged or not; without a guess the solve converges. ``newton``: a guess within
     the limits (a previous plan) is solved by Newton steps on a working set of the limit rows
-    (none without limits), any other without obstacles (interpreted fatrop) by the same steps
+    (none without limits), any other without obstacles (fatrop's NLP) by the same steps
     with a line search (:mod:`.line_search`); the interior point if they do not settle. False:
     always the interior point (a search from perturbed guesses, where Newton's method would
     converge to the saddle it looks past).
