@@ -163,6 +163,14 @@ def test_the_compiled_step_is_the_interpreted_one_and_tells_the_saddle_by_its_in
                 for a, b in zip(compiled.step.direction(*view),
                                 interpreted.step.direction(*view)):
                     assert np.asarray(a) == pytest.approx(np.asarray(b), rel=1e-9, abs=1e-12)
+    equality = [Problem(residual, g, [0.0], [0.0], 2, compiled=c) for c in (True, False)]
+    wait_for_builds()  # (rows held at 0: a direction without inequality rows)
+    assert equality[0].step.direction_compiled
+    for w1 in (-1.3, 0.0, 0.6):
+        view = (np.array([w1, 0.3]), np.zeros(0), np.ones(1), np.zeros(1), np.zeros(1), 0.5,
+                np.zeros(0), np.zeros(0))
+        for a, b in zip(*(e.step.direction(*view) for e in equality)):
+            assert np.asarray(a) == pytest.approx(np.asarray(b), rel=1e-9, abs=1e-12)
     outcome, w = compiled.line_search([0.8, 0.3])
     assert outcome.success and outcome.minimum and w == pytest.approx([1.0, 0.0], abs=1e-8)
     held = compiled.working_set([0.9, 0.1])

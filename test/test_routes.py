@@ -168,3 +168,25 @@ def test_an_interior_point_stopped_by_its_deadline_says_so_in_its_attempts(backe
         plan = method.solve_before(problem, None, time.perf_counter() + ahead)
         assert not plan.success and plan.ran_out_of_time, (ahead, plan.attempts)
         assert plan.attempts[-1].status is Status.DEADLINE
+
+
+@pytest.mark.parametrize('backend, steps', [('fatrop', 1), ('ipopt', 2)])
+def test_an_interior_point_stopped_mid_solve_says_so_in_its_attempts(backend, steps,
+                                                                     monkeypatch):
+    """Its pace lets it start and take a step, then stops it; the attempt says DEADLINE.
+
+    fatrop's second chunk does not start (the sleigh a radian off its heading takes 18
+    iterations, a chunk 10); IPOPT's callback (asked at its start, then after an iteration)
+    stops it.
+    """
+    from nh_tracking.solvers import nlp
+
+    problem = sleigh_problem(wrap_angles=False)
+    problem = dataclasses.replace(problem, q0=problem.q0 + np.array([0.0, 0.0, 1.0]))
+    method = Variational(backend=backend, newton=False)
+    assert method.solve(problem, deadline=60.0).success  # (built; it converges with time)
+    allowed = iter([True] * steps)
+    monkeypatch.setattr(nlp.Pace, 'room', lambda self: next(allowed, False))
+    plan = method.solve(problem, deadline=60.0)
+    assert not plan.success and plan.ran_out_of_time, plan.attempts
+    assert plan.attempts[-1].status is Status.DEADLINE and plan.attempts[-1].iterations > 0

@@ -308,7 +308,8 @@ def _working_set_step(system: NonholonomicSystem, steps: int, terminal: str,
     rows = form.constraints.shape[0]
     return WorkingSetStep(
         NewtonStep(form.unknowns, form.p, form.cost_residuals, form.constraints,
-                   np.flatnonzero(form.limits.inequality_mask(rows)), compiled),
+                   np.flatnonzero(form.limits.inequality_mask(rows)), compiled,
+                   searched=not shape.slots),  # (a line search never meets obstacles)
         NumericFunction(ca.Function('constraints', [form.unknowns, form.p],
                                     [form.constraints])),
         form.limits.inequality_mask(rows, ('clear',)))

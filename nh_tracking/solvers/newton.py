@@ -255,12 +255,13 @@ class NewtonStep:
     is what Gauss-Newton leaves out. Stationarity is |Jᵀr + Gᵀλ|∞ at w with the new
     multipliers: zero at a KKT point. ``compiled``: the step, its factorisation written out
     (the same fill-reducing LDLᵀ) with the inertia beside it, and the line search's direction
-    likewise, as C built in the background and swapped in when ready (a third of the
-    interpreted step's time).
+    likewise (where a line search may ask for it: ``searched``), as C built in the background
+    and swapped in when ready (a third of the interpreted step's time).
     """
 
     def __init__(self, w: ca.SX, p: ca.SX, residual: ca.SX, g: ca.SX,
-                 inequality: np.ndarray | None = None, compiled: bool = False) -> None:
+                 inequality: np.ndarray | None = None, compiled: bool = False,
+                 searched: bool = True) -> None:
         self.rows = g.shape[0]
         # the rows of g with bounds: a line search's infeasibility counts them apart
         self.inequality = np.zeros(0, dtype=int) if inequality is None else np.asarray(
@@ -296,6 +297,7 @@ class NewtonStep:
             LibraryBuild.of_function(_written_out_step(
                 [w, p, *inputs], matrix, vector, g, jac_g, gradient)).when_ready(
                     self._use_library)
+        if compiled and searched:
             LibraryBuild.of_function(_direction(
                 w, p, inputs, matrix, vector, [g, jac_g, gradient], self.inequality, merit,
                 written_out=True)).when_ready(self._use_direction_library)

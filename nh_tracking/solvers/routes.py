@@ -281,7 +281,7 @@ def _route_name(backend: Backend, tr: Transcription) -> str:
 
 def _held_step(problem: TrackingProblem, tr: Transcription,
                compiled: bool) -> WorkingSetStep | None:
-    """Return the working set's step of a warm solve (hard limits or none; None: none yet)."""
+    """Return the Newton step of a warm solve or a line search (None: none yet, or soft)."""
     if tr.soft_index is not None:
         return None
     try:
