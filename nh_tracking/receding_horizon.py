@@ -322,10 +322,11 @@ class RecedingHorizonPlanner:
         q, _ = joined(problem)
         if left <= 0.0 or not held_up(problem, q, warm.q):
             return warm
-        other, spent, _ = self.method.round_obstacles(problem, deadline_after(left))
+        detoured = self.method.round_obstacles(problem, deadline_after(left))
+        other = detoured.plan
         if other is None or touches_one_left_out(problem, other, discs) or not (
                 not warm.success or other.cost < (1.0 - SWITCH_MARGIN) * warm.cost):
-            warm.details['detour_time'] = spent
+            warm.details['detour_time'] = detoured.spent
             return warm
         return other.follows(warm)
 

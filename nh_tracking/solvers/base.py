@@ -59,11 +59,20 @@ def next_route(failed: Solution, route: str, solve: Callable[[], Solution]) -> S
 
 
 class Detoured(NamedTuple):
-    """The cheapest plan round the obstacles (None: none found), and what finding it took."""
+    """The cheapest plan round the obstacles, or None and the detours that failed.
+
+    A plan found counts every detour tried in its time and attempts; where none was, the
+    solve after them counts ``failed``.
+    """
 
     plan: Solution | None
-    spent: float  # [s] solve time of every detour tried
-    attempts: list[Attempt]
+    failed: list[Solution]
+
+    @property
+    def spent(self) -> float:
+        """Return the solve time [s] of every detour tried."""
+        return self.plan.solve_time if self.plan is not None else \
+            sum(plan.solve_time for plan in self.failed)
 
 
 @dataclass(frozen=True)
@@ -147,13 +156,10 @@ class Method(ABC):
         started = time.perf_counter()
         try:
             with builds_until(stop):
-                detoured = Detoured(None, 0.0, []) if guess is not None else \
+                detoured = Detoured(None, []) if guess is not None else \
                     self.round_obstacles(problem, stop)
-                solution = detoured.plan
-                if solution is None:
-                    solution = self.solve_until(problem, guess, stop)
-                    solution.solve_time += detoured.spent
-                    solution.attempts[:0] = detoured.attempts
+                solution = detoured.plan if detoured.plan is not None else \
+                    self.solve_until(problem, guess, stop).follows(*detoured.failed)
         except NotPrepared as exc:
             solution = unsolved(problem, self.name, str(exc), time.perf_counter() - started)
         return inside_domain(problem, solution)
@@ -161,12 +167,11 @@ class Method(ABC):
     def round_obstacles(self, problem: TrackingProblem, stop: float | None) -> Detoured:
         """Return the cheapest plan from a detour guess (None: none, or none succeeded).
 
-        With the solve time and the attempts of every detour tried. Against an absolute
-        ``stop`` or None.
+        Against an absolute ``stop`` or None.
         """
         if problem.limits.plane is None or \
                 problem.limits.clearance(problem.q0[None], [0.0]).min(initial=0.0) < 0.0:
-            return Detoured(None, 0.0, [])  # (from inside a disc: only the least-violating)
+            return Detoured(None, [])  # (from inside a disc: only the least-violating plan)
         q, v = joined(problem)
         best, tried = None, []
         for knots, sides in detour_guesses(problem, q):
@@ -177,14 +182,13 @@ class Method(ABC):
                 best = plan, sides
             if not before(stop):
                 break
-        spent = sum(plan.solve_time for plan in tried)
         if best is None:
-            return Detoured(None, spent, [a for plan in tried for a in plan.attempts])
+            return Detoured(None, tried)
         plan, sides = best
         ways = ', '.join('left' if side > 0 else 'right' for side in sides)
         plan.route = f'{plan.route} (the cheapest way round the obstacles: {ways})'
         plan.follows(*(other for other in tried if other is not plan))  # (its attempts last)
-        return Detoured(plan, spent, plan.attempts)
+        return Detoured(plan, [])
 
     def globalised(self) -> Method:
         """Return this method without local shortcuts, for guesses that are not near a minimum.

@@ -192,9 +192,9 @@ def clear_of_discs_left_out(
         return plan
     nearest = dataclasses.replace(problem, obstacles=_nearest_to_plan(problem, plan, discs))
     again = solve(nearest, Guess(plan.q, plan.v, plan.u, plan.multipliers,
-                                 plan.working_set_misses), plan.solve_time).follows(plan)
-    again.route = (f'{plan.route} -> again, the discs nearest its plan (it touched one left out): '
-                   f'{again.route}')
+                                 plan.working_set_misses), plan.solve_time)
+    again = _after(plan, again, f'the discs nearest its plan (it touched one left out): '
+                                f'{again.route}')
     if again.success and touches_one_left_out(nearest, again, discs):
         again.success = False
         again.message = f'{again.message}; the plan touches an obstacle left out'
