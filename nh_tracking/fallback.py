@@ -84,6 +84,7 @@ class TrackingLaw:
 
 HELD_SUBSTEPS = 4  # RK4 steps per interval of a held rollout
 _HELD_STEPS: PerSystemCache[ca.Function] = PerSystemCache()
+_REPLAYS: PerSystemCache[ca.Function] = PerSystemCache()  # by number of intervals
 
 
 def held_rollout(problem: TrackingProblem, control: TrackingLaw) -> Trajectory:
@@ -94,7 +95,7 @@ def held_rollout(problem: TrackingProblem, control: TrackingLaw) -> Trajectory:
     interval is one call of fixed RK4 steps. A state outside the model's domain is refused.
     """
     system, grid = problem.system, problem.grid
-    step = _HELD_STEPS.get(system, 'held', lambda: _held_step(system))
+    step = held_step(system)
     q, v, u = [problem.q0], [problem.v0], []
     for a, b in zip(grid[:-1], grid[1:]):
         u.append(np.asarray(control(a, q[-1], v[-1]), dtype=float))
@@ -104,9 +105,17 @@ def held_rollout(problem: TrackingProblem, control: TrackingLaw) -> Trajectory:
     return Trajectory(t=grid, q=np.array(q), v=np.array(v), u=np.array(u))
 
 
-def _held_step(system: NonholonomicSystem) -> ca.Function:
-    x, u, h = ca.SX.sym('x', system.n + system.k), ca.SX.sym('u', system.r), ca.SX.sym('h')
-    return ca.Function('held_step', [x, u, h], [held_rk4(system, x, u, h, HELD_SUBSTEPS)])
+def held_step(system: NonholonomicSystem, intervals: int = 0) -> ca.Function:
+    """(x, u, h) -> x after ``h`` with ``u`` held, :data:`HELD_SUBSTEPS` RK4 steps; cached.
+
+    ``intervals`` > 0: (x0, U (r, N), H (1, N)) -> the states after each of N intervals in turn.
+    """
+    def build() -> ca.Function:
+        x, u, h = ca.SX.sym('x', system.n + system.k), ca.SX.sym('u', system.r), ca.SX.sym('h')
+        return ca.Function('held_step', [x, u, h], [held_rk4(system, x, u, h, HELD_SUBSTEPS)])
+    step = _HELD_STEPS.get(system, 'held', build)
+    return step if not intervals else _REPLAYS.get(system, intervals,
+                                                   lambda: step.mapaccum(intervals))
 
 
 def fallback_plan(problem: TrackingProblem, gains: KanayamaGains = KanayamaGains(),

@@ -26,6 +26,7 @@ from typing import Protocol
 
 import numpy as np
 
+from nh_tracking.commanding import Commands
 from nh_tracking.goal_checking import GoalSettings, GoalState, GoalStatus, GoalTracker
 from nh_tracking.poses import PoseMap
 from nh_tracking.receding_horizon import RecedingHorizonPlanner
@@ -56,6 +57,7 @@ class Session(Protocol):
 
     planner: RecedingHorizonPlanner
     log: Callable[[str, str], None]
+    commands: Commands
 
     @property
     def pose_map(self) -> PoseMap: ...
@@ -112,8 +114,7 @@ class Following:
         if state is None:
             start, speed = poses[0, :2], 0.0
         else:
-            start = pose_map.pose(state.q)[:2]
-            speed = float(pose_map.body_twist(state.q, state.v)[0])
+            start, speed = pose_map.pose(state.q)[:2], self._start_speed(state)
         shape = shape_route(poses, start, RouteHeadings(self.route_settings.route_headings))
         route = within_bounds(shape, speed, self.route_settings, pose_map,
                               session.planner.limits['velocity_bounds'])
@@ -135,8 +136,7 @@ class Following:
         state = session.state
         if state is None:
             return
-        pose = session.pose_map.pose(state.q)
-        speed = float(session.pose_map.body_twist(state.q, state.v)[0])
+        pose, speed = session.pose_map.pose(state.q), self._start_speed(state)
         distance = speed * abs(speed) / (2 * self.route_settings.max_accel)
         ahead = pose + distance * np.array([np.cos(pose[3]), np.sin(pose[3]), 0.0, 0.0])
         stop = time_route(np.vstack([pose, ahead]), pose[:2], speed, RouteSettings(
@@ -148,6 +148,17 @@ class Following:
             session.log('warn', f'held where it is: the stop asked for too much ({exc})')
             session.track(session.now() + np.array([0.0, 1.0]), np.vstack([pose, pose]),
                           np.zeros((2, 4)))
+
+    def _start_speed(self, state: StateEstimate) -> float:
+        """Return the robot's forward speed, within what its velocity bounds allow (the guard's).
+
+        A robot faster than that (pushed, or the bounds lowered) is slowed into them by the
+        command guard; a route starting faster would ask for more than the bounds allow.
+        """
+        session = self.session
+        matrix = session.pose_map.twist_matrix(state.q)
+        top = session.commands.guard(session.planner).max_speed(matrix)
+        return float(np.clip((matrix @ state.v)[0], -top, top))
 
     def _same_route(self, poses: np.ndarray) -> bool:
         """Whether ``poses`` is the route in force, re-sent (same poses, same settings).

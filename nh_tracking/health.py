@@ -25,6 +25,7 @@ import enum
 import numpy as np
 
 from nh_tracking.adaptation import BackgroundEstimates
+from nh_tracking.command_guard import GuardAction
 from nh_tracking.goal_checking import GoalState
 from nh_tracking.receding_horizon import PlanStatus
 from nh_tracking.session import TrackingSession
@@ -80,6 +81,12 @@ def session_health(session: TrackingSession, problem: str, counts: dict[str, int
         level, message = HealthLevel.WARN, f'hidden coordinates: {session.robot.hidden_status}'
     elif outcome is not None and outcome.status is not PlanStatus.OPTIMAL:
         level, message = HealthLevel.WARN, f'{outcome.status}: {outcome.message}'
+    guarded = session.commands.notes(session.now())
+    if guarded and level is HealthLevel.OK:
+        # a speed zone is the robot doing as told; a bound, a ramp or an obstacle is news
+        level = HealthLevel.OK if all(note.action is GuardAction.SPEED_LIMIT
+                                      for note in guarded) else HealthLevel.WARN
+        message = f"guard: {'; '.join(note.text for note in guarded)}"
     if problem and level is HealthLevel.OK:
         level, message = HealthLevel.WARN, problem
     times = np.array(stats.solve_times)[-RECENT:] if stats.solve_times else np.zeros(1)
@@ -92,6 +99,8 @@ def session_health(session: TrackingSession, problem: str, counts: dict[str, int
         'reconfiguring': session.reconfiguring, 'stale_fraction': f'{stale:.2f}',
         'hidden_coordinates': session.robot.hidden_status or 'none', 'goal': str(goal.state),
         'distance_to_goal_m': f'{goal.remaining:.2f}',
+        'speed_limit': str(session.commands.speed_limit),
+        'guard': '; '.join(note.text for note in guarded) or 'none',
         'solve_time_last_ms': f'{(outcome.solve_time if outcome else 0.0) * 1e3:.2f}',
         'solve_time_p50_ms': f'{np.percentile(times, 50) * 1e3:.2f}',
         'solve_time_p99_ms': f'{np.percentile(times, 99) * 1e3:.2f}',

@@ -203,12 +203,24 @@ class PoseMap:
 
     def body_twist(self, q: np.ndarray, v: np.ndarray) -> np.ndarray:
         """Body-frame twist (vx, vy, vz, wz) of the motion (q, v)."""
-        qdot = self.system.rho(q) @ v
-        world = np.array([qdot[self.rows[a]] if a in self.rows else 0.0 for a in AXES])
-        yaw = q[self.rows['yaw']] if self.has_yaw else 0.0
-        c, s = np.cos(yaw), np.sin(yaw)
-        return np.array([c * world[0] + s * world[1], -s * world[0] + c * world[1],
-                         world[2], world[3]])
+        return self.twist_matrix(q) @ v
+
+    def twist_matrix(self, q: np.ndarray) -> np.ndarray:
+        """(4, k) M(q): the body-frame twist (vx, vy, vz, wz) of quasi-velocities v is M v."""
+        return self._body_frame(self.system.rho(q)[None], np.asarray(q)[None])[0]
+
+    def twist_matrices(self, qs: np.ndarray) -> np.ndarray:
+        """(N, 4, k) M(q) at N configurations, in one CasADi call."""
+        return self._body_frame(bases(self.system, qs), np.asarray(qs).reshape(-1, self.system.n))
+
+    def _body_frame(self, rho: np.ndarray, qs: np.ndarray) -> np.ndarray:
+        """(N, 4, k) body-frame twist matrices from bases rho (N, n, k) at ``qs`` (N, n)."""
+        zero = np.zeros(rho.shape[::2])
+        world = [rho[:, self.rows[a]] if a in self.rows else zero for a in AXES]
+        yaw = qs[:, self.rows['yaw']] if self.has_yaw else np.zeros(len(qs))
+        c, s = np.cos(yaw)[:, None], np.sin(yaw)[:, None]
+        return np.stack([c * world[0] + s * world[1], -s * world[0] + c * world[1],
+                         world[2], world[3]], axis=1)
 
     def reference(self, times: np.ndarray, poses: np.ndarray,
                   body_twists: np.ndarray | None = None,

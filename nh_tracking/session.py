@@ -32,6 +32,7 @@ from numpy.typing import ArrayLike
 
 from nh_tracking import models
 from nh_tracking.adaptation import BackgroundEstimates, SentControls
+from nh_tracking.commanding import Commands, predicted
 from nh_tracking.following import checked_reference, Following
 from nh_tracking.limits import moved, obstacle_discs
 from nh_tracking.poses import carried, PoseMap, reexpressed
@@ -69,6 +70,7 @@ class TrackingSession:
         system = models.create_parametrised(model, **physical)
         self.robot = RobotState(PoseMap(system), clock, joint_names, odom_timeout, log)
         self.following = Following(self)  # references in; the path in force as a goal
+        self.commands = Commands()  # every command through the guard
         self.planner = RecedingHorizonPlanner(system, settings)
         self.active = False  # plans are made only while active (the lifecycle's "active")
         self.staleness = Staleness()
@@ -289,7 +291,9 @@ class TrackingSession:
             planner = self.planner
             with self._lock:
                 planner.obstacles, planner.obstacles_time = self._obstacles
-            outcome = planner.plan(self.seconds(state.ns), state.q, state.v)
+            outcome = self.commands.controls(planner, self.pose_map,
+                                             planner.plan(self.seconds(state.ns), state.q,
+                                                          state.v))
             result = PlanResult(outcome, state, f'{outcome.status}: {outcome.message} '
                                                 f'({outcome.solve_time * 1e3:.1f} ms)')
             self._send(result)  # the commands first: the robot waits for them
@@ -315,7 +319,10 @@ class TrackingSession:
             if outcome.status is PlanStatus.BRAKE:
                 self._send(PlanResult(outcome, state, reason))
             return PlanResult(None, state, reason)
-        braking = self.planner.brake(self.seconds(state.ns), state.q, state.v, reason)
+        t = self.now()  # braking from the state the plan in force predicts now: it starts now
+        q, v = predicted(outcome.plan, t, state.q, state.v)
+        braking = self.commands.controls(self.planner, self.pose_map,
+                                         self.planner.brake(t, q, v, reason))
         result = PlanResult(braking, state, braking.message)
         self._send(result)
         with self._lock:
@@ -383,11 +390,15 @@ class TrackingSession:
         t = self.seconds(now_ns)
         if trajectory.t[0] - LEAD <= t < trajectory.t[0]:
             t = trajectory.t[0]  # planned from odometry stamped a little ahead of this clock
-        if stale or not self.active or self.following.halted or \
+        state = self.state
+        if stale or not self.active or self.following.halted or state is None or \
                 not trajectory.t[0] <= t <= trajectory.t[-1]:
+            self.commands.stopped(t)
             return np.zeros(4)
         q, v = trajectory.sample(t)
-        return self.pose_map.body_twist(q[0], v[0])
+        guarded = self.commands.velocity(self.planner, self.pose_map, t, q[0], v[0], state.q,
+                                         state.v, t - self.seconds(state.ns))
+        return self.pose_map.body_twist(q[0], guarded)
 
 
 def _changes(old: NonholonomicSystem, new: NonholonomicSystem) -> str:

@@ -30,10 +30,10 @@ LAYERS = [  # lowest first; a module may import from its own layer and the ones 
      'models', 'simulate', 'trajectory', 'problem', 'numeric', 'metrics',
      'settings', 'regularity', 'limits', 'costmap', 'lean', 'reference_checks', 'route',
      'route_shape', 'goal_checking', 'detours', 'disc_tracks', 'parametric', 'estimation',
-     'estimation_worker', 'adaptation', 'attempts'},
+     'estimation_worker', 'adaptation', 'attempts', 'command_guard'},
     {'solvers'},
     {'receding_horizon', 'avoidance', 'fallback', 'poses', 'session', 'session_types', 'health',
-     'following', 'joints', 'implied_shape', 'robot_state'},
+     'following', 'joints', 'implied_shape', 'robot_state', 'guarded_plan', 'commanding'},
     {'ros'},
     {'examples'},
 ]

@@ -19,6 +19,7 @@ from nav_msgs.msg import OccupancyGrid
 import numpy as np
 from visualization_msgs.msg import MarkerArray
 
+from nh_tracking.command_guard import NO_CELLS, OccupiedCells
 from nh_tracking.costmap import costmap_discs
 from nh_tracking.limits import nearest_discs, obstacle_discs
 from nh_tracking.ros.guarded import guarded, GuardedNode
@@ -39,6 +40,7 @@ class ObstacleListener(GuardedNode):
         self.marker_obstacles = MarkerObstacles(self.frame)
         self.costmap: tuple[np.ndarray, float] = (np.zeros((0, 2)), 0.0)
         self._costmap_discs = np.zeros((0, 5))  # drawn once per costmap, at rest
+        self.costmap_cells = NO_CELLS  # the same cells, indexed for the command guard
         return (subscribe_latched(self, MarkerArray, 'obstacles', self.on_obstacles)
                 + subscribe_latched(self, OccupancyGrid, 'costmap', self.on_costmap))
 
@@ -52,6 +54,7 @@ class ObstacleListener(GuardedNode):
         cells, size = occupied_cells(msg, self.frame, self.costmap_threshold)
         self.costmap = (cells, size)
         self._costmap_discs = obstacle_discs(costmap_discs(cells, size, DISC_SIZE))
+        self.costmap_cells = OccupiedCells(cells, size)
         self.obstacles_changed()
 
     def obstacle_discs(self, centre: np.ndarray, reach: float, count: int

@@ -26,6 +26,7 @@ from rclpy.event_handler import SubscriptionEventCallbacks
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 
+from nh_tracking.command_guard import GuardSettings
 from nh_tracking.goal_checking import GoalSettings
 from nh_tracking.receding_horizon import PlannerSettings
 from nh_tracking.ros.parameters import ParameterSpec, plain
@@ -79,6 +80,7 @@ SETTINGS = ParameterSpec.of(PlannerSettings)
 SESSION = ParameterSpec.of(SessionSettings)
 ROUTE = ParameterSpec.of(RouteSettings)
 GOAL = ParameterSpec.of(GoalSettings)
+GUARD = ParameterSpec.of(GuardSettings)
 COSTMAP_THRESHOLD = plain(
     'costmap_threshold', 100, 'costmap cells of this cost and more are obstacles (100: '
     "Nav2's lethal cells only; its inflation is not taken for obstacle, the robot's radius is "
@@ -102,4 +104,4 @@ NODE = (
     JOINT_NAMES,
     ADAPT,
 )
-PARAMETERS = SETTINGS + SESSION + ROUTE + GOAL + NODE
+PARAMETERS = SETTINGS + SESSION + ROUTE + GOAL + GUARD + NODE

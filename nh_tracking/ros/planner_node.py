@@ -26,6 +26,7 @@ import time
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from geometry_msgs.msg import Twist, TwistStamped
+from nav2_msgs.msg import SpeedLimit as SpeedLimitMsg
 from nav_msgs.msg import Odometry, Path
 import numpy as np
 from rclpy.lifecycle import LifecycleNode, LifecycleState, TransitionCallbackReturn
@@ -33,6 +34,7 @@ from sensor_msgs.msg import JointState
 from trajectory_msgs.msg import JointTrajectory, MultiDOFJointTrajectory
 from visualization_msgs.msg import MarkerArray
 
+from nh_tracking.command_guard import SpeedLimit
 from nh_tracking.health import HealthLevel, session_health
 from nh_tracking.joints import JointsRejected
 from nh_tracking.receding_horizon import PlannerSettings
@@ -46,7 +48,7 @@ from nh_tracking.ros.odometry_receiver import OdometryReceiver
 from nh_tracking.ros.parameters import declare_all, declare_model
 from nh_tracking.ros.path_input import take_path, take_trajectory
 from nh_tracking.ros.plan_outputs import PlanOutputs
-from nh_tracking.ros.planner_interface import LATCHED, PARAMETERS
+from nh_tracking.ros.planner_interface import LATCHED, PARAMETERS, subscribe_latched
 from nh_tracking.ros.planner_parameters import RuntimeParameters
 from nh_tracking.ros.planner_services import PlannerServices
 from nh_tracking.ros.reference_receiver import ReferenceReceiver
@@ -139,6 +141,8 @@ class PlannerNode(RuntimeParameters, PlanOutputs, ObstacleListener, ClockWatchdo
         self._references = ReferenceReceiver(self, self.on_reference_path,
                                              self.on_reference_trajectory)
         self._entities += self.listen_for_obstacles()
+        self._entities += subscribe_latched(self, SpeedLimitMsg, 'speed_limit',
+                                            self.on_speed_limit)
         self._discs_centre, self._displayed = np.zeros(2), None
         self._service_host = PlannerServices(self)
         self._follow_path = FollowPathServer.serve(self)
@@ -258,14 +262,32 @@ class PlannerNode(RuntimeParameters, PlanOutputs, ObstacleListener, ClockWatchdo
         except JointsRejected as exc:
             raise cv.InputRejected(str(exc)) from None
 
+    @guarded('speed_limit')
+    def on_speed_limit(self, msg: SpeedLimitMsg) -> None:
+        """Take Nav2's speed limit (a speed zone): commands are capped from the next one on."""
+        try:
+            limit = SpeedLimit(float(msg.speed_limit), bool(msg.percentage))
+        except ValueError as exc:
+            raise cv.InputRejected(str(exc)) from None
+        if self.live.commands.set_speed_limit(limit):
+            self.get_logger().info(f'speed limit in force: {limit}')
+
     def obstacles_changed(self) -> None:
-        """Choose the discs in force, one call at a time (executor and odometry threads)."""
+        """Choose the discs in force, one call at a time (executor and odometry threads).
+
+        The plans keep clear of the markers' discs and the nearest costmap discs; every command
+        of the markers' discs and every occupied cell.
+        """
         with self._obstacles_lock:
             state, session = self.live.state, self.live
             centre = np.zeros(2) if state is None else session.pose_map.pose(state.q)[:2]
             self._discs_centre = centre
             session.set_obstacles(*self.obstacle_discs(centre, self.params['costmap_reach'],
                                                        MAX_OBSTACLES))
+            markers, stamps = self.marker_obstacles.sightings()
+            seen = np.where(stamps == 0, -np.inf,
+                            session.seconds(stamps))  # type: ignore[arg-type]
+            session.commands.set_obstacles(markers, seen, self.costmap_cells)
 
     # diagnostics ------------------------------------------------------------------------------
     def on_problem(self) -> None:

@@ -19,10 +19,11 @@ from typing import Any
 
 from rcl_interfaces.msg import SetParametersResult
 
+from nh_tracking.command_guard import GuardSettings
 from nh_tracking.goal_checking import GoalSettings
 from nh_tracking.receding_horizon import PlannerSettings
 from nh_tracking.ros.guarded import guarded, GuardedNode
-from nh_tracking.ros.planner_interface import GOAL, ROUTE, SETTINGS
+from nh_tracking.ros.planner_interface import GOAL, GUARD, ROUTE, SETTINGS
 from nh_tracking.route import RouteSettings
 from nh_tracking.session import TrackingSession
 
@@ -45,6 +46,11 @@ class RuntimeParameters(GuardedNode):
                                     self.params['reference_max_accel'])
         session.following.configure(RouteSettings(**self._values(ROUTE)),
                                     GoalSettings(**self._values(GOAL)))
+        commands = session.commands
+        commands.settings = GuardSettings(**self._values(GUARD))
+        commands.max_accel = self.params['max_accel']
+        commands.command_period = 1.0 / self.params['cmd_rate']
+        commands.sequence_period = self.params['replan_period']
 
     def _values(self, specs, changes: dict | None = None) -> dict:
         return {s.name: (changes or {}).get(s.name, self.params[s.name]) for s in specs}
@@ -61,6 +67,7 @@ class RuntimeParameters(GuardedNode):
                 settings.limits(self.session.system)  # bounds sized for the model
             RouteSettings(**self._values(ROUTE, changes))
             GoalSettings(**self._values(GOAL, changes))
+            GuardSettings(**self._values(GUARD, changes))
         except (ValueError, TypeError) as exc:
             return SetParametersResult(successful=False, reason=str(exc))
         return SetParametersResult(successful=True)

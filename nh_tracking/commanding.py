@@ -1,0 +1,149 @@
+# Copyright 2026 nh_tracking maintainers
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+
+"""A session's commands: every velocity and control sequence it sends, through the guard.
+
+Holds what the guard needs beyond the planner's limits — ``max_decel``, the speed limit in
+force, the obstacles with the costmap's cells, the command before — and remembers what it did
+last (``notes``, for diagnostics). Thread-safe; nothing here knows ROS.
+"""
+from __future__ import annotations
+
+import dataclasses
+import threading
+import time
+
+import numpy as np
+
+from nh_tracking.command_guard import (Clearance, CommandGuard, GuardNote, GuardSettings,
+                                       NO_CELLS, OccupiedCells, SpeedLimit)
+from nh_tracking.guarded_plan import guard_controls
+from nh_tracking.limits import bounds, moved, obstacle_discs
+from nh_tracking.poses import PoseMap
+from nh_tracking.problem import Solution
+from nh_tracking.receding_horizon import PlanOutcome, RecedingHorizonPlanner
+
+NOTE_LIFETIME = 2.0  # [s] what the guard did is reported this long after
+
+
+def predicted(plan: Solution, t: float, q: np.ndarray,
+              v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Return (q, v) at ``t`` as ``plan`` has it; the (q, v) given where it does not reach."""
+    if not plan.t[0] <= t <= plan.t[-1]:
+        return q, v
+    q_at, v_at = plan.trajectory().sample(t)
+    return q_at[0], v_at[0]
+
+
+class Commands:
+    """The guard's settings and inputs, and the last command it let pass."""
+
+    def __init__(self) -> None:
+        self.settings = GuardSettings()
+        self.max_accel = 0.5  # [m/s^2] the routes' (RouteSettings.max_accel)
+        self.command_period = 0.05  # [s] between velocity commands
+        self.sequence_period = 0.1  # [s] between control sequences (replans)
+        self._speed_limit = SpeedLimit()
+        self._lock = threading.Lock()
+        self._discs = (np.zeros((0, 5)), np.zeros(0))  # (x, y, r, vx, vy), seen (session time)
+        self._cells = NO_CELLS
+        self._last: tuple[np.ndarray, float] | None = None  # v commanded, when
+        self._notes: tuple[tuple[GuardNote, ...], float] = ((), -np.inf)
+
+    @property
+    def speed_limit(self) -> SpeedLimit:
+        return self._speed_limit
+
+    def set_speed_limit(self, limit: SpeedLimit) -> bool:
+        """Take a new speed limit; whether it differs from the one in force."""
+        with self._lock:
+            changed, self._speed_limit = limit != self._speed_limit, limit
+        return changed
+
+    def set_obstacles(self, discs: np.ndarray, seen: np.ndarray,
+                      cells: OccupiedCells = NO_CELLS) -> None:
+        """Keep every command clear of ``discs`` (seen at ``seen``, session time) and ``cells``."""
+        with self._lock:
+            self._discs, self._cells = (obstacle_discs(discs), np.asarray(seen)), cells
+
+    def guard(self, planner: RecedingHorizonPlanner) -> CommandGuard:
+        """Return the guard of the limits in force for ``planner``'s model."""
+        limits = planner.limits
+        velocity = limits['velocity_bounds']
+        return CommandGuard(None if velocity is None else bounds(velocity, planner.system.k, 'v'),
+                            self.max_accel, self.settings.max_decel, limits['robot_radius'],
+                            self._speed_limit)
+
+    def clearance(self, t: float) -> Clearance:
+        """Return what commands keep clear of at ``t`` (session time): moving discs moved on."""
+        with self._lock:
+            (discs, seen), cells = self._discs, self._cells
+        return Clearance(moved(discs, t - seen) if len(discs) else None, cells)
+
+    def velocity(self, planner: RecedingHorizonPlanner, pose_map: PoseMap, t: float,
+                 q_plan: np.ndarray, v_plan: np.ndarray, q_robot: np.ndarray,
+                 v_robot: np.ndarray, age: float) -> np.ndarray:
+        """Return the plan's velocity ``v_plan`` at ``q_plan`` now (``t``), through the guard.
+
+        From the command before if it was sent within two periods, else from the robot's
+        velocity; the robot at ``q_robot`` (its state ``age`` s old) sweeps its disc ahead.
+        """
+        with self._lock:
+            last = self._last
+        period = self.command_period
+        previous, dt = (last[0], t - last[1]) if last is not None and \
+            0.0 < t - last[1] <= 2.0 * period else (v_robot, period)
+        guarded = self.guard(planner).velocity(
+            v_plan, pose_map.twist_matrix(q_plan), previous, dt, pose_map.pose(q_robot),
+            self.clearance(t), period + max(age, 0.0))
+        self._remember(guarded.v, t, guarded.notes)
+        return guarded.v
+
+    def stopped(self, t: float) -> None:
+        """Record a zero command sent at ``t``."""
+        with self._lock:
+            self._last = None if self._last is None else (np.zeros_like(self._last[0]), t)
+
+    def controls(self, planner: RecedingHorizonPlanner, pose_map: PoseMap,
+                 outcome: PlanOutcome) -> PlanOutcome:
+        """``outcome`` with its controls cut back to the limits (itself if none is broken)."""
+        plan = outcome.plan
+        started = time.perf_counter()
+        u_bounds = planner.limits['control_bounds']
+        if u_bounds is not None:
+            u_bounds = bounds(u_bounds, planner.system.r, 'u')
+        guarded = guard_controls(self.guard(planner), pose_map, plan.q[0], plan.v[0], plan.u,
+                                 np.diff(plan.t), self.sequence_period,
+                                 self.clearance(float(plan.t[0])), u_bounds)
+        if not guarded.notes:
+            return outcome
+        self._remember(None, float(plan.t[0]), guarded.notes)
+        changed = dataclasses.replace(plan, q=guarded.q, v=guarded.v, u=guarded.u)
+        took = time.perf_counter() - started
+        return dataclasses.replace(outcome, plan=changed, message=(
+            f'{outcome.message}; guarded in {took * 1e3:.1f} ms: '
+            f'{"; ".join(note.text for note in guarded.notes)}'))
+
+    def _remember(self, v: np.ndarray | None, t: float, notes: tuple[GuardNote, ...]) -> None:
+        with self._lock:
+            if v is not None:
+                self._last = (v, t)
+            if notes:
+                self._notes = (notes, t)
+
+    def notes(self, t: float) -> tuple[GuardNote, ...]:
+        """Return what the guard did within :data:`NOTE_LIFETIME` before ``t``."""
+        with self._lock:
+            notes, when = self._notes
+        return notes if t - when <= NOTE_LIFETIME else ()

@@ -1,0 +1,114 @@
+# Copyright 2026 nh_tracking maintainers
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+
+"""The command guard as deployed: planner and simulator processes, config/diff_drive.yaml.
+
+Nav2's speed zones, a robot already past its bounds, a simulator paused and resumed far off
+its route: what is commanded stays inside v_min/v_max (0.7 m/s, 3.0 rad/s) whatever the plan.
+"""
+import os
+import signal
+import time
+
+from action_msgs.msg import GoalStatus
+from geometry_msgs.msg import Twist
+from nav2_msgs.msg import SpeedLimit
+import numpy as np
+import pytest
+
+from nh_tracking.examples.nav2 import polyline, route_msg
+from nh_tracking.ros.graph import wait_until
+from nh_tracking.ros.planner_interface import LATCHED
+from test_nav2 import nav2_pair
+
+pytestmark = pytest.mark.timeout(240)
+V_MAX, W_MAX, MAX_DECEL = 0.7, 3.0, 1.0  # diff_drive.yaml's bounds and the default max_decel
+TOL = 1.01  # the acceptance's 1 %
+STRAIGHT = polyline((0, 0), (8, 0))
+
+
+def record_cmd_vel(robot) -> list[tuple[float, float, float]]:
+    """(t, linear.x, angular.z) of every cmd_vel the planner publishes, from now on."""
+    commands: list[tuple[float, float, float]] = []
+    robot.node.create_subscription(Twist, 'cmd_vel', lambda m: commands.append(
+        (time.monotonic(), m.linear.x, m.angular.z)), 100)
+    return commands
+
+
+def speed_after(robot, since: float) -> np.ndarray:
+    track = robot.track
+    return track[track[:, 0] > since, 4]
+
+
+@pytest.mark.parametrize('percentage, limit, capped', [(True, 40.0, 0.28), (False, 0.3, 0.3)])
+def test_a_speed_zone_caps_the_speed_and_lifting_it_restores_the_route_speed(
+        percentage, limit, capped):
+    with nav2_pair(sim=('mode:=velocity',)) as (robot, planner, sim):
+        zone = robot.node.create_publisher(SpeedLimit, 'speed_limit', LATCHED)
+        commands = record_cmd_vel(robot)
+        robot.reference.publish(route_msg(STRAIGHT, time.time_ns()))
+        assert wait_until(lambda: robot.odometry[-1][4] > 0.45, 20.0), planner.output[-2000:]
+        zone.publish(SpeedLimit(percentage=percentage, speed_limit=limit))
+        limited = time.monotonic()
+        settle = 1.0 + 0.5 / MAX_DECEL  # the acceptance: 1 s plus the deceleration time
+        time.sleep(settle + 2.0)
+        held = speed_after(robot, limited + settle)
+        sent = np.array([c[1] for c in commands if c[0] > limited + settle])
+        zone.publish(SpeedLimit(percentage=False, speed_limit=0.0))
+        lifted = time.monotonic()
+        assert wait_until(lambda: robot.odometry[-1][4] > 0.45, 10.0), planner.output[-2000:]
+        restored = time.monotonic() - lifted
+        print(f'\nspeed limit {limit:g}{" %" if percentage else " m/s"}: speed '
+              f'{held.min():.3f}-{held.max():.3f} m/s from {settle:.1f} s on (cmd_vel at most '
+              f'{sent.max():.3f}); back above 0.45 m/s {restored:.2f} s after it was lifted')
+        assert len(held) > 20 and held.max() <= capped * TOL and held.min() >= capped * 0.8
+        assert sent.max() <= capped * TOL
+        assert 'speed limit in force: ' in planner.output
+
+
+def test_a_robot_faster_than_its_bounds_is_given_a_goal_and_slowed_into_them():
+    # effort mode: coasting at 0.8 m/s (v_max 0.7) until the goal comes
+    with nav2_pair(sim=('initial_state:=[0.0, 0.0, 0.0, 0.8, 0.0]',)) as (robot, planner, sim):
+        assert robot.odometry[-1][4] == pytest.approx(0.8, abs=1e-3)
+        handle = robot.send_goal(polyline((0.5, 0), (12, 0)))
+        accepted = time.monotonic()
+        time.sleep(3.0)
+        slowed = speed_after(robot, accepted + 0.1 / MAX_DECEL + 0.5)  # + the first plan
+        print(f'\nfrom 0.8 m/s: speed {slowed.min():.3f}-{slowed.max():.3f} m/s from 0.6 s '
+              'after the goal was accepted')
+        assert slowed.max() <= V_MAX * TOL
+        robot.graph.call(handle.cancel_goal_async)
+        status, _ = robot.result_of(handle, 20.0)
+        assert status == GoalStatus.STATUS_CANCELED
+
+
+@pytest.mark.parametrize('mode', ['effort', 'velocity'])
+def test_a_simulator_paused_and_resumed_off_its_route_is_never_commanded_past_its_bounds(mode):
+    with nav2_pair(sim=(f'mode:={mode}',)) as (robot, planner, sim):
+        commands = record_cmd_vel(robot)
+        route = np.vstack([polyline((0, 0), (3, 0)), polyline((3, 0), (3, 3))[1:]])
+        robot.reference.publish(route_msg(route, time.time_ns()))
+        assert wait_until(lambda: robot.odometry[-1][1] > 1.0, 20.0), planner.output[-2000:]
+        os.kill(sim.proc.pid, signal.SIGSTOP)  # the route's timing runs on without the robot
+        time.sleep(5.0)
+        os.kill(sim.proc.pid, signal.SIGCONT)
+        time.sleep(6.0)
+        sent = np.array(commands)
+        print(f'\n{mode} mode, paused 5 s: {len(sent)} cmd_vel, linear up to '
+              f'{np.abs(sent[:, 1]).max():.3f} m/s, angular up to {np.abs(sent[:, 2]).max():.3f} '
+              f'rad/s; the robot at up to {np.abs(robot.track[:, 4]).max():.3f} m/s')
+        assert len(sent) > 100
+        assert np.abs(sent[:, 1]).max() <= V_MAX * TOL
+        assert np.abs(sent[:, 2]).max() <= W_MAX * TOL
+        assert np.abs(robot.track[:, 4]).max() <= V_MAX * TOL
