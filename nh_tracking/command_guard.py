@@ -259,7 +259,8 @@ class CommandGuard:
         speed_of = _speed_of(twist_matrix)
         wanted = speed_of(v)
         v = self._within_bounds(v, notes)
-        cap = self.speed_limit.cap(self.max_speed(twist_matrix))
+        cap = self.speed_limit.cap(self.max_speed(twist_matrix) if self.speed_limit.percentage
+                                   else math.inf)
         if speed_of(v) > cap * (1.0 + BOUND_TOL):
             notes.append(GuardNote(GuardAction.SPEED_LIMIT, f'speed limited to {cap:.2f} m/s by '
                                                             f'speed_limit ({self.speed_limit})'))

@@ -80,7 +80,8 @@ def _keeps_to(guard: CommandGuard, pose_map: PoseMap, q: np.ndarray, v: np.ndarr
         if ((v < lo - slack) | (v > hi + slack)).any():
             return False
     matrix = pose_map.twist_matrix(q[0])
-    cap = guard.speed_limit.cap(guard.max_speed(matrix))
+    cap = guard.speed_limit.cap(guard.max_speed(matrix) if guard.speed_limit.percentage
+                                else np.inf)
     if np.isfinite(cap):
         speeds = np.hypot(*np.einsum('nij,nj->in', pose_map.twist_matrices(q)[:, :2], v))
         if (speeds > cap * (1.0 + REPLAY_TOL)).any():

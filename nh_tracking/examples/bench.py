@@ -202,6 +202,43 @@ def _replanning_with_limits(log: Callable[[str], None]) -> dict:
     return out
 
 
+def command_guard_cost(log: Callable[[str], None], calls: int = 500) -> dict:
+    """Time the command guard per command [us]: a unicycle with diff_drive.yaml's bounds.
+
+    A ``cmd_vel`` near a costmap wall (600 occupied cells) and 10 marker discs, and a 30-step
+    control sequence that keeps to its limits (the replay and its checks), each the median
+    over rounds of ``calls`` calls.
+    """
+    from nh_tracking.command_guard import Clearance, CommandGuard, OccupiedCells
+    from nh_tracking.guarded_plan import guard_controls
+    from nh_tracking.poses import PoseMap
+
+    pose_map = PoseMap(models.unicycle())
+    guard = CommandGuard(np.array([[-0.7, -3.0], [0.7, 3.0]]), 0.5, 1.0, 0.2)
+    wall = np.c_[np.linspace(-1.0, 5.0, 600), np.full(600, 0.6)]
+    rng = np.random.default_rng(0)
+    discs = np.c_[rng.uniform(-3, 3, (10, 2)) + [0, 3], np.full(10, 0.2)]
+    clearance = Clearance(discs, OccupiedCells(wall, 0.05))
+    q, v = np.array([0.0, 0.0, 0.2]), np.array([0.5, 0.4])
+
+    def commands() -> None:
+        for _ in range(calls):
+            guard.velocity(v, pose_map.twist_matrix(q), v, 0.05, pose_map.pose(q), clearance,
+                           0.06)
+
+    sequence = np.zeros((30, 2))  # v held: inside the bounds
+
+    def sequences() -> None:
+        for _ in range(calls // 10):
+            guard_controls(guard, pose_map, q, v, sequence, np.full(30, 0.1), 0.1, clearance)
+
+    per_command = _median_time(commands)[0] / calls * 1e6
+    per_sequence = _median_time(sequences)[0] / (calls // 10) * 1e6
+    log(f'  command guard: {per_command:.0f} us a cmd_vel, {per_sequence:.0f} us a control '
+        'sequence (30 steps) that keeps to its limits')
+    return {'cmd_vel_us': per_command, 'control_sequence_us': per_sequence}
+
+
 def run_bench(out: Path, log: Callable[[str], None] = print, ros: bool = True) -> dict:
     """All sections, in one run; writes bench.json and bench.png."""
     from nh_tracking.examples.plotting import plot_bench
@@ -214,6 +251,7 @@ def run_bench(out: Path, log: Callable[[str], None] = print, ros: bool = True) -
         ('pmp_shooting', lambda: pmp_shooting(log)),
         ('limits', lambda: limits_cost(log)),
         ('cold_disc', lambda: cold_past_a_disc(log)),
+        ('command_guard', lambda: command_guard_cost(log)),
     ]
     if ros:
         from nh_tracking.examples.crossing import obstacle_scenes
