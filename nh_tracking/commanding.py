@@ -86,10 +86,14 @@ class Commands:
                             self._speed_limit)
 
     def clearance(self, t: float) -> Clearance:
-        """Return what commands keep clear of at ``t`` (session time): moving discs moved on."""
+        """Return what commands stop short of at ``t`` (session time): discs at rest, cells.
+
+        A moving disc is the plans' to go round: stopping in its way does not keep clear of it.
+        """
         with self._lock:
             (discs, seen), cells = self._discs, self._cells
-        return Clearance(moved(discs, t - seen) if len(discs) else None, cells)
+        at_rest = moved(discs, t - seen)[:, 3:5].any(axis=1) == 0 if len(discs) else []
+        return Clearance(discs[at_rest] if len(discs) else None, cells)
 
     def velocity(self, planner: RecedingHorizonPlanner, pose_map: PoseMap, t: float,
                  q_plan: np.ndarray, v_plan: np.ndarray, q_robot: np.ndarray,
