@@ -38,7 +38,7 @@ from nh_tracking.ros.graph import InProcessGraph
 BIN = Path(sys.executable).parent
 # the domains ROS recommends (1-101), from a place of this run's own: a test suite, a demo or
 # another suite on this machine never hears this one's nodes (a second /clock made a sim-time
-# loop's clock jump back and forth: issue 36, item 8)
+# loop's clock jump back and forth)
 _domains = itertools.cycle(np.roll(np.arange(1, 102), -(os.getpid() % 101)).tolist())
 
 

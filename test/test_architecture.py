@@ -37,7 +37,7 @@ LAYERS = [  # lowest first; a module may import from its own layer and the ones 
     {'ros'},
     {'examples'},
 ]
-MAX_LINES = 400  # a guide that flags a module to look at, not a reason to split one (issue 33)
+MAX_LINES = 400  # a guide that flags a module to look at, not a reason to split one
 ROS = re.compile(r'^(rclpy|rcl_interfaces|\w+_msgs|std_srvs|builtin_interfaces|launch)\b')
 
 

@@ -68,7 +68,7 @@ def test_closed_loop_tracks_through_ros_with_inertia_mismatch(graph, kind):
 def test_a_second_clock_on_the_domain_is_named_and_the_loaded_loop_gets_back_on_track(graph):
     """Another world's /clock on this domain, both cores busy: it says why its clock jumps.
 
-    Issue 36, item 8: the planner's clock reads now one world's time, now the other's (here
+    The planner's clock reads now one world's time, now the other's (here
     LEAD s ahead, ticking just after this one's, for 5 s of this world's time from when the echo
     first hears it, and on, up to 15 s, until the planner has read it once: a planner starved
     by the load keeps only the newest of the clock messages it missed): odometry looks stale at
