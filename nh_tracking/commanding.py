@@ -33,6 +33,8 @@ from nh_tracking.limits import bounds, moved, obstacle_discs
 from nh_tracking.poses import PoseMap
 from nh_tracking.problem import Solution
 from nh_tracking.receding_horizon import PlanOutcome, RecedingHorizonPlanner
+from nh_tracking.route import RouteSettings
+from nh_tracking.session_types import SessionSettings
 
 NOTE_LIFETIME = 2.0  # [s] what the guard did is reported this long after
 
@@ -50,10 +52,11 @@ class Commands:
     """The guard's settings and inputs, and the last command it let pass."""
 
     def __init__(self) -> None:
+        session = SessionSettings()
         self.settings = GuardSettings()
-        self.max_accel = 0.5  # [m/s^2] the routes' (RouteSettings.max_accel)
-        self.command_period = 0.05  # [s] between velocity commands
-        self.sequence_period = 0.1  # [s] between control sequences (replans)
+        self.max_accel = RouteSettings().max_accel  # [m/s^2] the routes'
+        self.command_period = 1.0 / session.cmd_rate  # [s] between velocity commands
+        self.sequence_period = session.replan_period  # [s] between control sequences
         self._speed_limit = SpeedLimit()
         self._lock = threading.Lock()
         self._discs = (np.zeros((0, 5)), np.zeros(0))  # (x, y, r, vx, vy), seen (session time)
@@ -95,10 +98,10 @@ class Commands:
         at_rest = moved(discs, t - seen)[:, 3:5].any(axis=1) == 0 if len(discs) else []
         return Clearance(discs[at_rest] if len(discs) else None, cells)
 
-    def velocity(self, planner: RecedingHorizonPlanner, pose_map: PoseMap, t: float,
-                 q_plan: np.ndarray, v_plan: np.ndarray, q_robot: np.ndarray,
-                 v_robot: np.ndarray, age: float) -> np.ndarray:
-        """Return the plan's velocity ``v_plan`` at ``q_plan`` now (``t``), through the guard.
+    def twist(self, planner: RecedingHorizonPlanner, pose_map: PoseMap, t: float,
+              q_plan: np.ndarray, v_plan: np.ndarray, q_robot: np.ndarray, v_robot: np.ndarray,
+              age: float) -> np.ndarray:
+        """Return the body twist of the plan's ``v_plan`` at ``q_plan`` now (``t``), guarded.
 
         From the command before if it was sent within two periods, else from the robot's
         velocity; the robot at ``q_robot`` (its state ``age`` s old) sweeps its disc ahead.
@@ -108,11 +111,12 @@ class Commands:
         period = self.command_period
         previous, dt = (last[0], t - last[1]) if last is not None and \
             0.0 < t - last[1] <= 2.0 * period else (v_robot, period)
-        guarded = self.guard(planner).velocity(
-            v_plan, pose_map.twist_matrix(q_plan), previous, dt, pose_map.pose(q_robot),
-            self.clearance(t), period + max(age, 0.0))
+        matrix = pose_map.twist_matrix(q_plan)
+        guarded = self.guard(planner).velocity(v_plan, matrix, previous, dt,
+                                               pose_map.pose(q_robot), self.clearance(t),
+                                               period + max(age, 0.0))
         self._remember(guarded.v, t, guarded.notes)
-        return guarded.v
+        return matrix @ guarded.v
 
     def stopped(self, t: float) -> None:
         """Record a zero command sent at ``t``."""

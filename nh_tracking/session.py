@@ -396,9 +396,8 @@ class TrackingSession:
             self.commands.stopped(t)
             return np.zeros(4)
         q, v = trajectory.sample(t)
-        guarded = self.commands.velocity(self.planner, self.pose_map, t, q[0], v[0], state.q,
-                                         state.v, t - self.seconds(state.ns))
-        return self.pose_map.body_twist(q[0], guarded)
+        return self.commands.twist(self.planner, self.pose_map, t, q[0], v[0], state.q, state.v,
+                                   t - self.seconds(state.ns))
 
 
 def _changes(old: NonholonomicSystem, new: NonholonomicSystem) -> str:
