@@ -95,8 +95,8 @@ class Commands:
         """
         with self._lock:
             (discs, seen), cells = self._discs, self._cells
-        at_rest = moved(discs, t - seen)[:, 3:5].any(axis=1) == 0 if len(discs) else []
-        return Clearance(discs[at_rest] if len(discs) else None, cells)
+        now = moved(discs, t - seen)  # (one not seen for long is held, at rest, where it got to)
+        return Clearance(now[~now[:, 3:5].any(axis=1)], cells)
 
     def twist(self, planner: RecedingHorizonPlanner, pose_map: PoseMap, t: float,
               q_plan: np.ndarray, v_plan: np.ndarray, q_robot: np.ndarray, v_robot: np.ndarray,

@@ -23,6 +23,7 @@ import nh_tracking as nht
 from nh_tracking.command_guard import (arc, Clearance, CommandGuard, free_distance,
                                        GuardAction, OccupiedCells, SpeedLimit,
                                        stopping_speed)
+from nh_tracking.commanding import Commands
 from nh_tracking.poses import PoseMap
 
 # a differential drive: v = (forward speed, yaw rate) is its body twist's (vx, wz)
@@ -176,6 +177,19 @@ def test_a_command_toward_a_disc_is_slowed_then_stopped():
     for v in ([0.0, 3.0], [-0.5, 0.0]):
         assert not g.velocity(np.array(v), UNICYCLE, np.array(v), 0.05, AT_ORIGIN, near,
                               0.1).changed
+
+
+def test_commands_stop_short_of_discs_at_rest_where_the_plans_have_them():
+    """A moving disc is the plans' to go round; one not seen for long is held where it got to."""
+    commands = Commands()
+    discs = np.array([[0.0, 0.0, 0.1, 0.0, 0.0],    # at rest
+                      [5.0, 0.0, 0.1, 1.0, 0.0],    # moving, seen 0.5 s ago
+                      [9.0, 0.0, 0.1, 1.0, 0.0]])   # moving, seen 10 s ago: held, at rest
+    commands.set_obstacles(discs, np.array([-np.inf, 9.5, 0.0]), OccupiedCells(
+        np.array([[3.0, 3.0]]), 0.05))
+    clearance = commands.clearance(10.0)
+    np.testing.assert_allclose(clearance.discs[:, :3], [[0.0, 0.0, 0.1], [11.0, 0.0, 0.1]])
+    assert clearance(np.array([[3.0, 3.1]]))[0] == pytest.approx(0.1 - 0.05 / math.sqrt(2))
 
 
 def test_the_guard_on_a_model_pose_map():
