@@ -36,14 +36,13 @@ here knows ROS.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from enum import Enum
 import math
 
 import numpy as np
 from scipy.spatial import cKDTree
 
 from nh_tracking.limits import obstacle_discs
-from nh_tracking.settings import check_fields, setting
+from nh_tracking.settings import check_fields, setting, ValueEnum
 
 SWEEP_STEP = 0.01  # [m] the swept disc is checked this often along its path
 MAX_SWEEP_POINTS = 400
@@ -51,16 +50,13 @@ BOUND_TOL = 1e-9
 CONTACT_TOL = 0.005  # [m] a sweep that dips this little into an obstacle's margin is clear
 
 
-class GuardAction(str, Enum):
-    """What the guard did to a command (a str, so it prints as its value)."""
+class GuardAction(ValueEnum):
+    """What the guard did to a command."""
 
     VELOCITY_BOUND = 'velocity bound'
     SPEED_LIMIT = 'speed limit'
     ACCELERATION = 'acceleration'
     OBSTACLE = 'obstacle'
-
-    def __str__(self) -> str:
-        return self.value
 
 
 @dataclass(frozen=True)

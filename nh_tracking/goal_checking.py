@@ -23,27 +23,23 @@ path that ends where it starts is not done at once), and moves slower than
 from __future__ import annotations
 
 from dataclasses import dataclass
-import enum
 import math
 
 import numpy as np
 
 from nh_tracking.route_shape import closest_point
-from nh_tracking.settings import check_fields, setting
+from nh_tracking.settings import check_fields, setting, ValueEnum
 
 LOOK_AHEAD = 1.0  # [m] the robot's place on the path is looked for this far past the last one
 
 
-class GoalState(str, enum.Enum):
+class GoalState(ValueEnum):
     """Where the robot stands with the path in force."""
 
     NONE = 'none'  # no path
     FOLLOWING = 'following'
     ARRIVED = 'arrived'
     BLOCKED = 'blocked'  # no progress within the allowance
-
-    def __str__(self) -> str:
-        return self.value
 
 
 @dataclass(frozen=True)

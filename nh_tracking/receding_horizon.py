@@ -25,7 +25,6 @@ from __future__ import annotations
 from collections import deque
 import dataclasses
 from dataclasses import dataclass, field
-from enum import Enum
 import time
 from typing import Any, cast
 
@@ -37,7 +36,7 @@ from nh_tracking.fallback import braking_plan, fallback, stop_plan
 from nh_tracking.limits import (bounds_from_lists, in_the_plane, Limits, moved,
                                 obstacle_discs, VIOLATION_TOL)
 from nh_tracking.problem import Solution, Terminal, terminal_error, TrackingProblem
-from nh_tracking.settings import check_fields, setting
+from nh_tracking.settings import check_fields, setting, ValueEnum
 from nh_tracking.solvers import Guess, make_method, Method, METHODS, sample_plan, Structure
 from nh_tracking.solvers.cache import builds_deferred, builds_inline
 from nh_tracking.solvers.inequalities import Shape, start_violation
@@ -54,8 +53,8 @@ HISTORY = 10_000  # recent solves kept for statistics: a long-running node must 
 NO_DISCS = np.zeros((0, 5))  # (x, y, r, vx, vy): a replan without obstacles
 
 
-class PlanStatus(str, Enum):
-    """How the plan in force came about (a str, so it prints and compares as its value)."""
+class PlanStatus(ValueEnum):
+    """How the plan in force came about."""
 
     OPTIMAL = 'optimal'  # the solver converged in time
     SHIFTED = 'shifted'  # the solve failed or was late: the previous plan, shifted
@@ -63,9 +62,6 @@ class PlanStatus(str, Enum):
     STOP = 'stop'  # even the tracking law failed: hold the configuration at rest
     LEAST_VIOLATING = 'least-violating'  # the start breaks a limit: the plan breaking it least
     BRAKE = 'brake'  # the loop lost the robot's state (stale odometry): braking to rest
-
-    def __str__(self) -> str:
-        return self.value
 
 
 @dataclass(frozen=True)

@@ -23,9 +23,10 @@ grid planner's jogs.
 from __future__ import annotations
 
 from dataclasses import dataclass
-import enum
 
 import numpy as np
+
+from nh_tracking.settings import ValueEnum
 
 SPACING = 0.05  # [m] longer segments are cut: speeds change along a route, not between poses
 MAX_POINTS = 20_000  # a longer route is cut more coarsely (a 100 km route: every 5 m)
@@ -38,15 +39,12 @@ TANGENT_TOLERANCE = 0.1  # [rad] a route "turns" where its tangent leaves the po
 JOIN = 0.1  # [m] a robot further from the route than this is first taken to it, straight
 
 
-class RouteHeadings(str, enum.Enum):
+class RouteHeadings(ValueEnum):
     """Where a route's headings come from."""
 
     AUTO = 'auto'  # the poses', unless they are all equal on a route that turns
     POSES = 'poses'
     TANGENT = 'tangent'
-
-    def __str__(self) -> str:
-        return self.value
 
 
 @dataclass(frozen=True)

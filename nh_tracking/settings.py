@@ -24,8 +24,16 @@ from __future__ import annotations
 import array
 import dataclasses
 from dataclasses import dataclass, field
+from enum import Enum
 import math
 from typing import Any
+
+
+class ValueEnum(str, Enum):
+    """An enumeration of words: compares, prints and formats as its value."""
+
+    def __str__(self) -> str:
+        return self.value
 
 
 @dataclass(frozen=True)
