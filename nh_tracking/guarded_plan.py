@@ -89,8 +89,8 @@ def _keeps_to(guard: CommandGuard, pose_map: PoseMap, q: np.ndarray, v: np.ndarr
     if clearance is None or clearance.empty:
         return True
     first = guard.velocity(v[1], matrix, v[1], steps[0], pose_map.pose(q[0]), clearance,
-                           lookahead)
-    return not first.changed
+                           lookahead)  # (bounds and speed limit: judged above, with REPLAY_TOL)
+    return all(note.action is not GuardAction.OBSTACLE for note in first.notes)
 
 
 def _cut_back(guard: CommandGuard, pose_map: PoseMap, q0: np.ndarray, v0: np.ndarray,

@@ -24,6 +24,7 @@ from nh_tracking.command_guard import (arc, Clearance, CommandGuard, free_distan
                                        GuardAction, OccupiedCells, SpeedLimit,
                                        stopping_speed)
 from nh_tracking.commanding import Commands
+from nh_tracking.guarded_plan import guard_controls
 from nh_tracking.poses import PoseMap
 
 # a differential drive: v = (forward speed, yaw rate) is its body twist's (vx, wz)
@@ -190,6 +191,20 @@ def test_commands_stop_short_of_discs_at_rest_where_the_plans_have_them():
     clearance = commands.clearance(10.0)
     np.testing.assert_allclose(clearance.discs[:, :3], [[0.0, 0.0, 0.1], [11.0, 0.0, 0.1]])
     assert clearance(np.array([[3.0, 3.1]]))[0] == pytest.approx(0.1 - 0.05 / math.sqrt(2))
+
+
+def test_a_sequence_whose_replay_keeps_to_its_limits_passes_as_it_is():
+    """Within the replay's tolerance of a bound and clear of a disc far off: not cut back."""
+    pose_map = PoseMap(nht.models.unicycle())
+    q0, held = np.zeros(3), np.zeros((30, 2))  # no effort: the speed stays as it is
+    far = Clearance(np.array([[0.0, 5.0, 0.1]]))
+    passed = guard_controls(guard(), pose_map, q0, np.array([0.7 * 1.003, 0.0]), held,
+                            np.full(30, 0.1), 0.1, far)
+    assert not passed.notes and passed.u is held
+    cut = guard_controls(guard(), pose_map, q0, np.array([0.8, 0.0]), held, np.full(30, 0.1),
+                         0.1, far)
+    assert [note.action for note in cut.notes] == [GuardAction.VELOCITY_BOUND]
+    assert cut.v[1, 0] == pytest.approx(0.7, abs=1e-3) and cut.v[:, 0].max() == 0.8
 
 
 def test_the_guard_on_a_model_pose_map():
