@@ -49,6 +49,8 @@ from nh_tracking.ros.parameters import declare, declare_all, declare_model, plai
 from nh_tracking.ros.planner_interface import COSTMAP_THRESHOLD, JOINT_NAMES
 from nh_tracking.simulate import drive, LeftDomain, simulate
 
+Piece = tuple[int, int, np.ndarray | None]  # (from, to) in ns and the effort held (None: v)
+
 PARAMETERS = (
     plain('rate', 50.0, 'integration and odometry rate', 'Hz', (1.0, 2000.0), read_only=True),
     plain('control_timeout', 0.5, 'zero control after this long without commands', 's',
@@ -193,7 +195,7 @@ class SimulatorNode(ObstacleListener):
             self._controls, self._command = None, None
         self.get_logger().info(f'reset to pose {np.round(pose, 3).tolist()} at rest')
 
-    def _pieces(self, t0: int, t1: int) -> list[tuple[int, int, np.ndarray | None]]:
+    def _pieces(self, t0: int, t1: int) -> list[Piece]:
         """[(from, to, u)] covering [t0, t1]: the control sequence held per interval.
 
         Zero outside it and from the instant the control timeout expires (a cut in the step).
@@ -221,15 +223,27 @@ class SimulatorNode(ObstacleListener):
         self._last_ns = t1
         if t1 <= t0:
             return
+        # One step under the lock: a parameter change or a reset is applied between steps,
+        # never lost to a step that began before it.
         with self._lock:
             q, v = self._q, self._v
             if self.mode == 'velocity':
                 fresh = (t0 - self._command_ns) * 1e-9 <= self.control_timeout
                 v = (self.pose_map.velocity(q, self._command)
                      if fresh and self._command is not None else np.zeros(self.system.k))
-                pieces: list[tuple[int, int, np.ndarray | None]] = [(t0, t1, None)]
+                pieces: list[Piece] = [(t0, t1, None)]
             else:
                 pieces = self._pieces(t0, t1)
+            q, v = self._integrate(q, v, pieces)
+            self._q, self._v = q, v
+        if self.pub_clock is not None:
+            self._sim_ns = t1
+            self.pub_clock.publish(ClockMsg(clock=msgs.time_msg(t1)))
+        self._publish_state(q, v, t1)
+
+    def _integrate(self, q: np.ndarray, v: np.ndarray, pieces: list[Piece]
+                   ) -> tuple[np.ndarray, np.ndarray]:
+        """(q, v) after the pieces: efforts held, or (u None) the velocity v driven."""
         for a, b, u in pieces:
             # The dynamics are autonomous: integrate each piece from 0 over its length in
             # integer nanoseconds. Wall-clock stamps (~1.8e18 ns) times 1e-9 would collapse
@@ -242,15 +256,9 @@ class SimulatorNode(ObstacleListener):
                                 rtol=1e-9, atol=1e-11)
             except LeftDomain as exc:  # as at a mechanical stop: the robot halts short of it
                 self.fail('simulation step', LeftDomain(f'{exc}; stopped short of it'))
-                v = np.zeros(self.system.k)
-                break
+                return q, np.zeros(self.system.k)
             q, v = traj.q[-1], traj.v[-1]
-        with self._lock:
-            self._q, self._v = q, v
-        if self.pub_clock is not None:
-            self._sim_ns = t1
-            self.pub_clock.publish(ClockMsg(clock=msgs.time_msg(t1)))
-        self._publish_state(q, v, t1)
+        return q, v
 
     def _publish_state(self, q: np.ndarray, v: np.ndarray, stamp: int) -> None:
         """Odometry, joint states and /tf of (q, v) at ``stamp``."""
