@@ -69,8 +69,11 @@ def _enclosing(cells: np.ndarray, half_diagonal: float) -> tuple[float, float, f
 
 
 def gap(point: np.ndarray, discs: np.ndarray, cells: np.ndarray, cell_size: float) -> float:
-    """Distance from ``point`` (x, y) to the nearest disc edge or occupied cell (inf if none)."""
+    """Distance from ``point`` (x, y) to the nearest disc edge or occupied square cell.
+
+    Exact for both (0 inside a cell; inf if there are none): what a footprint touches.
+    """
     point = np.asarray(point, dtype=float)[:2]
     to_discs = np.hypot(*(discs[:, :2] - point).T) - discs[:, 2]
-    to_cells = np.hypot(*(cells - point).T) - cell_size / np.sqrt(2.0)
+    to_cells = np.hypot(*np.maximum(np.abs(cells - point) - cell_size / 2, 0.0).T)
     return float(min(np.min(to_discs, initial=np.inf), np.min(to_cells, initial=np.inf)))

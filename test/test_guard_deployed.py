@@ -24,13 +24,16 @@ import time
 from action_msgs.msg import GoalStatus
 from geometry_msgs.msg import Twist
 from nav2_msgs.msg import SpeedLimit
+from nav_msgs.msg import OccupancyGrid
 import numpy as np
 import pytest
 
-from nh_tracking.examples.nav2 import polyline, route_msg
+from nh_tracking.costmap import gap
+from nh_tracking.examples.nav2 import LETHAL, nav2_costmap, polyline, route_msg
 from nh_tracking.ros.graph import wait_until
 from nh_tracking.ros.planner_interface import LATCHED
-from test_nav2 import nav2_pair
+from processes import busy_cores
+from test_nav2 import nav2_pair, RADIUS
 
 pytestmark = pytest.mark.timeout(240)
 V_MAX, W_MAX, MAX_DECEL = 0.7, 3.0, 1.0  # diff_drive.yaml's bounds and the default max_decel
@@ -112,3 +115,38 @@ def test_a_simulator_paused_and_resumed_off_its_route_is_never_commanded_past_it
         assert np.abs(sent[:, 1]).max() <= V_MAX * TOL
         assert np.abs(sent[:, 2]).max() <= W_MAX * TOL
         assert np.abs(robot.track[:, 4]).max() <= V_MAX * TOL
+
+
+def closest_approach(costmap: OccupancyGrid, track: np.ndarray) -> float:
+    """Return the least distance from an odometry position to a lethal cell of ``costmap``."""
+    info = costmap.info
+    cost = np.array(costmap.data).reshape(info.height, info.width)
+    rows, cols = np.nonzero(cost == LETHAL)
+    cells = np.c_[info.origin.position.x + (cols + 0.5) * info.resolution,
+                  info.origin.position.y + (rows + 0.5) * info.resolution]
+    return min(gap(p, np.zeros((0, 3)), cells, info.resolution) for p in track[:, 1:3])
+
+
+# lethal walls across a 6 m route, each shown once the robot is on its way: part of the way
+# (room to go round on one side or the other), all of it, and close ahead
+WALLS = [(3.0, -1.5, 3.1, 0.3), (3.0, -0.3, 3.1, 1.5), (2.5, -2.0, 2.6, 2.0),
+         (1.2, -0.5, 1.3, 0.5), (4.0, -0.1, 4.4, 0.1)]
+
+
+@pytest.mark.parametrize('wall', WALLS)
+def test_a_wall_shown_while_the_cpu_is_busy_is_never_touched(wall):
+    with busy_cores(4), nav2_pair(sim=('mode:=velocity',)) as (robot, planner, sim):
+        handle = robot.send_goal(polyline((0, 0), (6, 0)))
+        assert wait_until(lambda: robot.odometry[-1][1] > 0.3, 30.0), planner.output[-2000:]
+        costmap = nav2_costmap([wall], RADIUS, size=(160, 80))
+        robot.costmap.publish(costmap)
+        shown = time.monotonic()
+        status, result = robot.result_of(handle, 90.0)
+        track = robot.track
+        closest = closest_approach(costmap, track)
+        print(f'\nwall {wall} shown at x = {track[track[:, 0] <= shown][-1, 1]:.2f} m, '
+              f'4 busy processes: goal {status} ({result.error_msg!r}), closest approach '
+              f'{closest:.3f} m (robot radius {RADIUS} m), ended at '
+              f'({track[-1, 1]:.2f}, {track[-1, 2]:.2f}) m, speed up to '
+              f'{np.abs(track[:, 4]).max():.3f} m/s')
+        assert closest >= RADIUS - 0.01 and 'collision' not in sim.output

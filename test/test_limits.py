@@ -335,6 +335,18 @@ def test_costmap_discs_do_not_move_with_the_robot():
     assert len(nearest_discs(every, np.array([20.0, 0.0]), 8, 1.0)) == 0  # none within reach
 
 
+def test_the_gap_to_costmap_cells_is_to_their_squares_and_to_disc_edges():
+    from nh_tracking.costmap import gap
+
+    cells = np.array([[1.0, 0.0], [1.0, 0.1]])  # 0.1 m squares: x 0.95-1.05, y -0.05-0.15
+    discs = np.array([[-2.0, 0.0, 0.5]])
+    assert gap(np.array([0.75, 0.1]), discs, cells, 0.1) == pytest.approx(0.2)  # face
+    assert gap(np.array([0.95 - 0.3, 0.15 + 0.4]), discs, cells, 0.1) == pytest.approx(0.5)
+    assert gap(np.array([1.02, 0.0]), discs, cells, 0.1) == 0.0  # inside
+    assert gap(np.array([-1.0, 0.0]), discs, cells, 0.1) == pytest.approx(0.5)  # the disc
+    assert gap(np.array([0.0, 0.0]), np.zeros((0, 3)), np.zeros((0, 2)), 0.1) == np.inf
+
+
 def test_a_robot_inside_the_margin_it_keeps_still_gets_an_optimal_plan():
     """0.01 m inside an obstacle's clearance: the prepared NLP plans, keeping its distance."""
     import nh_tracking.receding_horizon as rh
