@@ -106,15 +106,29 @@ class Commands:
         From the command before if it was sent within two periods, else from the robot's
         velocity; the robot at ``q_robot`` (its state ``age`` s old) sweeps its disc ahead.
         """
+        return self._guarded(planner, pose_map, t, v_plan, pose_map.twist_matrix(q_plan),
+                             q_robot, v_robot, age)
+
+    def halt(self, planner: RecedingHorizonPlanner, pose_map: PoseMap, t: float,
+             q_robot: np.ndarray, v_robot: np.ndarray, age: float) -> np.ndarray:
+        """Return the body twist that brings the robot to rest: no plan to follow now (``t``).
+
+        The command before (or the robot's velocity) slowed at ``max_decel`` along itself, and
+        stopped short of obstacles; zero once at rest.
+        """
+        return self._guarded(planner, pose_map, t, np.zeros(len(v_robot)),
+                             pose_map.twist_matrix(q_robot), q_robot, v_robot, age)
+
+    def _guarded(self, planner: RecedingHorizonPlanner, pose_map: PoseMap, t: float,
+                 v: np.ndarray, matrix: np.ndarray, q_robot: np.ndarray, v_robot: np.ndarray,
+                 age: float) -> np.ndarray:
         with self._lock:
             last = self._last
         period = self.command_period
         previous, dt = (last[0], t - last[1]) if last is not None and \
             0.0 < t - last[1] <= 2.0 * period else (v_robot, period)
-        matrix = pose_map.twist_matrix(q_plan)
-        guarded = self.guard(planner).velocity(v_plan, matrix, previous, dt,
-                                               pose_map.pose(q_robot), self.clearance(t),
-                                               period + max(age, 0.0))
+        guarded = self.guard(planner).velocity(v, matrix, previous, dt, pose_map.pose(q_robot),
+                                               self.clearance(t), period + max(age, 0.0))
         self._remember(guarded.v, t, guarded.notes)
         return matrix @ guarded.v
 

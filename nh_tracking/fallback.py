@@ -74,9 +74,13 @@ class TrackingLaw:
         return pm.velocity_from_world(q, np.array([c * speed, s * speed, rates_r[2], yaw_rate]))
 
     def __call__(self, t: float, q: np.ndarray, v: np.ndarray) -> np.ndarray:
+        return self._effort(q, v, self.gains.k_v * (self.desired_velocity(t, q) - v))
+
+    def _effort(self, q: np.ndarray, v: np.ndarray, accel: np.ndarray) -> np.ndarray:
+        """Return the controls that give v the rate ``accel`` at (q, v), within their limits."""
         system = self.problem.system
         _, drift = system.dynamics(q, v)
-        wanted = -drift + self.gains.k_v * (self.desired_velocity(t, q) - v)
+        wanted = -drift + accel
         if not system.fully_actuated:  # the controls whose effect B u comes closest to it
             wanted = np.linalg.lstsq(system.input_matrix(q), wanted, rcond=None)[0]
         return np.clip(wanted, *self.problem.limits.controls)  # the actuators' limits
@@ -118,10 +122,9 @@ def held_step(system: NonholonomicSystem, intervals: int = 0) -> ca.Function:
                                                    lambda: step.mapaccum(intervals))
 
 
-def fallback_plan(problem: TrackingProblem, gains: KanayamaGains = KanayamaGains(),
-                  law: type[TrackingLaw] = TrackingLaw) -> Solution:
-    """Return the tracking law rolled out on the model over the horizon, as a plan."""
-    traj = held_rollout(problem, law(problem, gains))
+def fallback_plan(problem: TrackingProblem, law: TrackingLaw | None = None) -> Solution:
+    """Return a law (the tracking law) rolled out on the model over the horizon, as a plan."""
+    traj = held_rollout(problem, TrackingLaw(problem) if law is None else law)
     return Solution(
         t=traj.t, q=traj.q, v=traj.v, u=traj.u, cost=float('nan'), success=False,
         iterations=0, solve_time=0.0,
@@ -131,10 +134,30 @@ def fallback_plan(problem: TrackingProblem, gains: KanayamaGains = KanayamaGains
 
 
 class BrakingLaw(TrackingLaw):
-    """The same computed-torque loop, to rest: for when tracking would hit an obstacle."""
+    """The same computed-torque loop, to rest: for when tracking would hit an obstacle.
+
+    With ``decel`` [m/s^2]: the start's velocity scaled down along itself until rest, its
+    translational speed falling at ``decel`` (at once if it has none), each held control aimed
+    at the next knot's velocity; at rest at the ramp's end, to the model's accuracy.
+    """
+
+    def __init__(self, problem: TrackingProblem, gains: KanayamaGains = KanayamaGains(),
+                 decel: float | None = None) -> None:
+        super().__init__(problem, gains)
+        self.decel = decel
+        twist = self.pose_map.twist_matrix(problem.q0) @ problem.v0
+        self.stop_time = 0.0 if decel is None else float(np.hypot(twist[0], twist[1])) / decel
 
     def desired_velocity(self, t: float, q: np.ndarray) -> np.ndarray:
-        return np.zeros(self.problem.system.k)
+        if self.stop_time <= 0.0:
+            return np.zeros(self.problem.system.k)
+        return self.problem.v0 * max(0.0, 1.0 - (t - self.problem.grid[0]) / self.stop_time)
+
+    def __call__(self, t: float, q: np.ndarray, v: np.ndarray) -> np.ndarray:
+        if self.decel is None:
+            return super().__call__(t, q, v)
+        h = self.problem.h
+        return self._effort(q, v, (self.desired_velocity(t + h, q) - v) / h)
 
 
 def fallback(problem: TrackingProblem, clear_of: Limits) -> tuple[Solution, str]:
@@ -174,9 +197,12 @@ def _finite(plan: Solution) -> Solution:
     return plan
 
 
-def braking_plan(problem: TrackingProblem) -> Solution:
-    """Return braking to rest from the problem's start, as hard as the actuators allow."""
-    brake = _finite(fallback_plan(problem, law=BrakingLaw))
+def braking_plan(problem: TrackingProblem, decel: float | None = None) -> Solution:
+    """Return braking to rest from the problem's start.
+
+    At ``decel`` [m/s^2] (see :class:`BrakingLaw`), or (None) as hard as the actuators allow.
+    """
+    brake = _finite(fallback_plan(problem, BrakingLaw(problem, decel=decel)))
     brake.message, brake.route = 'not optimal: braking to rest', 'brake'
     return brake
 

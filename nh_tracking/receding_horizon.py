@@ -326,15 +326,16 @@ class RecedingHorizonPlanner:
             return warm
         return other.follows(warm)
 
-    def brake(self, t: float, q: np.ndarray, v: np.ndarray, why: str) -> PlanOutcome:
-        """Plan braking to rest from the last state known, (q, v) at t.
+    def brake(self, t: float, q: np.ndarray, v: np.ndarray, why: str,
+              decel: float | None = None) -> PlanOutcome:
+        """Plan braking to rest from the last state known, (q, v) at t, at ``decel`` [m/s^2].
 
         For when the loop loses the robot's state: an effort-driven robot given no command
         coasts on (zero effort is not a stop).
         """
         problem = self.problem(t, q, v)
         try:
-            plan, status = braking_plan(problem), PlanStatus.BRAKE
+            plan, status = braking_plan(problem, decel), PlanStatus.BRAKE
         except (ArithmeticError, RuntimeError, ValueError) as exc:
             plan, status = stop_plan(problem, str(exc)), PlanStatus.STOP
         self.previous = plan

@@ -319,10 +319,12 @@ class TrackingSession:
             if outcome.status is PlanStatus.BRAKE:
                 self._send(PlanResult(outcome, state, reason))
             return PlanResult(None, state, reason)
-        t = self.now()  # braking from the state the plan in force predicts now: it starts now
+        # braking from the state the plan in force predicts when it reaches the robot (a
+        # command period from now): a sequence received after its start misses its first pull
+        t = self.now() + self.commands.command_period
         q, v = predicted(outcome.plan, t, state.q, state.v)
-        braking = self.commands.controls(self.planner, self.pose_map,
-                                         self.planner.brake(t, q, v, reason))
+        braking = self.commands.controls(self.planner, self.pose_map, self.planner.brake(
+            t, q, v, reason, self.commands.settings.max_decel))
         result = PlanResult(braking, state, braking.message)
         self._send(result)
         with self._lock:
@@ -375,7 +377,10 @@ class TrackingSession:
         return solution, ''
 
     def command(self, now_ns: int) -> np.ndarray | None:
-        """Return the plan's body twist now (zero if stale or outside it); None before one."""
+        """Return the plan's body twist now; None before a plan.
+
+        Stale, halted, inactive or outside the plan: slowing to rest at ``max_decel``.
+        """
         stale = self.active and self.check_stale(self.state) is not None
         with self._lock:
             outcome, stale, commanded = self.outcome, stale or self.staleness.now, self._commanded
@@ -391,13 +396,16 @@ class TrackingSession:
         if trajectory.t[0] - LEAD <= t < trajectory.t[0]:
             t = trajectory.t[0]  # planned from odometry stamped a little ahead of this clock
         state = self.state
-        if stale or not self.active or self.following.halted or state is None or \
-                not trajectory.t[0] <= t <= trajectory.t[-1]:
+        if state is None:
             self.commands.stopped(t)
             return np.zeros(4)
+        age = t - self.seconds(state.ns)
+        if stale or not self.active or self.following.halted or \
+                not trajectory.t[0] <= t <= trajectory.t[-1]:
+            return self.commands.halt(self.planner, self.pose_map, t, state.q, state.v, age)
         q, v = trajectory.sample(t)
         return self.commands.twist(self.planner, self.pose_map, t, q[0], v[0], state.q, state.v,
-                                   t - self.seconds(state.ns))
+                                   age)
 
 
 def _changes(old: NonholonomicSystem, new: NonholonomicSystem) -> str:

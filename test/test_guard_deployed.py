@@ -19,12 +19,13 @@ its route: what is commanded stays inside v_min/v_max (0.7 m/s, 3.0 rad/s) whate
 """
 import os
 import signal
+import threading
 import time
 
 from action_msgs.msg import GoalStatus
 from geometry_msgs.msg import Twist
 from nav2_msgs.msg import SpeedLimit
-from nav_msgs.msg import OccupancyGrid
+from nav_msgs.msg import OccupancyGrid, Odometry
 import numpy as np
 import pytest
 
@@ -150,3 +151,32 @@ def test_a_wall_shown_while_the_cpu_is_busy_is_never_touched(wall):
               f'({track[-1, 1]:.2f}, {track[-1, 2]:.2f}) m, speed up to '
               f'{np.abs(track[:, 4]).max():.3f} m/s')
         assert closest >= RADIUS - 0.01 and 'collision' not in sim.output
+
+
+@pytest.mark.parametrize('mode', ['effort', 'velocity'])
+def test_odometry_cut_while_moving_brings_the_robot_to_rest_within_its_stopping_distance(mode):
+    """The planner's odometry cut at 0.5 m/s (the robot's own goes on): at rest in time.
+
+    Its stopping distance: v (odom_timeout + a command period), the time it takes to know,
+    then v^2 / (2 max_decel).
+    """
+    with nav2_pair('odom_timeout:=0.5', remap=('odom:=relayed_odom',),
+                   sim=(f'mode:={mode}',)) as (robot, planner, sim):
+        relay = robot.node.create_publisher(Odometry, 'relayed_odom', 10)
+        cut = threading.Event()
+        robot.node.create_subscription(Odometry, 'odom', lambda m: cut.is_set() or
+                                       relay.publish(m), 100)
+        robot.reference.publish(route_msg(STRAIGHT, time.time_ns()))
+        assert wait_until(lambda: robot.odometry[-1][4] > 0.49, 20.0), planner.output[-2000:]
+        cut.set()
+        _, x, y, _, v = robot.odometry[-1]
+        assert planner.wait_for('stopped commanding', 5.0), planner.output[-2000:]
+        assert wait_until(lambda: abs(robot.odometry[-1][4]) < 1e-3, 5.0)
+        time.sleep(0.5)
+        track = robot.track
+        went = np.hypot(track[-1, 1] - x, track[-1, 2] - y)
+        stopping = v * (0.5 + 1 / 20.0) + v ** 2 / (2 * MAX_DECEL)
+        print(f'\n{mode} mode, odometry cut at {v:.3f} m/s: at rest {went:.3f} m on '
+              f'(stopping distance {stopping:.3f} m)')
+        assert went <= stopping + 0.1
+        assert np.abs(track[-10:, 4]).max() < 1e-3  # still at rest

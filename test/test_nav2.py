@@ -99,17 +99,21 @@ class Robot:
 
 
 @contextmanager
-def nav2_pair(*planner: str, sim: tuple[str, ...] = ()
+def nav2_pair(*planner: str, sim: tuple[str, ...] = (), remap: tuple[str, ...] = ()
               ) -> Iterator[tuple[Robot, Process, Process]]:
-    """Run planner and simulator from config/diff_drive.yaml (``planner``/``sim``: name:=value)."""
+    """Run planner and simulator from config/diff_drive.yaml (``planner``/``sim``: name:=value).
+
+    ``remap``: the planner's remappings (from:=to).
+    """
     env = domain_env()
     peer = Peer(env)
     processes = []
     try:
         robot = Robot(peer)
-        for executable, extra in (('sim', sim), ('planner', planner)):
+        for executable, extra, remaps in (('sim', sim, ()), ('planner', planner, remap)):
             processes.append(Process(executable, ['--ros-args', '--params-file', PARAMS, *[
-                a for p in extra for a in ('-p', p)]], env))
+                a for p in extra for a in ('-p', p)], *[a for r in remaps for a in ('-r', r)]],
+                env))
         assert processes[1].wait_for('planning for unicycle', 60.0), processes[1].output
         assert wait_until(lambda: len(robot.odometry) > 10, 30.0)
         assert robot.action.wait_for_server(30.0)
