@@ -37,6 +37,8 @@ from nh_tracking.route import RouteSettings
 from nh_tracking.session_types import SessionSettings
 
 NOTE_LIFETIME = 2.0  # [s] what the guard did is reported this long after
+COMMAND_MEMORY = 0.5  # [s] a base holds a velocity command this long (diff_drive_controller's
+#                       cmd_vel_timeout): a later one is ramped from it, an older one is gone
 
 
 def predicted(plan: Solution, t: float, q: np.ndarray,
@@ -103,8 +105,9 @@ class Commands:
               age: float) -> np.ndarray:
         """Return the body twist of the plan's ``v_plan`` at ``q_plan`` now (``t``), guarded.
 
-        From the command before if it was sent within two periods, else from the robot's
-        velocity; the robot at ``q_robot`` (its state ``age`` s old) sweeps its disc ahead.
+        From the command before if it was sent within :data:`COMMAND_MEMORY`, else from the
+        robot's velocity; the robot at ``q_robot`` (its state ``age`` s old) sweeps its disc
+        ahead.
         """
         return self._guarded(planner, pose_map, t, v_plan, pose_map.twist_matrix(q_plan),
                              q_robot, v_robot, age)
@@ -126,7 +129,7 @@ class Commands:
             last = self._last
         period = self.command_period
         previous, dt = (last[0], t - last[1]) if last is not None and \
-            0.0 < t - last[1] <= 2.0 * period else (v_robot, period)
+            0.0 < t - last[1] <= COMMAND_MEMORY else (v_robot, period)
         guarded = self.guard(planner).velocity(v, matrix, previous, dt, pose_map.pose(q_robot),
                                                self.clearance(t), period + max(age, 0.0))
         self._remember(guarded.v, t, guarded.notes)

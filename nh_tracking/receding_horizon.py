@@ -107,10 +107,18 @@ class PlannerSettings:
         return make_method(self.method, **options)
 
     def limits(self, system: NonholonomicSystem) -> dict[str, Any]:
-        """Return the bounds of a problem of ``system``, or raise a ValueError naming them."""
+        """Return the bounds of a problem of ``system``, or raise a ValueError naming them.
+
+        The velocity bounds must allow standing still (v = 0): a robot that cannot stop
+        cannot be braked, and a step from one sign to the other is no command to send.
+        """
+        velocity = bounds_from_lists(self.v_min, self.v_max, system.k, 'v')
+        if velocity is not None and (np.any(np.asarray(velocity[0]) > 0.0)
+                                     or np.any(np.asarray(velocity[1]) < 0.0)):
+            raise ValueError(f'v_min/v_max must allow standing still (0 within them), got '
+                             f'{list(self.v_min)} / {list(self.v_max)}')
         return {'control_bounds': bounds_from_lists(self.u_min, self.u_max, system.r, 'u'),
-                'velocity_bounds': bounds_from_lists(self.v_min, self.v_max, system.k, 'v'),
-                'robot_radius': self.robot_radius}
+                'velocity_bounds': velocity, 'robot_radius': self.robot_radius}
 
 
 @dataclass

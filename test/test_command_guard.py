@@ -232,3 +232,23 @@ def test_no_command_leaves_the_bounds_or_passes_a_speed_limit_it_started_under(
         assert abs(out.v[0]) <= cap + 1e-9
     if np.all(np.abs(previous) <= BOUNDS[1]):  # (else brought inside at once)
         assert abs(out.v[0] - previous[0]) <= 1.0 * dt + 1e-9  # max_decel > max_accel
+
+
+def test_commands_ramp_from_the_one_before_while_a_base_holds_it_else_from_the_robot():
+    """A late command (0.13 s, under load) ramps from the one before; after 0.6 s, from the robot.
+
+    A base holds a velocity command COMMAND_MEMORY (0.5 s); later it has stopped on its own.
+    """
+    from nh_tracking.receding_horizon import PlannerSettings, RecedingHorizonPlanner
+
+    unicycle = nht.models.unicycle()
+    planner = RecedingHorizonPlanner(unicycle, PlannerSettings(v_min=(-0.7, -3.0),
+                                                               v_max=(0.7, 3.0)))
+    pose_map, commands, q = PoseMap(unicycle), Commands(), np.zeros(3)
+
+    def command(t: float, wanted: float, robot: float) -> float:
+        return commands.twist(planner, pose_map, t, q, np.array([wanted, 0.0]), q,
+                              np.array([robot, 0.0]), 0.0)[0]
+    assert command(10.0, 0.1, 0.1) == pytest.approx(0.1)
+    assert command(10.13, 0.6, 0.5) == pytest.approx(0.1 + 0.5 * 0.13)  # max_accel 0.5
+    assert command(10.73, 0.6, 0.3) == pytest.approx(0.3 + 0.5 * 0.05)  # a period from 0.3

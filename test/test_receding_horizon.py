@@ -159,6 +159,15 @@ def test_bounds_as_the_parameter_services_send_them():
         rh.PlannerSettings(u_min=['fast'])
 
 
+@pytest.mark.parametrize('v_min, v_max', [
+    ((-0.7, -3.0), (-0.5, 3.0)), ((0.1,), (1.0,)), ((), (-0.2, 1.0))])
+def test_velocity_bounds_that_leave_out_standing_still_are_refused(v_min, v_max):
+    settings = rh.PlannerSettings(v_min=v_min, v_max=v_max)
+    with pytest.raises(ValueError, match='must allow standing still'):
+        settings.limits(nht.models.unicycle())
+    assert rh.PlannerSettings(v_min=(0.0,), v_max=(0.0, 1.0)).limits(nht.models.unicycle())
+
+
 def test_nan_from_the_dynamics_gives_a_finite_stop_plan():
     """A knife edge whose potential is NaN for x < -50 (sqrt), far from where it was checked.
 
