@@ -18,13 +18,16 @@ Served as Nav2's controller_server serves it: a goal's path becomes the referenc
 preempts the running one without stopping the robot; feedback (distance along the path to its
 end, speed) at :data:`FEEDBACK_RATE`; the result says arrived (NONE), blocked
 (FAILED_TO_MAKE_PROGRESS), a path the input checks refuse (INVALID_PATH, with the reason) or
-an unknown plugin id (INVALID_CONTROLLER). Cancel brings the robot to rest. The execute
+an unknown plugin id (INVALID_CONTROLLER); a goal without fresh odometry for
+:data:`ODOMETRY_PATIENCE` × ``odom_timeout`` fails (FAILED_TO_MAKE_PROGRESS, naming the topic).
+Cancel brings the robot to rest. The execute
 callback is a coroutine that waits on a timer's futures; the server lives on a companion node
 with an executor of its own, so a goal's path is read and timed off the thread that sends
 ``cmd_vel``.
 """
 from __future__ import annotations
 
+import time
 from typing import Any
 
 from rclpy.action import ActionServer, CancelResponse, GoalResponse
@@ -42,6 +45,7 @@ except ImportError:  # no nav2_msgs: the planner runs without the action (and sa
     FollowPath = None
 
 FEEDBACK_RATE = 10.0  # [Hz]
+ODOMETRY_PATIENCE = 10.0  # a goal without fresh odometry for this many odom_timeouts fails
 # the ids a goal may name besides '': the plugin names of Nav2's default nav2_params.yaml
 PLUGIN_IDS = {'controller_id': ('FollowPath',),
               'goal_checker_id': ('general_goal_checker', 'goal_checker'),
@@ -127,6 +131,7 @@ class FollowPathServer:
                 following.halt()
             return self._end(handle, code, problem)
         generation = self._generation = following.generation
+        waiting: float | None = None  # since when (steady clock) no fresh odometry came
         while True:
             await self._next_tick()
             session = node.session
@@ -143,6 +148,16 @@ class FollowPathServer:
             if following.generation != generation:
                 return self._end(handle, FollowPath.Result.NONE, 'replaced by a reference '
                                  'on reference_path or reference_trajectory')
+            if session.state is None or session.staleness.now:
+                waiting = time.monotonic() if waiting is None else waiting
+                patience = ODOMETRY_PATIENCE * session.robot.odom_timeout
+                if time.monotonic() - waiting > patience:
+                    following.halt()
+                    return self._end(handle, FollowPath.Result.FAILED_TO_MAKE_PROGRESS,
+                                     f'no fresh odometry on {node.resolve_topic_name("odom")} '
+                                     f'for {patience:g} s')
+            else:
+                waiting = None
             status = session.following.status
             handle.publish_feedback(FollowPath.Feedback(distance_to_goal=status.remaining,
                                                         speed=status.speed))

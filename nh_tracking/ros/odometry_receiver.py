@@ -37,8 +37,10 @@ from sensor_msgs.msg import JointState
 from nh_tracking.ros import cdr
 from nh_tracking.ros.companion import CompanionNode, LEAN
 
-# every message is looked at (a bad one is reported); the callback coalesces plans itself
-ODOM_QOS = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
+# every message is looked at (a bad one is reported); the callback coalesces plans itself.
+# Best effort: it hears reliable and best-effort (sensor-data) publishers alike; a reliable
+# subscription hears no best-effort publisher, and odometry is replaced by the next anyway.
+ODOM_QOS = QoSProfile(depth=10, reliability=ReliabilityPolicy.BEST_EFFORT)
 
 
 class OdometryReceiver(CompanionNode):

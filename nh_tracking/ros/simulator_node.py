@@ -25,6 +25,7 @@ or past its end, or — in ``velocity`` mode — follows ``cmd_vel``. It can own
 from __future__ import annotations
 
 import threading
+import time
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from geometry_msgs.msg import PoseWithCovarianceStamped, Twist, TwistStamped
@@ -50,6 +51,7 @@ from nh_tracking.ros.planner_interface import COSTMAP_THRESHOLD, JOINT_NAMES
 from nh_tracking.simulate import drive, LeftDomain, simulate
 
 Piece = tuple[int, int, np.ndarray | None]  # (from, to) in ns and the effort held (None: v)
+CLOCK_JUMP = 1.0  # [s] a step's clock time this far from the time that passed is a jump
 
 PARAMETERS = (
     plain('rate', 50.0, 'integration and odometry rate', 'Hz', (1.0, 2000.0), read_only=True),
@@ -112,6 +114,7 @@ class SimulatorNode(ObstacleListener):
         self._step_ns = int(round(1e9 / self.rate))
         self._sim_ns = int(round(start * 1e9)) if self.publish_clock else self._clock_ns()
         self._last_ns = self._sim_ns
+        self._last_steady_ns = time.monotonic_ns()
 
         joints = joint_mapping(p['joint_names'], self.pose_map)
         by_coordinate = {c: joint for joint, c in joints.items()}
@@ -216,25 +219,43 @@ class SimulatorNode(ObstacleListener):
             pieces.append((a, b, efforts[i] if active else zero))
         return pieces
 
+    def _jumped(self, t0: int, t1: int) -> bool:
+        """Whether the clock jumped between steps (logged): its time is not motion.
+
+        On the system clock: it moved more than :data:`CLOCK_JUMP` away from the steady clock
+        (a pause of this process is time that passed, and is integrated); on ``/clock``: it
+        moved on more than that in one step.
+        """
+        steady = time.monotonic_ns()
+        passed, self._last_steady_ns = (steady - self._last_steady_ns) * 1e-9, steady
+        gap = (t1 - t0) * 1e-9
+        jumped = gap > CLOCK_JUMP if self.get_clock().ros_time_is_active else \
+            abs(gap - passed) > CLOCK_JUMP
+        if jumped:
+            self.get_logger().warn(f'the clock jumped {gap:+.3f} s in a step ({passed:.3f} s '
+                                   'passed): not integrated, the robot held where it was')
+        return jumped
+
     @guarded('simulation step')
     def step(self) -> None:
         t0 = self._sim_ns if self.publish_clock else self._last_ns
         t1 = t0 + self._step_ns if self.publish_clock else self._clock_ns()
         self._last_ns = t1
-        if t1 <= t0:
-            return
+        if t1 <= t0 or (not self.publish_clock and (t0 == 0 or self._jumped(t0, t1))):
+            return  # (t0 = 0: on /clock, before its first message)
         # One step under the lock: a parameter change or a reset is applied between steps,
         # never lost to a step that began before it.
         with self._lock:
             q, v = self._q, self._v
-            if self.mode == 'velocity':
-                fresh = (t0 - self._command_ns) * 1e-9 <= self.control_timeout
-                v = (self.pose_map.velocity(q, self._command)
-                     if fresh and self._command is not None else np.zeros(self.system.k))
-                pieces: list[Piece] = [(t0, t1, None)]
+            if self.mode == 'velocity':  # the command driven until it expires, then at rest
+                expiry = self._command_ns + int(round(self.control_timeout * 1e9))
+                driven = self._command is not None and t0 < expiry
+                v = (self.pose_map.velocity(q, self._command) if driven
+                     else np.zeros(self.system.k))
+                q = self._integrate(q, v, [(t0, min(t1, expiry), None)] if driven else [])[0]
+                v = v if driven and t1 <= expiry else np.zeros(self.system.k)
             else:
-                pieces = self._pieces(t0, t1)
-            q, v = self._integrate(q, v, pieces)
+                q, v = self._integrate(q, v, self._pieces(t0, t1))
             self._q, self._v = q, v
         if self.pub_clock is not None:
             self._sim_ns = t1
