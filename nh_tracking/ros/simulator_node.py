@@ -31,7 +31,7 @@ from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from geometry_msgs.msg import PoseWithCovarianceStamped, Twist, TwistStamped
 from nav_msgs.msg import Odometry
 import numpy as np
-from rclpy.clock import Clock, ClockType
+from rclpy.clock import Clock, ClockType, ROSClock
 from rosgraph_msgs.msg import Clock as ClockMsg
 from sensor_msgs.msg import JointState
 from tf2_msgs.msg import TFMessage
@@ -229,8 +229,9 @@ class SimulatorNode(ObstacleListener):
         steady = time.monotonic_ns()
         passed, self._last_steady_ns = (steady - self._last_steady_ns) * 1e-9, steady
         gap = (t1 - t0) * 1e-9
-        jumped = gap > CLOCK_JUMP if self.get_clock().ros_time_is_active else \
-            abs(gap - passed) > CLOCK_JUMP
+        clock = self.get_clock()
+        on_topic = isinstance(clock, ROSClock) and clock.ros_time_is_active
+        jumped = gap > CLOCK_JUMP if on_topic else abs(gap - passed) > CLOCK_JUMP
         if jumped:
             self.get_logger().warn(f'the clock jumped {gap:+.3f} s in a step ({passed:.3f} s '
                                    'passed): not integrated, the robot held where it was')
@@ -249,9 +250,10 @@ class SimulatorNode(ObstacleListener):
             q, v = self._q, self._v
             if self.mode == 'velocity':  # the command driven until it expires, then at rest
                 expiry = self._command_ns + int(round(self.control_timeout * 1e9))
-                driven = self._command is not None and t0 < expiry
-                v = (self.pose_map.velocity(q, self._command) if driven
-                     else np.zeros(self.system.k))
+                command = self._command if t0 < expiry else None
+                driven = command is not None
+                v = self.pose_map.velocity(q, command) if command is not None else \
+                    np.zeros(self.system.k)
                 q = self._integrate(q, v, [(t0, min(t1, expiry), None)] if driven else [])[0]
                 v = v if driven and t1 <= expiry else np.zeros(self.system.k)
             else:
