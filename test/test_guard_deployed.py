@@ -28,9 +28,14 @@ from nav2_msgs.msg import SpeedLimit
 from nav_msgs.msg import OccupancyGrid, Odometry
 import numpy as np
 import pytest
+from trajectory_msgs.msg import JointTrajectory
 
+from nh_tracking import models
 from nh_tracking.costmap import gap
 from nh_tracking.examples.nav2 import LETHAL, nav2_costmap, polyline, route_msg
+from nh_tracking.guarded_plan import replay
+from nh_tracking.poses import PoseMap
+from nh_tracking.ros import conversions as cv
 from nh_tracking.ros.graph import wait_until
 from nh_tracking.ros.planner_interface import LATCHED
 from processes import busy_cores
@@ -40,6 +45,7 @@ pytestmark = pytest.mark.timeout(240)
 V_MAX, W_MAX, MAX_DECEL = 0.7, 3.0, 1.0  # diff_drive.yaml's bounds and the default max_decel
 TOL = 1.01  # the acceptance's 1 %
 STRAIGHT = polyline((0, 0), (8, 0))
+UNICYCLE = models.unicycle(m=1.0, J=1.0)  # diff_drive.yaml's
 
 
 def record_cmd_vel(robot) -> list[tuple[float, float, float]]:
@@ -97,10 +103,42 @@ def test_a_robot_faster_than_its_bounds_is_given_a_goal_and_slowed_into_them():
         assert status == GoalStatus.STATUS_CANCELED
 
 
+def record_sequences(robot) -> tuple[list, dict]:
+    """Every control_sequence (start [ns], offsets, efforts), and odometry by stamp [ns]."""
+    sequences: list[tuple[int, np.ndarray, np.ndarray]] = []
+    states: dict[int, tuple[np.ndarray, np.ndarray]] = {}
+    robot.node.create_subscription(JointTrajectory, 'control_sequence', lambda m: sequences.append(
+        cv.controls_to_arrays(m, UNICYCLE.control_names)), 100)
+
+    def on_odom(msg: Odometry) -> None:
+        stamp, pose, twist = cv.odom_to_arrays(msg, 'odom')
+        states[stamp] = (pose, twist)
+    robot.node.create_subscription(Odometry, 'odom', on_odom, 100)
+    return sequences, states
+
+
+def replayed_speeds(sequences: list, states: dict) -> np.ndarray:
+    """|v| (speed, yaw rate) at every knot of each sequence replayed from the odometry it began at.
+
+    A sequence planned from odometry starts at its stamp; others (a brake) are left out.
+    """
+    pose_map, speeds = PoseMap(UNICYCLE), []
+    for start, offsets, efforts in sequences:
+        if start not in states:
+            continue
+        pose, twist = states[start]
+        q0 = pose_map.configuration(pose)
+        steps = np.diff(np.r_[offsets, offsets[-1] + offsets[-1] - offsets[-2]])
+        speeds.append(np.abs(replay(pose_map, q0, pose_map.velocity(q0, twist), efforts,
+                                    steps)[1]).max(axis=0))
+    return np.array(speeds)
+
+
 @pytest.mark.parametrize('mode', ['effort', 'velocity'])
 def test_a_simulator_paused_and_resumed_off_its_route_is_never_commanded_past_its_bounds(mode):
     with nav2_pair(sim=(f'mode:={mode}',)) as (robot, planner, sim):
         commands = record_cmd_vel(robot)
+        sequences, states = record_sequences(robot)
         route = np.vstack([polyline((0, 0), (3, 0)), polyline((3, 0), (3, 3))[1:]])
         robot.reference.publish(route_msg(route, time.time_ns()))
         assert wait_until(lambda: robot.odometry[-1][1] > 1.0, 20.0), planner.output[-2000:]
@@ -112,7 +150,11 @@ def test_a_simulator_paused_and_resumed_off_its_route_is_never_commanded_past_it
         print(f'\n{mode} mode, paused 5 s: {len(sent)} cmd_vel, linear up to '
               f'{np.abs(sent[:, 1]).max():.3f} m/s, angular up to {np.abs(sent[:, 2]).max():.3f} '
               f'rad/s; the robot at up to {np.abs(robot.track[:, 4]).max():.3f} m/s')
-        assert len(sent) > 100
+        replayed = replayed_speeds(sequences, states)
+        print(f'{len(replayed)} control sequences replayed from their odometry: speed up to '
+              f'{replayed[:, 0].max():.3f} m/s, yaw rate up to {replayed[:, 1].max():.3f} rad/s')
+        assert len(sent) > 100 and len(replayed) > 50
+        assert replayed[:, 0].max() <= V_MAX * TOL and replayed[:, 1].max() <= W_MAX * TOL
         assert np.abs(sent[:, 1]).max() <= V_MAX * TOL
         assert np.abs(sent[:, 2]).max() <= W_MAX * TOL
         assert np.abs(robot.track[:, 4]).max() <= V_MAX * TOL
