@@ -40,7 +40,7 @@ from nh_tracking.problem import Solution
 from nh_tracking.receding_horizon import (PlannerSettings, PlanOutcome, PlanStatus,
                                           RecedingHorizonPlanner)
 from nh_tracking.robot_state import LEAD, RobotState
-from nh_tracking.session_types import (Clock, PlanResult, settle_heap,
+from nh_tracking.session_types import (Clock, PlanResult,
                                        Staleness, StateEstimate)
 from nh_tracking.solvers.compiled import cancel_builds
 from nh_tracking.system import NonholonomicSystem
@@ -116,7 +116,6 @@ class TrackingSession:
                                           name='nh_tracking_builder', daemon=True)]
         for thread in self._threads:
             thread.start()
-        settle_heap(2)
 
     def stop(self, timeout: float = 10.0) -> None:
         if self.adaptation is not None:
@@ -269,7 +268,6 @@ class TrackingSession:
                         old.system, system, old.previous.q, old.previous.v),
                         minimum_check=None, attempts=list(old.previous.attempts))
             self.planner = planner
-        settle_heap(1)
         with self._lock:
             self._pending = None if self._pending is build else self._pending
         took = time.perf_counter() - started

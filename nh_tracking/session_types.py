@@ -17,7 +17,6 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass
-import gc
 import threading
 import time
 
@@ -74,21 +73,6 @@ class PlanResult:
 
 class ClockSkew(ValueError):
     """A state stamped ahead of the clock that receives it."""
-
-
-def settle_heap(generation: int) -> None:
-    """Collect ``generation`` and exempt every object alive then from later collections.
-
-    A full collection holds the interpreter while it walks every tracked object: 100 ms in a
-    planner process (imports, models, NLPs), which stopped ``cmd_vel`` and the solver alike.
-    What is alive once a planner is built lives as long as it. At start the full collection
-    runs first (start-up waits anyway); after a rebuild only the young generations, as a full
-    one would be the stop this avoids: cyclic garbage already in the oldest generation then
-    stays (the planner's own leaves none: replaced planners and systems go by reference
-    counting, as the tests check).
-    """
-    gc.collect(generation)
-    gc.freeze()
 
 
 WINDOW = 1.0  # [s] the stale fraction is over this long (the diagnostics' period)

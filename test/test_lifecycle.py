@@ -16,6 +16,8 @@
 
 In process: real nodes and the real solver, one Context per test.
 """
+import os
+import threading
 import time
 import weakref
 
@@ -33,8 +35,8 @@ from trajectory_msgs.msg import JointTrajectory
 from nh_tracking.ros import conversions as cv
 from nh_tracking.ros import messages as msgs
 from nh_tracking.ros import SimulatorNode
-from nh_tracking.ros.graph import wait_until
-from nh_tracking.ros.planner_node import LATCHED
+from nh_tracking.ros.graph import parameters, wait_until
+from nh_tracking.ros.planner_node import LATCHED, PlannerNode
 from nh_tracking.solvers import midpoint
 from test_ros import unique_namespace, WallClockPair
 
@@ -223,3 +225,43 @@ def test_integers_are_accepted_for_floating_point_parameters_at_run_time(graph):
                       and pair.planner.live.system.parameters['J'] == 5.0, 20.0)
     assert pair.sim.set_parameters([Parameter('control_timeout', value=1)])[0].successful
     assert pair.sim.control_timeout == 1.0
+
+
+def _rss_mb() -> float:
+    with open('/proc/self/statm') as statm:
+        return int(statm.read().split()[1]) * os.sysconf('SC_PAGE_SIZE') / 1e6
+
+
+def test_lifecycle_resets_leave_nothing_behind(graph):
+    """20 configure/cleanup, then 20 full cycles, through the services: memory, threads flat.
+
+    Each configure builds every NLP of the model (about 20 MB); a reset must free them all.
+    """
+    ns = unique_namespace()
+    graph.add(PlannerNode, namespace=ns, parameter_overrides=parameters(
+        model='unicycle', autostart=False))
+    manager = graph.plain_node('manager', ns)
+    change = manager.create_client(ChangeState, f'{ns}/nh_tracking_planner/change_state')
+    assert change.wait_for_service(10.0)
+
+    def cycle(*transitions: int) -> None:
+        for transition_id in transitions:
+            future = change.call_async(ChangeState.Request(
+                transition=Transition(id=transition_id)))
+            assert wait_until(future.done, 60.0) and future.result().success
+
+    reset = (Transition.TRANSITION_CONFIGURE, Transition.TRANSITION_CLEANUP)
+    full = (Transition.TRANSITION_CONFIGURE, Transition.TRANSITION_ACTIVATE,
+            Transition.TRANSITION_DEACTIVATE, Transition.TRANSITION_CLEANUP)
+    cycle(*full)  # what is built once per process (imports, solver plugins) is built now
+    memory, threads = _rss_mb(), threading.active_count()
+    for _ in range(20):
+        cycle(*reset)
+    after_resets = _rss_mb() - memory
+    for _ in range(20):
+        cycle(*full)
+    grown = _rss_mb() - memory
+    print(f'\n20 configure/cleanup: RSS {after_resets:+.1f} MB; and 20 full cycles: '
+          f'{grown:+.1f} MB in all; threads {threads} -> {threading.active_count()}')
+    assert grown <= 40.0
+    assert wait_until(lambda: threading.active_count() == threads, 5.0)

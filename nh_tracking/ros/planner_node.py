@@ -21,6 +21,7 @@ on receipt). Lifecycle as in Nav2; ``autostart`` (default true) goes to active a
 from __future__ import annotations
 
 from dataclasses import replace
+import gc
 import threading
 import time
 
@@ -217,6 +218,7 @@ class PlannerNode(RuntimeParameters, PlanOutputs, ObstacleListener, ClockWatchdo
         if self.session is not None:
             self.live.stop()
             self.session = None
+            gc.collect()  # now, not at some later full collection: its NLPs are ~20 MB
         for entity in self._entities:
             if hasattr(entity, 'timer_period_ns'):
                 self.destroy_timer(entity)

@@ -21,6 +21,7 @@ planner that was commanding sends its zero ``cmd_vel``.
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
+import gc
 import signal
 import sys
 
@@ -31,12 +32,23 @@ from rclpy.lifecycle import LifecycleNode, TransitionCallbackReturn
 from rclpy.node import Node
 from rclpy.signals import SignalHandlerOptions
 
-from nh_tracking.session import settle_heap
 
 HELP = ('-h', '--help')
 SWITCH_INTERVAL = 5e-4  # s
 STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
 STOP_POLL = 0.1  # [s] the longest an executor wait lasts before a stop request is looked at
+
+
+def settle_heap() -> None:
+    """Collect, then exempt every object alive from later collections. Process-wide.
+
+    A full collection holds the interpreter while it walks every tracked object: 100 ms in a
+    planner process (imports, models, NLPs), which stopped ``cmd_vel`` and the solver alike.
+    Called once the node is built: what is alive then lives about as long as the process (a
+    session a lifecycle cleanup drops is then kept: once, not at every reset).
+    """
+    gc.collect()
+    gc.freeze()
 
 
 def responsive_threads() -> None:
@@ -136,7 +148,7 @@ def run(make_node: Callable[[], Node], usage: Callable[[Sequence[str]], str],
             return 2
         responsive_threads()
         executor.add_node(node)
-        settle_heap(2)  # the node as built lives as long as the process
+        settle_heap()
         while not stop.requested and rclpy.ok():
             executor.spin_once(timeout_sec=STOP_POLL)
     except ExternalShutdownException:
