@@ -116,9 +116,15 @@ class Commands:
              q_robot: np.ndarray, v_robot: np.ndarray, age: float) -> np.ndarray:
         """Return the body twist that brings the robot to rest: no plan to follow now (``t``).
 
-        The command before (or the robot's velocity) slowed at ``max_decel`` along itself, and
-        stopped short of obstacles; zero once at rest.
+        The command before slowed at ``max_decel`` along itself, and stopped short of
+        obstacles; zero once at rest, and zero if none was sent within :data:`COMMAND_MEMORY`
+        (the base has stopped on its own: the robot's last known velocity is no command).
         """
+        with self._lock:
+            last = self._last
+        if last is None or not 0.0 < t - last[1] <= COMMAND_MEMORY:
+            self.stopped(t)
+            return np.zeros(4)
         return self._guarded(planner, pose_map, t, np.zeros(len(v_robot)),
                              pose_map.twist_matrix(q_robot), q_robot, v_robot, age)
 
@@ -136,7 +142,7 @@ class Commands:
         return matrix @ guarded.v
 
     def stopped(self, t: float) -> None:
-        """Record a zero command sent at ``t``."""
+        """Record a zero command sent at ``t`` (if any was sent before)."""
         with self._lock:
             self._last = None if self._last is None else (np.zeros_like(self._last[0]), t)
 

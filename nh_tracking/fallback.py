@@ -137,8 +137,9 @@ class BrakingLaw(TrackingLaw):
     """The same computed-torque loop, to rest: for when tracking would hit an obstacle.
 
     With ``decel`` [m/s^2]: the start's velocity scaled down along itself until rest, its
-    translational speed falling at ``decel`` (at once if it has none), each held control aimed
-    at the next knot's velocity; at rest at the ramp's end, to the model's accuracy.
+    translational speed falling at ``decel`` (at once if it has none; harder if the horizon is
+    shorter than the stop), each held control aimed at the next knot's velocity; at rest at the
+    ramp's end, to the model's accuracy.
     """
 
     def __init__(self, problem: TrackingProblem, gains: KanayamaGains = KanayamaGains(),
@@ -146,7 +147,9 @@ class BrakingLaw(TrackingLaw):
         super().__init__(problem, gains)
         self.decel = decel
         twist = self.pose_map.twist_matrix(problem.q0) @ problem.v0
-        self.stop_time = 0.0 if decel is None else float(np.hypot(twist[0], twist[1])) / decel
+        span = float(problem.grid[-1] - problem.grid[0])  # harder if need be: at rest in it
+        self.stop_time = 0.0 if decel is None else min(
+            float(np.hypot(twist[0], twist[1])) / decel, span)
 
     def desired_velocity(self, t: float, q: np.ndarray) -> np.ndarray:
         if self.stop_time <= 0.0:

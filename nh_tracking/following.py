@@ -78,7 +78,7 @@ class Following:
         self.session = session
         self.route_settings = RouteSettings()
         self.goal_settings = GoalSettings()
-        self.halted = False  # cancelled: brought to rest, cmd_vel zero until a new path
+        self.halted = False  # cancelled: brought to rest, until a new path
         self.generation = 0  # counts the paths taken (and dropped): whose is in force
         self._lock = threading.Lock()
         self._route: tuple[np.ndarray, RouteSettings] | None = None  # poses as sent, settings
@@ -124,7 +124,7 @@ class Following:
         return timed
 
     def halt(self) -> None:
-        """Drop the path in force: brought to rest, straight ahead; ``cmd_vel`` zero.
+        """Drop the path in force: brought to rest, straight ahead.
 
         Dropped first: a stop the reference checks refuse (a robot faster than bounds just
         lowered) leaves the robot held where it is, never on the old path.

@@ -350,7 +350,7 @@ class TrackingSession:
         if age <= self.robot.odom_timeout:
             return None
         if self.staleness.mark(True):
-            self.log('warn', f'odometry is {age:.2f} s old: stopped commanding')
+            self.log('warn', f'odometry is {age:.2f} s old: braking to rest, no plans')
             self.on_stale()
         return age
 

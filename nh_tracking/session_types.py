@@ -38,8 +38,8 @@ class SessionSettings:
     display_rate: float = setting(10.0, 'planned_path and planned_markers rate, at most one '
                                   'per plan (what people look at, off the replanning path)',
                                   'Hz', (0.1, 1000.0))
-    odom_timeout: float = setting(0.5, 'odometry older than this is stale: zero command, no '
-                                  'plans', 's', (1e-3, 3600.0))
+    odom_timeout: float = setting(0.5, 'odometry older than this is stale: commands slow to '
+                                  'rest, no plans', 's', (1e-3, 3600.0))
     max_clock_skew: float = setting(0.1, 'odometry stamped further ahead of this clock is '
                                     'refused (clocks out of step)', 's', (1e-3, 60.0))
     reference_max_speed: float = setting(10.0, 'references faster than this are refused '

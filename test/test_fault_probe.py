@@ -190,8 +190,10 @@ def test_odometry_stamped_ahead_is_refused_and_goes_stale_on_time(graph, ahead):
           f'{len(late_plans)} plans after it; {len(stopping)} cmd_vel, max {stopping.max():g}')
     assert went_stale < 0.3 + 0.1
     assert all(m == late_plans[0] for m in late_plans)
-    # slowing to rest (at max_decel) from the command before, then zero
-    assert len(stopping) > 10 and (np.diff(stopping) <= 0.0).all() and stopping[-1] == 0.0
+    # slowing to rest (at max_decel) from the command before, then zero (a tracking command
+    # sent before it knew may arrive first)
+    ramp = stopping[int(np.argmax(stopping)):]
+    assert len(stopping) > 10 and (np.diff(ramp) <= 0.0).all() and stopping[-1] == 0.0
 
 
 @pytest.mark.parametrize('duration', [10.0, 1000.0])

@@ -173,8 +173,8 @@ def test_a_route_is_slowed_into_the_velocity_bounds_and_a_cancel_brings_it_to_re
     assert 0.29 < np.abs(timed.twists[:, 0]).max() <= 0.3
     loop.run(4.0)
     assert loop.v[0] > 0.25
+    speed = loop.session.command(loop.ns)[0]  # a cmd_vel sent: a halt slows from it
     following.halt()
-    speed = loop.v[0]
     slowing = [loop.session.command(loop.ns + int(i * 0.05e9))[0] for i in range(1, 12)]
     # cmd_vel: slowing at max_decel (1 m/s^2) a command period (0.05 s) at a time, to rest
     assert np.allclose(np.diff([speed, *slowing]), np.maximum(-0.05, -np.array(

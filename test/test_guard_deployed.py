@@ -199,8 +199,8 @@ def test_a_wall_shown_while_the_cpu_is_busy_is_never_touched(wall):
 def test_odometry_cut_while_moving_brings_the_robot_to_rest_within_its_stopping_distance(mode):
     """The planner's odometry cut at 0.5 m/s (the robot's own goes on): at rest in time.
 
-    Its stopping distance: v (odom_timeout + a command period), the time it takes to know,
-    then v^2 / (2 max_decel).
+    Its stopping distance: v (odom_timeout + a replan period), the time it takes to know and
+    send a brake, then v^2 / (2 max_decel).
     """
     with nav2_pair('odom_timeout:=0.5', remap=('odom:=relayed_odom',),
                    sim=(f'mode:={mode}',)) as (robot, planner, sim):
@@ -212,12 +212,12 @@ def test_odometry_cut_while_moving_brings_the_robot_to_rest_within_its_stopping_
         assert wait_until(lambda: robot.odometry[-1][4] > 0.49, 20.0), planner.output[-2000:]
         cut.set()
         _, x, y, _, v = robot.odometry[-1]
-        assert planner.wait_for('stopped commanding', 5.0), planner.output[-2000:]
+        assert planner.wait_for('braking to rest, no plans', 5.0), planner.output[-2000:]
         assert wait_until(lambda: abs(robot.odometry[-1][4]) < 1e-3, 5.0)
         time.sleep(0.5)
         track = robot.track
         went = np.hypot(track[-1, 1] - x, track[-1, 2] - y)
-        stopping = v * (0.5 + 1 / 20.0) + v ** 2 / (2 * MAX_DECEL)
+        stopping = v * (0.5 + 0.1) + v ** 2 / (2 * MAX_DECEL)  # (replan_period 0.1 s)
         print(f'\n{mode} mode, odometry cut at {v:.3f} m/s: at rest {went:.3f} m on '
               f'(stopping distance {stopping:.3f} m)')
         assert went <= stopping + 0.1

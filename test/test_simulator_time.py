@@ -46,7 +46,7 @@ def test_a_paused_simulator_drives_a_velocity_command_only_until_its_timeout(gra
     assert wait_until(lambda: sim.state[1][0] == 0.0, 5.0)
     x = sim.state[0][0]
     print(f'\n0.5 m/s for control_timeout 0.5 s, paused 3 s: moved {x:.3f} m')
-    assert 0.0 < x <= 0.5 * (0.5 + 1 / 50)  # (the step it arrived in is driven whole)
+    assert 0.0 < x <= 0.5 * 0.5 + 1e-6  # from receipt to its timeout
 
 
 def test_a_clock_jump_is_not_integrated_as_motion(graph):
@@ -60,18 +60,20 @@ def test_a_clock_jump_is_not_integrated_as_motion(graph):
     probe.create_subscription(Log, '/rosout', lambda m: logs.append(m.msg), 100)
     clock = probe.create_publisher(ClockMsg, '/clock', 10)
     assert wait_until(lambda: clock.get_subscription_count() > 0, 10.0)
-    stop, now = threading.Event(), [int(100e9)]
+    stop, now, lock = threading.Event(), [int(100e9)], threading.Lock()
 
     def tick() -> None:  # 10 ms of sim time every 10 ms
         while not stop.wait(0.01):
-            now[0] += int(10e6)
-            clock.publish(ClockMsg(clock=msgs.time_msg(now[0])))
+            with lock:
+                now[0] += int(10e6)
+                clock.publish(ClockMsg(clock=msgs.time_msg(now[0])))
     ticker = threading.Thread(target=tick, daemon=True)
     ticker.start()
     try:
         assert wait_until(lambda: sim.state[0][0] > 0.2, 10.0)
-        before = sim.state[0][0], now[0]
-        now[0] += int(3600e9)
+        with lock:
+            before = sim.state[0][0], now[0]
+            now[0] += int(3600e9)
         assert wait_until(lambda: now[0] > before[1] + int(3600.5e9), 10.0)
         assert wait_until(lambda: any('the clock jumped +3600' in m for m in logs), 5.0), logs
         after = sim.state[0][0], now[0]

@@ -109,6 +109,9 @@ class FollowPathServer:
         if session is None or not session.active:
             self.node.get_logger().warn('follow_path goal rejected: the planner is not active')
             return GoalResponse.REJECT
+        if self.node.twins.yields:
+            self.node.get_logger().warn(f'follow_path goal rejected: {self.node.twins.describe()}')
+            return GoalResponse.REJECT
         return GoalResponse.ACCEPT
 
     def _on_accepted(self, handle: Any) -> None:

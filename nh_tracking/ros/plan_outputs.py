@@ -24,6 +24,7 @@ from rclpy.publisher import Publisher
 from nh_tracking.ros import cdr, messages as msgs
 from nh_tracking.ros.guarded import guarded, GuardedNode
 from nh_tracking.ros.markers import obstacle_markers, plan_markers
+from nh_tracking.ros.twin_watch import TwinWatch
 from nh_tracking.session import PlanResult, TrackingSession
 
 
@@ -38,6 +39,7 @@ class PlanOutputs(GuardedNode):
     pub_cmd: Publisher
     _displayed: object  # the outcome last shown on planned_path
     now_ns: Callable[[], int]
+    twins: TwinWatch  # a node of the same name: commands only if this one keeps the robot
 
     @property
     def live(self) -> TrackingSession:
@@ -49,7 +51,7 @@ class PlanOutputs(GuardedNode):
     @guarded('publishing the plan')
     def _publish_plan(self, result: PlanResult) -> None:
         """Publish a new plan's control sequence, on the solver thread (as bytes: :mod:`cdr`)."""
-        if result.outcome is not None:
+        if result.outcome is not None and not self.twins.yields:
             plan, session = result.outcome.plan, self.live
             fields = (self.frame, session.ns(plan.t[0]), plan.t[:-1] - plan.t[0],
                       session.system.control_names, plan.u)
@@ -77,10 +79,16 @@ class PlanOutputs(GuardedNode):
 
     @guarded('cmd_vel')
     def publish_cmd_vel(self) -> None:
-        """Publish the plan's velocity now, as a body twist; zero when odometry is stale."""
+        """Publish the plan's velocity now, as a body twist (slowing to rest without a plan)."""
         twist = self.live.command(self.now_ns())
-        if twist is not None:
+        if twist is not None and not self.twins.yields:
             self._publish_twist(twist)
+
+    def _publish_stop(self) -> None:
+        """Publish a zero ``cmd_vel`` and record it: a later halt ramps from rest."""
+        if self.session is not None:
+            self.session.commands.stopped(self.session.seconds(self.now_ns()))
+        self._publish_twist(np.zeros(4))
 
     def _publish_twist(self, twist: np.ndarray) -> None:
         if self.pub_cmd.msg_type is TwistStamped:
@@ -90,4 +98,4 @@ class PlanOutputs(GuardedNode):
 
     def on_clock_stopped(self) -> None:
         if self.live.active:
-            self._publish_twist(np.zeros(4))
+            self._publish_stop()

@@ -21,6 +21,7 @@ from __future__ import annotations
 from typing import Any, Protocol
 
 from nh_tracking.ros.companion import Owner
+from nh_tracking.ros.twin_watch import TwinWatch
 from nh_tracking.session import TrackingSession
 
 
@@ -29,6 +30,7 @@ class PlannerHost(Owner, Protocol):
 
     frame: str  # the fixed frame plans and references are in
     session: TrackingSession | None  # None while unconfigured
+    twins: TwinWatch  # whether a node of the same name keeps the robot instead
 
     @property
     def live(self) -> TrackingSession:

@@ -21,7 +21,6 @@ on receipt). Lifecycle as in Nav2; ``autostart`` (default true) goes to active a
 from __future__ import annotations
 
 from dataclasses import replace
-import gc
 import threading
 import time
 
@@ -53,7 +52,8 @@ from nh_tracking.ros.planner_interface import LATCHED, PARAMETERS, subscribe_lat
 from nh_tracking.ros.planner_parameters import RuntimeParameters
 from nh_tracking.ros.planner_services import PlannerServices
 from nh_tracking.ros.reference_receiver import ReferenceReceiver
-from nh_tracking.ros.runner import autostart
+from nh_tracking.ros.runner import autostart, settle_heap
+from nh_tracking.ros.twin_watch import TwinVerdict, TwinWatch
 from nh_tracking.session import TrackingSession
 from nh_tracking.session_types import ClockSkew
 from nh_tracking.solvers.obstacles import MAX_OBSTACLES
@@ -84,6 +84,7 @@ class PlannerNode(RuntimeParameters, PlanOutputs, ObstacleListener, ClockWatchdo
         self._obstacles_lock = threading.Lock()
         self._planned_ns = 0  # system time the last plan made on receipt of odometry ended
         self._configure_error = ''  # why the last configure failed
+        self.twins = TwinWatch(self)
         self.add_on_set_parameters_callback(self._validate_parameters)
         self.add_post_set_parameters_callback(self._apply_parameters)
         if self.params['autostart']:
@@ -162,11 +163,12 @@ class PlannerNode(RuntimeParameters, PlanOutputs, ObstacleListener, ClockWatchdo
             self.create_timer(1.0 / self.params['display_rate'], self.publish_display)]
         self.live.active = True
         self.live.wake()
+        settle_heap()  # no full collection walks the planner while it commands
         return super().on_activate(state)
 
     def on_deactivate(self, state: LifecycleState) -> TransitionCallbackReturn:
         """Bring the robot to rest and drop the path in force, then stop commanding."""
-        self._publish_twist(np.zeros(4))
+        self._publish_stop()
         try:
             self._bring_to_rest()
         except ValueError as exc:  # (a stop the reference checks refuse: faster than allowed)
@@ -175,7 +177,7 @@ class PlannerNode(RuntimeParameters, PlanOutputs, ObstacleListener, ClockWatchdo
         for timer in self._command_timers:
             self.destroy_timer(timer)
         self._command_timers = []
-        self._publish_twist(np.zeros(4))  # the robot stops: nothing commands it any more
+        self._publish_stop()  # the robot stops: nothing commands it any more
         return super().on_deactivate(state)
 
     def _bring_to_rest(self, timeout: float = 3.0) -> None:
@@ -218,7 +220,7 @@ class PlannerNode(RuntimeParameters, PlanOutputs, ObstacleListener, ClockWatchdo
         if self.session is not None:
             self.live.stop()
             self.session = None
-            gc.collect()  # now, not at some later full collection: its NLPs are ~20 MB
+            settle_heap(release=True)  # its models and NLPs (~20 MB) go now
         for entity in self._entities:
             if hasattr(entity, 'timer_period_ns'):
                 self.destroy_timer(entity)
@@ -310,9 +312,12 @@ class PlannerNode(RuntimeParameters, PlanOutputs, ObstacleListener, ClockWatchdo
             health = replace(health, level=HealthLevel.STALE, message=clock)
         level = {HealthLevel.OK: DiagnosticStatus.OK, HealthLevel.WARN: DiagnosticStatus.WARN,
                  HealthLevel.STALE: DiagnosticStatus.STALE}[health.level]
+        message = health.message
+        if self.twins.check() is not TwinVerdict.ALONE:
+            level, message = DiagnosticStatus.ERROR, self.twins.describe()
         array = DiagnosticArray(status=[msgs.diagnostic_status(
             f'{self.get_name()}: planning', self.get_fully_qualified_name(), level,
-            health.message, health.values)])
+            message, health.values)])
         array.header.stamp = msgs.time_msg(self.now_ns())
         self.pub_diag.publish(array)
 
@@ -321,6 +326,6 @@ class PlannerNode(RuntimeParameters, PlanOutputs, ObstacleListener, ClockWatchdo
         if self.session is not None and self.live.active:
             self.live.active = False
             if self.context.ok():  # (an external shutdown may have taken it down)
-                self._publish_twist(np.zeros(4))
+                self._publish_stop()
         self._release()
         super().destroy_node()

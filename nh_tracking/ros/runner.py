@@ -39,14 +39,16 @@ STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
 STOP_POLL = 0.1  # [s] the longest an executor wait lasts before a stop request is looked at
 
 
-def settle_heap() -> None:
+def settle_heap(release: bool = False) -> None:
     """Collect, then exempt every object alive from later collections. Process-wide.
 
     A full collection holds the interpreter while it walks every tracked object: 100 ms in a
     planner process (imports, models, NLPs), which stopped ``cmd_vel`` and the solver alike.
-    Called once the node is built: what is alive then lives about as long as the process (a
-    session a lifecycle cleanup drops is then kept: once, not at every reset).
+    Called as a planner starts commanding; ``release``: when one is dropped (a lifecycle
+    cleanup), the exempt objects are collected first, so that it goes with them.
     """
+    if release:
+        gc.unfreeze()
     gc.collect()
     gc.freeze()
 
@@ -148,7 +150,6 @@ def run(make_node: Callable[[], Node], usage: Callable[[Sequence[str]], str],
             return 2
         responsive_threads()
         executor.add_node(node)
-        settle_heap()
         while not stop.requested and rclpy.ok():
             executor.spin_once(timeout_sec=STOP_POLL)
     except ExternalShutdownException:

@@ -51,7 +51,7 @@ from nh_tracking.ros.planner_interface import COSTMAP_THRESHOLD, JOINT_NAMES
 from nh_tracking.simulate import drive, LeftDomain, simulate
 
 Piece = tuple[int, int, np.ndarray | None]  # (from, to) in ns and the effort held (None: v)
-CLOCK_JUMP = 1.0  # [s] a step's clock time this far from the time that passed is a jump
+CLOCK_JUMP = 1.0  # [s] a step's clock time this far (and 5 steps) from what passed: a jump
 
 PARAMETERS = (
     plain('rate', 50.0, 'integration and odometry rate', 'Hz', (1.0, 2000.0), read_only=True),
@@ -222,16 +222,16 @@ class SimulatorNode(ObstacleListener):
     def _jumped(self, t0: int, t1: int) -> bool:
         """Whether the clock jumped between steps (logged): its time is not motion.
 
-        On the system clock: it moved more than :data:`CLOCK_JUMP` away from the steady clock
-        (a pause of this process is time that passed, and is integrated); on ``/clock``: it
-        moved on more than that in one step.
+        On the system clock: it moved more than :data:`CLOCK_JUMP` (and five steps) away from
+        the steady clock (a pause of this process is time that passed, and is integrated); on
+        ``/clock``: it moved on more than that in one step, or back.
         """
         steady = time.monotonic_ns()
         passed, self._last_steady_ns = (steady - self._last_steady_ns) * 1e-9, steady
-        gap = (t1 - t0) * 1e-9
+        gap, limit = (t1 - t0) * 1e-9, max(CLOCK_JUMP, 5.0 * self._step_ns * 1e-9)
         clock = self.get_clock()
         on_topic = isinstance(clock, ROSClock) and clock.ros_time_is_active
-        jumped = gap > CLOCK_JUMP if on_topic else abs(gap - passed) > CLOCK_JUMP
+        jumped = gap < 0.0 or (gap > limit if on_topic else abs(gap - passed) > limit)
         if jumped:
             self.get_logger().warn(f'the clock jumped {gap:+.3f} s in a step ({passed:.3f} s '
                                    'passed): not integrated, the robot held where it was')
@@ -242,7 +242,7 @@ class SimulatorNode(ObstacleListener):
         t0 = self._sim_ns if self.publish_clock else self._last_ns
         t1 = t0 + self._step_ns if self.publish_clock else self._clock_ns()
         self._last_ns = t1
-        if t1 <= t0 or (not self.publish_clock and (t0 == 0 or self._jumped(t0, t1))):
+        if t1 == t0 or (not self.publish_clock and (t0 == 0 or self._jumped(t0, t1))):
             return  # (t0 = 0: on /clock, before its first message)
         # One step under the lock: a parameter change or a reset is applied between steps,
         # never lost to a step that began before it.
@@ -254,7 +254,8 @@ class SimulatorNode(ObstacleListener):
                 driven = command is not None
                 v = self.pose_map.velocity(q, command) if command is not None else \
                     np.zeros(self.system.k)
-                q = self._integrate(q, v, [(t0, min(t1, expiry), None)] if driven else [])[0]
+                start = min(max(t0, self._command_ns), t1)  # (not before it arrived)
+                q = self._integrate(q, v, [(start, min(t1, expiry), None)] if driven else [])[0]
                 v = v if driven and t1 <= expiry else np.zeros(self.system.k)
             else:
                 q, v = self._integrate(q, v, self._pieces(t0, t1))
