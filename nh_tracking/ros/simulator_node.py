@@ -254,8 +254,7 @@ class SimulatorNode(ObstacleListener):
                 driven = command is not None
                 v = self.pose_map.velocity(q, command) if command is not None else \
                     np.zeros(self.system.k)
-                start = min(max(t0, self._command_ns), t1)  # (not before it arrived)
-                q = self._integrate(q, v, [(start, min(t1, expiry), None)] if driven else [])[0]
+                q = self._integrate(q, v, [(t0, min(t1, expiry), None)] if driven else [])[0]
                 v = v if driven and t1 <= expiry else np.zeros(self.system.k)
             else:
                 q, v = self._integrate(q, v, self._pieces(t0, t1))
