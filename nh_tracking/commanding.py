@@ -120,22 +120,23 @@ class Commands:
         obstacles; zero once at rest, and zero if none was sent within :data:`COMMAND_MEMORY`
         (the base has stopped on its own: the robot's last known velocity is no command).
         """
-        with self._lock:
-            last = self._last
-        if last is None or not 0.0 < t - last[1] <= COMMAND_MEMORY:
+        if self._recent(t) is None:
             self.stopped(t)
             return np.zeros(4)
         return self._guarded(planner, pose_map, t, np.zeros(len(v_robot)),
                              pose_map.twist_matrix(q_robot), q_robot, v_robot, age)
 
+    def _recent(self, t: float) -> tuple[np.ndarray, float] | None:
+        """Return (v, when) of the command before ``t`` if sent within COMMAND_MEMORY."""
+        with self._lock:
+            last = self._last
+        return last if last is not None and 0.0 < t - last[1] <= COMMAND_MEMORY else None
+
     def _guarded(self, planner: RecedingHorizonPlanner, pose_map: PoseMap, t: float,
                  v: np.ndarray, matrix: np.ndarray, q_robot: np.ndarray, v_robot: np.ndarray,
                  age: float) -> np.ndarray:
-        with self._lock:
-            last = self._last
-        period = self.command_period
-        previous, dt = (last[0], t - last[1]) if last is not None and \
-            0.0 < t - last[1] <= COMMAND_MEMORY else (v_robot, period)
+        last, period = self._recent(t), self.command_period
+        previous, dt = (v_robot, period) if last is None else (last[0], t - last[1])
         guarded = self.guard(planner).velocity(v, matrix, previous, dt, pose_map.pose(q_robot),
                                                self.clearance(t), period + max(age, 0.0))
         self._remember(guarded.v, t, guarded.notes)

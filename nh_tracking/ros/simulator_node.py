@@ -250,12 +250,11 @@ class SimulatorNode(ObstacleListener):
             q, v = self._q, self._v
             if self.mode == 'velocity':  # the command driven until it expires, then at rest
                 expiry = self._command_ns + int(round(self.control_timeout * 1e9))
-                command = self._command if t0 < expiry else None
-                driven = command is not None
-                v = self.pose_map.velocity(q, command) if command is not None else \
-                    np.zeros(self.system.k)
-                q = self._integrate(q, v, [(t0, min(t1, expiry), None)] if driven else [])[0]
-                v = v if driven and t1 <= expiry else np.zeros(self.system.k)
+                v = np.zeros(self.system.k)
+                if self._command is not None and t0 < expiry:
+                    driven = self.pose_map.velocity(q, self._command)
+                    q = self._integrate(q, driven, [(t0, min(t1, expiry), None)])[0]
+                    v = driven if t1 <= expiry else v
             else:
                 q, v = self._integrate(q, v, self._pieces(t0, t1))
             self._q, self._v = q, v
