@@ -42,6 +42,12 @@ BIN = Path(sys.executable).parent
 _domains = itertools.cycle(np.roll(np.arange(1, 102), -(os.getpid() % 101)).tolist())
 
 
+def rss_bytes() -> int:
+    """Return this process's resident memory [bytes]."""
+    with open('/proc/self/status') as status:
+        return next(int(line.split()[1]) for line in status if line.startswith('VmRSS')) * 1024
+
+
 def next_domain() -> int:
     """Return a ROS_DOMAIN_ID for the next test."""
     return next(_domains)

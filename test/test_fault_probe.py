@@ -32,7 +32,7 @@ import pytest
 from nh_tracking.ros import messages as msgs
 from nh_tracking.ros.graph import parameters, wait_until
 from nh_tracking.ros.planner_node import LATCHED, PlannerNode
-from processes import domain_env, Peer, Process
+from processes import domain_env, Peer, Process, rss_bytes
 from test_ros import unique_namespace
 
 pytestmark = pytest.mark.timeout(300)
@@ -215,24 +215,19 @@ def test_a_reference_no_robot_can_follow_is_refused(graph, duration):
     assert wait_until(lambda: probe.planner.planner.reference is not None, 10.0)
 
 
-def _rss_mb() -> float:
-    with open('/proc/self/status') as status:
-        return next(int(line.split()[1]) for line in status if line.startswith('VmRSS')) / 1024
-
-
 def test_memory_stays_bounded_through_a_storm_of_horizon_sizes(graph):
     from rclpy.parameter import Parameter
 
     probe = Probe(graph)
     probe.reference.publish(_line(probe.now_ns(), 2.0, 10.0))
     planner, growth = probe.planner, []
-    start = _rss_mb()
+    start = rss_bytes() / 2**20
     for steps in range(10, 35):  # 25 distinct values, each a rebuild of every structure
         planner.set_parameters([Parameter('steps', value=steps)])
         assert wait_until(lambda: planner.planner.settings.steps == steps
                           and not planner.live.reconfiguring, 60.0), steps
         probe.send_odom()
-        growth.append(_rss_mb() - start)
+        growth.append(rss_bytes() / 2**20 - start)
     print(f'\nRSS after 25 steps values: +{growth[-1]:.0f} MB (largest +{max(growth):.0f} MB; '
           f'after 5: +{growth[4]:.0f} MB)')
     assert max(growth) < 150.0

@@ -16,7 +16,6 @@
 
 In process: real nodes and the real solver, one Context per test.
 """
-import os
 import threading
 import time
 import weakref
@@ -38,6 +37,7 @@ from nh_tracking.ros import SimulatorNode
 from nh_tracking.ros.graph import parameters, wait_until
 from nh_tracking.ros.planner_node import LATCHED, PlannerNode
 from nh_tracking.solvers import midpoint
+from processes import rss_bytes
 from test_ros import unique_namespace, WallClockPair
 
 pytestmark = pytest.mark.timeout(240)
@@ -227,11 +227,6 @@ def test_integers_are_accepted_for_floating_point_parameters_at_run_time(graph):
     assert pair.sim.control_timeout == 1.0
 
 
-def _rss_mb() -> float:
-    with open('/proc/self/statm') as statm:
-        return int(statm.read().split()[1]) * os.sysconf('SC_PAGE_SIZE') / 1e6
-
-
 def test_lifecycle_resets_leave_nothing_behind(graph):
     """20 configure/cleanup, then 20 full cycles, through the services: memory, threads flat.
 
@@ -254,13 +249,13 @@ def test_lifecycle_resets_leave_nothing_behind(graph):
     full = (Transition.TRANSITION_CONFIGURE, Transition.TRANSITION_ACTIVATE,
             Transition.TRANSITION_DEACTIVATE, Transition.TRANSITION_CLEANUP)
     cycle(*full)  # what is built once per process (imports, solver plugins) is built now
-    memory, threads = _rss_mb(), threading.active_count()
+    memory, threads = rss_bytes() / 1e6, threading.active_count()
     for _ in range(20):
         cycle(*reset)
-    after_resets = _rss_mb() - memory
+    after_resets = rss_bytes() / 1e6 - memory
     for _ in range(20):
         cycle(*full)
-    grown = _rss_mb() - memory
+    grown = rss_bytes() / 1e6 - memory
     print(f'\n20 configure/cleanup: RSS {after_resets:+.1f} MB; and 20 full cycles: '
           f'{grown:+.1f} MB in all; threads {threads} -> {threading.active_count()}')
     assert grown <= 40.0
