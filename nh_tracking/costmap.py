@@ -44,28 +44,42 @@ def costmap_discs(cells: np.ndarray, cell_size: float, size: float) -> np.ndarra
                        shape=(len(cells), len(cells)))
     _, group = connected_components(links, directed=False)
     half_diagonal = cell_size / np.sqrt(2.0)
-    discs = []
-    for members in _groups(cells, group):
-        disc = _enclosing(members, half_diagonal)
-        if disc[2] > size + half_diagonal:
-            _, piece = np.unique(np.floor(members / size).astype(np.int64), axis=0,
-                                 return_inverse=True)
-            discs += [_enclosing(part, half_diagonal) for part in _groups(members, piece.ravel())]
-        else:
-            discs.append(disc)
-    return np.array(discs)
+    large = (_enclosing(cells, group, half_diagonal)[:, 2] > size + half_diagonal)[group]
+    squares = np.floor(cells / size).astype(np.int64)  # (a grid fixed in the frame)
+    squares = np.where(large[:, None], squares - squares.min(axis=0), 0)
+    width, height = squares.max(axis=0) + 1
+    _, piece = np.unique((group * width + squares[:, 0]) * height + squares[:, 1],
+                         return_inverse=True)
+    return _enclosing(cells, piece.ravel(), half_diagonal)
 
 
-def _groups(cells: np.ndarray, labels: np.ndarray) -> list[np.ndarray]:
-    """Split cells by their labels 0..L-1 (sorted once, not one pass per label)."""
+def _enclosing(cells: np.ndarray, labels: np.ndarray, half_diagonal: float) -> np.ndarray:
+    """Return for each label 0..L-1 the disc about its cells' mean that holds them whole."""
+    count = np.bincount(labels)
+    middle = np.c_[np.bincount(labels, cells[:, 0]), np.bincount(labels, cells[:, 1])] \
+        / count[:, None]
     order = np.argsort(labels, kind='stable')
-    return np.split(cells[order], np.cumsum(np.bincount(labels))[:-1])
+    reach = np.hypot(*(cells[order] - middle[labels[order]]).T)
+    radius = np.maximum.reduceat(reach, np.r_[0, np.cumsum(count)[:-1]])
+    return np.c_[middle, radius + half_diagonal]
 
 
-def _enclosing(cells: np.ndarray, half_diagonal: float) -> tuple[float, float, float]:
-    """Return the disc about the cells' mean that holds every (square) cell whole."""
-    middle = cells.mean(axis=0)
-    return middle[0], middle[1], float(np.hypot(*(cells - middle).T).max() + half_diagonal)
+class CellsByX:
+    """Occupied square cells sorted by x once, for the gap to those near a point."""
+
+    def __init__(self, cells: np.ndarray, cell_size: float) -> None:
+        cells = np.asarray(cells, dtype=float).reshape(-1, 2)
+        self.cells, self.cell_size = cells[np.argsort(cells[:, 0], kind='stable')], cell_size
+
+    def near(self, point: np.ndarray, reach: float) -> np.ndarray:
+        """Return the cells whose squares come within ``reach`` of ``point`` along x and y."""
+        within = reach + self.cell_size / 2
+        lo, hi = np.searchsorted(self.cells[:, 0], [point[0] - within, point[0] + within])
+        band = self.cells[lo:hi]
+        return band[np.abs(band[:, 1] - point[1]) <= within]
+
+
+NO_CELLS_BY_X = CellsByX(np.zeros((0, 2)), 0.0)
 
 
 def gap(point: np.ndarray, discs: np.ndarray, cells: np.ndarray, cell_size: float) -> float:

@@ -26,7 +26,8 @@ keep clear of where each disc will be (:mod:`nh_tracking.limits`: discs (x, y, r
 from __future__ import annotations
 
 from collections.abc import Hashable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
+import math
 
 import numpy as np
 
@@ -45,37 +46,47 @@ class DiscTrack:
     radius: float
     times: tuple[float, ...]
     positions: tuple[tuple[float, float], ...]
+    row: tuple[float, ...] = field(init=False, repr=False, compare=False)  # x, y, r, vx, vy
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, 'row', (*self.positions[-1], self.radius,
+                                         *_slope(self.times, self.positions)))
+
+    @property
+    def velocity(self) -> tuple[float, float]:
+        """The least-squares slope of the positions over time, at most MAX_SPEED (m/s)."""
+        return self.row[3], self.row[4]
 
     def seen(self, t: float, x: float, y: float, radius: float) -> DiscTrack:
         """Return the track with a new position; a new history where it jumped or t went back."""
         last_t, last = self.times[-1], self.positions[-1]
         if t == last_t and (x, y) == last:
-            return DiscTrack(radius, self.times, self.positions)
-        if t <= last_t or np.hypot(x - last[0], y - last[1]) > JUMP_SPEED * (t - last_t):
+            return self if radius == self.radius else DiscTrack(radius, self.times,
+                                                                self.positions)
+        if t <= last_t or math.hypot(x - last[0], y - last[1]) > JUMP_SPEED * (t - last_t):
             return DiscTrack(radius, (t,), ((x, y),))
         keep = [i for i, s in enumerate(self.times) if t - s <= WINDOW][-(HISTORY - 1):]
         return DiscTrack(radius, tuple(self.times[i] for i in keep) + (t,),
                          tuple(self.positions[i] for i in keep) + ((x, y),))
 
-    @property
-    def velocity(self) -> np.ndarray:
-        """The least-squares slope of the positions over time, at most MAX_SPEED (m/s)."""
-        if len(self.times) < 2:
-            return np.zeros(2)
-        t = np.asarray(self.times) - self.times[-1]
-        p = np.asarray(self.positions)
-        dt = t - t.mean()
-        slope = dt @ (p - p.mean(axis=0)) / (dt @ dt)
-        speed = float(np.hypot(*slope))
-        return slope * (MAX_SPEED / speed) if speed > MAX_SPEED else slope
 
-    def disc(self, t: float | None) -> np.ndarray:
-        """Return (x, y, r, vx, vy): where the disc will be at t (its last position if None).
-
-        No more than :data:`.limits.PREDICTION` ahead of its last position.
-        """
-        seen = np.r_[self.positions[-1], self.radius, self.velocity]
-        return moved(seen[None], 0.0 if t is None else t - self.times[-1])[0]
+def _slope(times: tuple[float, ...], positions: tuple[tuple[float, float], ...]
+           ) -> tuple[float, float]:
+    """Return the least-squares slope of positions over times, at most MAX_SPEED (0 for one)."""
+    count = len(times)
+    if count < 2:
+        return 0.0, 0.0
+    t = [s - times[-1] for s in times]  # (relative: stamps are ~1e9 s)
+    t_mean = sum(t) / count
+    dt = [s - t_mean for s in t]
+    xs, ys = zip(*positions)
+    x_mean, y_mean = sum(xs) / count, sum(ys) / count
+    scale = 1.0 / sum(d * d for d in dt)
+    vx = sum(d * (x - x_mean) for d, x in zip(dt, xs)) * scale
+    vy = sum(d * (y - y_mean) for d, y in zip(dt, ys)) * scale
+    speed = math.hypot(vx, vy)
+    shrink = MAX_SPEED / speed if speed > MAX_SPEED else 1.0
+    return vx * shrink, vy * shrink
 
 
 @dataclass(frozen=True)
@@ -86,8 +97,9 @@ class SeenWithout:
     y: float
     radius: float
 
-    def disc(self, t: float | None) -> np.ndarray:
-        return np.array([self.x, self.y, self.radius, 0.0, 0.0])
+    @property
+    def row(self) -> tuple[float, ...]:
+        return (self.x, self.y, self.radius, 0.0, 0.0)
 
     @property
     def times(self) -> tuple[float, ...]:
@@ -99,6 +111,7 @@ class DiscTracks:
 
     def __init__(self, tracks: dict[Hashable, DiscTrack | SeenWithout] | None = None) -> None:
         self._tracks = dict(tracks or {})
+        self._rows: tuple[np.ndarray, np.ndarray] | None = None  # discs, last seen: made once
 
     def copy(self) -> DiscTracks:
         """Return an independent copy, for changes to be kept all or none."""
@@ -106,7 +119,7 @@ class DiscTracks:
 
     def seen(self, key: Hashable, t: float | None, x: float, y: float, radius: float) -> None:
         """Record disc ``key`` at (x, y) with ``radius`` at time t (None: no time, at rest)."""
-        track = self._tracks.get(key)
+        track, self._rows = self._tracks.get(key), None
         if t is None:
             self._tracks[key] = SeenWithout(x, y, radius)
         elif isinstance(track, DiscTrack):
@@ -116,15 +129,27 @@ class DiscTracks:
 
     def forget(self, key: Hashable | None = None) -> None:
         """Forget disc ``key`` (every disc if None)."""
+        self._rows = None
         if key is None:
             self._tracks.clear()
         else:
             self._tracks.pop(key, None)
 
     def discs(self, t: float | None = None) -> np.ndarray:
-        """Return where the discs will be at t (None: last seen), as (M, 5) x, y, r, vx, vy."""
-        return np.array([track.disc(t) for track in self._tracks.values()]).reshape(-1, 5)
+        """Return where the discs will be at t (None: last seen), as (M, 5) x, y, r, vx, vy.
+
+        No more than :data:`.limits.PREDICTION` ahead of where each was last seen.
+        """
+        rows, seen = self._arrays()
+        return rows.copy() if t is None else moved(rows, t - seen)
 
     def last_seen(self) -> np.ndarray:
         """Return when each disc of :meth:`discs` was last seen (-inf: seen without a time)."""
-        return np.array([track.times[-1] for track in self._tracks.values()], dtype=float)
+        return self._arrays()[1].copy()
+
+    def _arrays(self) -> tuple[np.ndarray, np.ndarray]:
+        if self._rows is None:
+            tracks = self._tracks.values()
+            self._rows = (np.array([track.row for track in tracks], dtype=float).reshape(-1, 5),
+                          np.array([track.times[-1] for track in tracks], dtype=float))
+        return self._rows

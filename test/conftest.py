@@ -23,6 +23,14 @@ os.environ.setdefault('MPLBACKEND', 'Agg')
 sys.path.insert(0, os.path.dirname(__file__))
 
 
+@pytest.fixture(autouse=True)
+def own_domain(monkeypatch):
+    """Nodes a test makes without naming a domain (the demos') are on one of its own."""
+    from processes import next_domain
+
+    monkeypatch.setenv('ROS_DOMAIN_ID', str(next_domain()))
+
+
 @pytest.fixture
 def graph():
     """Nodes in one Context and ROS domain of their own, spun on a thread; torn down after."""

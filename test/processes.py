@@ -48,6 +48,13 @@ def rss_bytes() -> int:
         return next(int(line.split()[1]) for line in status if line.startswith('VmRSS')) * 1024
 
 
+def cpu_seconds(pid: int) -> float:
+    """Return the CPU time [s] process ``pid`` has used (user and system)."""
+    with open(f'/proc/{pid}/stat') as stat:
+        fields = stat.read().rsplit(')', 1)[1].split()
+    return (int(fields[11]) + int(fields[12])) / os.sysconf('SC_CLK_TCK')
+
+
 def next_domain() -> int:
     """Return a ROS_DOMAIN_ID for the next test."""
     return next(_domains)

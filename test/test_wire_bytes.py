@@ -21,16 +21,19 @@ alignment of what follows depends on them), any widths and stamps.
 """
 import re
 
-from geometry_msgs.msg import PoseStamped
+from geometry_msgs.msg import Point, PoseStamped
 from hypothesis import given, HealthCheck, settings
 from hypothesis import strategies as st
-from nav_msgs.msg import Odometry, Path
+from nav_msgs.msg import OccupancyGrid, Odometry, Path
 import numpy as np
 import pytest
 from rclpy.serialization import deserialize_message, serialize_message
+from std_msgs.msg import ColorRGBA
 from trajectory_msgs.msg import JointTrajectory
+from visualization_msgs.msg import Marker, MarkerArray
 
 from nh_tracking.ros import cdr, conversions as cv, messages as msgs
+from nh_tracking.ros.obstacle_bytes import Grid, grid_from_bytes, Markers, markers_from_bytes
 
 SETTINGS = settings(max_examples=300, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 names = st.text(st.characters(codec='utf-8', exclude_characters='\x00'), max_size=13)
@@ -145,3 +148,75 @@ def test_damaged_path_bytes_are_rejected_with_a_reason(noise, cut):
             assert str(exc)
             continue
         assert np.all(np.isfinite(poses)) and (stamps is None or len(stamps) == len(poses))
+
+
+@st.composite
+def marker_arrays(draw) -> MarkerArray:
+    """Markers of every layout: strings of any length, sequences empty or not; often alike."""
+    alike = draw(st.booleans())  # one layout for all (the fast, record-array reading)
+    template = draw(marker_layouts())
+    markers = []
+    for i in range(draw(st.integers(0, 12))):
+        frame, ns, points, colors, text, mesh = template if alike else draw(marker_layouts())
+        marker = Marker(ns=ns, id=draw(st.integers(-2**31, 2**31 - 1)),
+                        type=draw(st.integers(0, 12)), action=draw(st.sampled_from([0, 2, 3])),
+                        points=[Point(x=1.0)] * points, colors=[ColorRGBA()] * colors, text=text)
+        marker.mesh_file.data = [7] * mesh
+        marker.header.frame_id, marker.header.stamp = frame, msgs.time_msg(draw(stamps))
+        p = marker.pose.position
+        p.x, p.y, p.z, marker.scale.x = (draw(numbers) for _ in range(4))
+        markers.append(marker)
+    return MarkerArray(markers=markers)
+
+
+def marker_layouts():
+    return st.tuples(names, names, st.integers(0, 3), st.integers(0, 3), names,
+                     st.integers(0, 9))
+
+
+@SETTINGS
+@given(marker_arrays())
+def test_serialized_markers_read_as_the_message_does(msg):
+    read, expected = markers_from_bytes(serialize_message(msg)), Markers.of(msg)
+    assert read.keys == expected.keys and read.frames == expected.frames
+    for name in ('stamps', 'types', 'actions', 'xy', 'diameters'):
+        assert np.array_equal(getattr(read, name), getattr(expected, name)), name
+
+
+@SETTINGS
+@given(names, st.floats(0.0009765625, 16.0, width=32), st.integers(0, 40), st.integers(0, 40),
+       st.lists(numbers, min_size=7, max_size=7), st.data())
+def test_serialized_costmaps_read_as_the_message_does(frame, resolution, width, height,
+                                                      origin, data):
+    grid = OccupancyGrid(data=data.draw(st.lists(st.integers(-128, 127), min_size=width * height,
+                                                 max_size=width * height)))
+    grid.header.frame_id, grid.info.resolution = frame, resolution
+    grid.info.width, grid.info.height = width, height
+    p, o = grid.info.origin.position, grid.info.origin.orientation
+    p.x, p.y, p.z, o.x, o.y, o.z, o.w = origin
+    read, expected = grid_from_bytes(serialize_message(grid)), Grid.of(grid)
+    assert (read.frame, read.resolution, read.width, read.height, read.origin) == (
+        expected.frame, expected.resolution, expected.width, expected.height, expected.origin)
+    assert np.array_equal(read.data, expected.data)
+
+
+@settings(max_examples=300, deadline=None)
+@given(st.binary(max_size=400), st.integers(0, 1200))
+def test_damaged_obstacle_bytes_are_unreadable_or_read(noise, cut):
+    """Cut or random bytes: Unreadable, or values of the right shapes; never another error."""
+    markers = MarkerArray(markers=[Marker(ns='people', id=i, type=Marker.CYLINDER)
+                                   for i in range(6)])
+    grid = OccupancyGrid(data=[0, 100, 50, -1])
+    grid.info.width, grid.info.height, grid.info.resolution = 2, 2, 0.1
+    for good, read in ((serialize_message(markers), markers_from_bytes),
+                       (serialize_message(grid), grid_from_bytes)):
+        for data in (good[:cut], cdr.ENCAPSULATION + noise, noise):
+            try:
+                values = read(data)
+            except cdr.Unreadable as exc:
+                assert str(exc)
+                continue
+            if isinstance(values, Markers):
+                assert len(values.keys) == len(values.stamps) == len(values.xy)
+            else:
+                assert len(values.data) <= len(data)

@@ -37,7 +37,7 @@ from trajectory_msgs.msg import JointTrajectory
 from nh_tracking.ros import messages as msgs
 
 ENCAPSULATION = b'\x00\x01\x00\x00'  # plain CDR, little-endian
-_HEAD = len(ENCAPSULATION)
+HEAD = len(ENCAPSULATION)
 _ODOMETRY_DOUBLES = struct.Struct('<85d')  # pose (7), its covariance (36), twist (6), its (36)
 
 
@@ -45,13 +45,13 @@ class Unreadable(ValueError):
     """Bytes that are not a little-endian CDR message of the expected type."""
 
 
-def _aligned(position: int, size: int) -> int:
+def aligned(position: int, size: int) -> int:
     """``position`` (from the start of the bytes) moved to a multiple of ``size`` in the body."""
-    return position + (-(position - _HEAD) % size)
+    return position + (-(position - HEAD) % size)
 
 
-def _string(data: bytes, position: int) -> tuple[str, int]:
-    position = _aligned(position, 4)
+def string_at(data: bytes, position: int) -> tuple[str, int]:
+    position = aligned(position, 4)
     (length,) = struct.unpack_from('<I', data, position)
     end = position + 4 + length
     if length < 1 or end > len(data) or data[end - 1] != 0:
@@ -61,13 +61,13 @@ def _string(data: bytes, position: int) -> tuple[str, int]:
 
 def odometry_values(data: bytes) -> tuple[int, str, tuple[float, ...]]:
     """(stamp [ns], frame_id, (x, y, z, qx, qy, qz, qw, vx, vy, vz, wx, wy, wz)) of an Odometry."""
-    if data[:_HEAD] != ENCAPSULATION:
-        raise Unreadable(f'odometry is not little-endian CDR (header {data[:_HEAD].hex()})')
+    if data[:HEAD] != ENCAPSULATION:
+        raise Unreadable(f'odometry is not little-endian CDR (header {data[:HEAD].hex()})')
     try:
-        sec, nanosec = struct.unpack_from('<iI', data, _HEAD)
-        frame, position = _string(data, _HEAD + 8)
-        _, position = _string(data, position)  # child_frame_id
-        values = _ODOMETRY_DOUBLES.unpack_from(data, _aligned(position, 8))
+        sec, nanosec = struct.unpack_from('<iI', data, HEAD)
+        frame, position = string_at(data, HEAD + 8)
+        _, position = string_at(data, position)  # child_frame_id
+        values = _ODOMETRY_DOUBLES.unpack_from(data, aligned(position, 8))
     except struct.error:
         raise Unreadable('odometry message is truncated') from None
     return sec * 1_000_000_000 + nanosec, frame, values[:7] + values[43:49]
@@ -83,12 +83,12 @@ def path_values(data: bytes) -> tuple[int, str, np.ndarray, np.ndarray, dict[str
     multiple of 8, so when all frame_ids are as long as the first, the rest is one numpy record
     array of a fixed stride (100,000 poses in milliseconds); otherwise pose by pose.
     """
-    if data[:_HEAD] != ENCAPSULATION:
-        raise Unreadable(f'path is not little-endian CDR (header {data[:_HEAD].hex()})')
+    if data[:HEAD] != ENCAPSULATION:
+        raise Unreadable(f'path is not little-endian CDR (header {data[:HEAD].hex()})')
     try:
-        sec, nanosec = struct.unpack_from('<iI', data, _HEAD)
-        frame, position = _string(data, _HEAD + 8)
-        position = _aligned(position, 4)
+        sec, nanosec = struct.unpack_from('<iI', data, HEAD)
+        frame, position = string_at(data, HEAD + 8)
+        position = aligned(position, 4)
         (count,) = struct.unpack_from('<I', data, position)
         if count * 64 > len(data):
             raise Unreadable(f'path says {count} poses, more than its bytes hold')
@@ -100,10 +100,10 @@ def path_values(data: bytes) -> tuple[int, str, np.ndarray, np.ndarray, dict[str
                            ) is not None:
                 frames.setdefault(rest, 1)
                 break
-            pose_sec, pose_nanosec = struct.unpack_from('<iI', data, _aligned(position, 4))
-            pose_frame, position = _string(data, _aligned(position, 4) + 8)
+            pose_sec, pose_nanosec = struct.unpack_from('<iI', data, aligned(position, 4))
+            pose_frame, position = string_at(data, aligned(position, 4) + 8)
             frames.setdefault(pose_frame, i)
-            position = _aligned(position, 8)
+            position = aligned(position, 8)
             stamps[i] = pose_sec * 1_000_000_000 + pose_nanosec
             poses[i] = _POSE_DOUBLES.unpack_from(data, position)
             position, i = position + _POSE_DOUBLES.size, i + 1
@@ -115,7 +115,7 @@ def path_values(data: bytes) -> tuple[int, str, np.ndarray, np.ndarray, dict[str
 def _fixed_stride(data: bytes, start: int, count: int, stamps: np.ndarray,
                   poses: np.ndarray) -> str | None:
     """Read poses 1.. as records of pose 1's layout and return their frame, if all have it."""
-    frame, _ = _string(data, start + 8)
+    frame, _ = string_at(data, start + 8)
     (length,) = struct.unpack_from('<I', data, start + 8)
     pose_at = 12 + length + (-(12 + length) % 8)
     stride, rest = pose_at + _POSE_DOUBLES.size, count - 1
@@ -138,11 +138,11 @@ class _Writer:
     """One ``struct`` format and its values, with the position kept for alignment."""
 
     def __init__(self) -> None:
-        self.format, self.position = ['<'], _HEAD
+        self.format, self.position = ['<'], HEAD
         self.values: list[object] = []
 
     def align(self, size: int) -> None:
-        pad = _aligned(self.position, size) - self.position
+        pad = aligned(self.position, size) - self.position
         if pad:
             self.format.append(f'{pad}x')
             self.position += pad
@@ -182,7 +182,7 @@ def control_sequence(frame: str, start_ns: int, offsets: np.ndarray, names: Sequ
     offsets_ns = np.rint(np.asarray(offsets, dtype=float) * 1e9).astype(np.int64)
     points['sec'], points['nanosec'] = np.divmod(offsets_ns, 1_000_000_000)
     block = points.tobytes()
-    if width and len(points) and _aligned(position + 4 + 16, 8) != position + 4 + 16:
+    if width and len(points) and aligned(position + 4 + 16, 8) != position + 4 + 16:
         block = block[:16] + bytes(4) + block[16:]
     stamp = struct.pack('<iI', *divmod(int(start_ns), 1_000_000_000))
     return ENCAPSULATION + stamp + head + struct.pack('<I', len(points)) + block
@@ -205,7 +205,7 @@ def _trajectory_head(frame: str, names: tuple[str, ...]) -> tuple[bytes, int]:
     for name in names:
         out.string(name)
     out.align(4)
-    return out.packed()[_HEAD:], out.position
+    return out.packed()[HEAD:], out.position
 
 
 @functools.cache

@@ -71,7 +71,7 @@ def _finite(values: Sequence[float], what: str, bound: float = MAX_POSITION) -> 
 def pose_array(pose: Pose, what: str) -> np.ndarray:
     """(x, y, z, yaw) of a pose, validated."""
     p, o = pose.position, pose.orientation
-    return _pose((p.x, p.y, p.z, o.x, o.y, o.z, o.w), what)
+    return pose_values((p.x, p.y, p.z, o.x, o.y, o.z, o.w), what)
 
 
 def _poses(values: np.ndarray, what: str) -> np.ndarray:
@@ -80,12 +80,12 @@ def _poses(values: np.ndarray, what: str) -> np.ndarray:
     bad |= np.abs(np.linalg.norm(values[:, 3:], axis=1) - 1.0) > QUATERNION_TOLERANCE
     if bad.any():
         i = int(np.argmax(bad))
-        _pose(values[i], f'{what} {i}')  # raises, saying what is wrong
+        pose_values(values[i], f'{what} {i}')  # raises, saying what is wrong
     x, y, z, w = values[:, 3:].T
     return np.c_[values[:, :3], np.arctan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))]
 
 
-def _pose(values: Sequence[float], what: str) -> np.ndarray:
+def pose_values(values: Sequence[float], what: str) -> np.ndarray:
     """(x, y, z, yaw) of (x, y, z, qx, qy, qz, qw), validated."""
     _finite(values[:3], f'{what} position')
     return np.array([*values[:3], _yaw(*values[3:])])
@@ -172,8 +172,8 @@ def multidof_to_arrays(msg: MultiDOFJointTrajectory, frame: str, receipt_ns: int
                 f'trajectory point {i} has {len(pt.transforms)} transforms and '
                 f'{len(pt.velocities)} velocities for 1 joint')
         xyz, rotation = pt.transforms[0].translation, pt.transforms[0].rotation
-        poses.append(_pose((xyz.x, xyz.y, xyz.z, rotation.x, rotation.y, rotation.z,
-                            rotation.w), f'point {i}'))
+        poses.append(pose_values((xyz.x, xyz.y, xyz.z, rotation.x, rotation.y, rotation.z,
+                                  rotation.w), f'point {i}'))
         twists.append(twist_array(pt.velocities[0], f'point {i} velocity'))
         times.append(base + int(round(duration_seconds(pt.time_from_start) * 1e9)))
     stamps = np.array(times, dtype=np.int64)
@@ -195,7 +195,7 @@ def odom_to_arrays(msg: Odometry | bytes, frame: str) -> tuple[int, np.ndarray, 
         values = (p.x, p.y, p.z, o.x, o.y, o.z, o.w, linear.x, linear.y, linear.z, angular.x,
                   angular.y, angular.z)
     check_frame(frame_id, frame, 'odometry')
-    return stamp, _pose(values[:7], 'odometry pose'), _twist(values[7:], 'odometry twist')
+    return stamp, pose_values(values[:7], 'odometry pose'), _twist(values[7:], 'odometry twist')
 
 
 def controls_to_arrays(msg: JointTrajectory, names: Sequence[str]

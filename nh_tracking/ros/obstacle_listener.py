@@ -12,7 +12,10 @@
 # See the License for the specific language governing permissions and
 # limitations under the License.
 
-"""The ``obstacles`` and ``costmap`` topics of a node: what it must keep clear of."""
+"""The ``obstacles`` and ``costmap`` topics of a node: what it must keep clear of.
+
+Read and reduced on threads of their own, newest message first (:mod:`obstacle_receiver`).
+"""
 from __future__ import annotations
 
 from nav_msgs.msg import OccupancyGrid
@@ -22,9 +25,11 @@ from visualization_msgs.msg import MarkerArray
 from nh_tracking.command_guard import NO_CELLS, OccupiedCells
 from nh_tracking.costmap import costmap_discs
 from nh_tracking.limits import nearest_discs, obstacle_discs
+from nh_tracking.ros import conversions as cv
 from nh_tracking.ros.guarded import guarded, GuardedNode
+from nh_tracking.ros.obstacle_bytes import (grid_from_bytes, markers_from_bytes, Unreadable)
 from nh_tracking.ros.obstacle_messages import MarkerObstacles, occupied_cells
-from nh_tracking.ros.planner_interface import subscribe_latched
+from nh_tracking.ros.obstacle_receiver import ObstacleReceiver
 
 DISC_SIZE = 0.5  # [m] the largest costmap disc; wider groups of cells are cut in pieces
 
@@ -34,28 +39,51 @@ class ObstacleListener(GuardedNode):
 
     frame: str
     costmap_threshold: int
+    obstacle_receiver: ObstacleReceiver | None = None
 
-    def listen_for_obstacles(self) -> list:
-        """Create the subscriptions (returned, for the node to release)."""
+    def listen_for_obstacles(self) -> None:
+        """Start taking both topics (until :meth:`stop_listening_for_obstacles`)."""
         self.marker_obstacles = MarkerObstacles(self.frame)
         self.costmap: tuple[np.ndarray, float] = (np.zeros((0, 2)), 0.0)
         self._costmap_discs = np.zeros((0, 5))  # drawn once per costmap, at rest
         self.costmap_cells = NO_CELLS  # the same cells, indexed for the command guard
-        return (subscribe_latched(self, MarkerArray, 'obstacles', self.on_obstacles)
-                + subscribe_latched(self, OccupancyGrid, 'costmap', self.on_costmap))
+        self.obstacle_receiver = ObstacleReceiver(self, {
+            'obstacles': (MarkerArray, self.on_obstacles),
+            'costmap': (OccupancyGrid, self.on_costmap)})
+
+    def stop_listening_for_obstacles(self) -> None:
+        if self.obstacle_receiver is not None:
+            self.obstacle_receiver.close()
+            self.obstacle_receiver = None
+
+    def input_problems(self) -> list[str]:
+        """Return what the inputs lag or drop now (none: an empty list)."""
+        return [] if self.obstacle_receiver is None else self.obstacle_receiver.problems()
 
     @guarded('obstacles')
-    def on_obstacles(self, msg: MarkerArray) -> None:
-        self.marker_obstacles.apply(msg)
+    def on_obstacles(self, msg: MarkerArray | bytes) -> None:
+        try:
+            markers = markers_from_bytes(msg) if isinstance(msg, bytes) else msg
+        except Unreadable as exc:
+            raise cv.InputRejected(str(exc)) from None
+        self.marker_obstacles.apply(markers)
         self.obstacles_changed()
 
     @guarded('costmap')
-    def on_costmap(self, msg: OccupancyGrid) -> None:
-        cells, size = occupied_cells(msg, self.frame, self.costmap_threshold)
+    def on_costmap(self, msg: OccupancyGrid | bytes) -> None:
+        try:
+            grid = grid_from_bytes(msg) if isinstance(msg, bytes) else msg
+        except Unreadable as exc:
+            raise cv.InputRejected(str(exc)) from None
+        cells, size = occupied_cells(grid, self.frame, self.costmap_threshold)
+        self.reduce_costmap(cells, size)
         self.costmap = (cells, size)
+        self.obstacles_changed()
+
+    def reduce_costmap(self, cells: np.ndarray, size: float) -> None:
+        """Cover the cells with discs for the plans, and index them for the command guard."""
         self._costmap_discs = obstacle_discs(costmap_discs(cells, size, DISC_SIZE))
         self.costmap_cells = OccupiedCells(cells, size)
-        self.obstacles_changed()
 
     def obstacle_discs(self, centre: np.ndarray, reach: float, count: int
                        ) -> tuple[np.ndarray, np.ndarray]:

@@ -33,9 +33,11 @@ from visualization_msgs.msg import Marker, MarkerArray
 
 from nh_tracking.disc_tracks import DiscTracks
 from nh_tracking.ros import conversions as cv
+from nh_tracking.ros.obstacle_bytes import Grid, Markers
 
 LETHAL = 100  # Nav2's lethal cost, and map_server's occupied cells
 DISCS = (Marker.CYLINDER, Marker.SPHERE)
+REMOVALS = (Marker.DELETE, Marker.DELETEALL)
 
 
 class MarkerObstacles:
@@ -55,42 +57,53 @@ class MarkerObstacles:
         """Return where the discs will be at ``now_ns`` (None: last seen): x, y, r, vx, vy rows."""
         return self._tracks.discs(None if now_ns is None else now_ns * 1e-9)
 
-    def apply(self, msg: MarkerArray) -> None:
+    def apply(self, markers: Markers | MarkerArray) -> None:
         """Apply a message, or raise InputRejected (and keep the set) if any marker is bad."""
+        if isinstance(markers, MarkerArray):
+            markers = Markers.of(markers)
+        disc = np.isin(markers.types, DISCS) & ~np.isin(markers.actions, REMOVALS)
+        for i in np.flatnonzero(disc).tolist():  # (a message has one frame, as a rule)
+            if markers.frames[i] != markers.frames[i - 1] or i == 0 or not disc[i - 1]:
+                cv.check_frame(markers.frames[i], self.frame, f'obstacle {markers.keys[i]}')
+        radii = markers.diameters / 2
+        bad = disc & ~((np.abs(markers.xy) <= cv.MAX_POSITION).all(axis=1)
+                       & (radii >= 0) & (radii <= cv.MAX_POSITION))
+        if bad.any():
+            first = int(np.argmax(bad))
+            (x, y), diameter = markers.xy[first], markers.diameters[first]
+            raise cv.InputRejected(
+                f'obstacle {markers.keys[first]} needs a finite position and a diameter scale.x '
+                f'>= 0, got ({x}, {y}), {diameter}')
+        seconds = np.where(markers.stamps != 0, markers.stamps * 1e-9, np.nan).tolist()
+        xs, ys = markers.xy.T.tolist()
+        rs: list[float] = radii.tolist()
         tracks = self._tracks.copy()
-        for marker in msg.markers:
-            key = (marker.ns, marker.id)
-            if marker.action == Marker.DELETEALL:
+        for i, (key, action) in enumerate(zip(markers.keys, markers.actions.tolist())):
+            if action == Marker.DELETEALL:
                 tracks.forget()
-            elif marker.action == Marker.DELETE:
+            elif action == Marker.DELETE:
                 tracks.forget(key)
-            elif marker.type in DISCS:
-                cv.check_frame(marker.header.frame_id, self.frame, f'obstacle {key}')
-                x, y = marker.pose.position.x, marker.pose.position.y
-                radius = marker.scale.x / 2
-                if not (np.all(np.abs([x, y, radius]) <= cv.MAX_POSITION) and radius >= 0):
-                    raise cv.InputRejected(
-                        f'obstacle {key} needs a finite position and a diameter scale.x >= 0, '
-                        f'got ({x}, {y}), {marker.scale.x}')
-                stamp = cv.stamp_ns(marker.header.stamp)
-                tracks.seen(key, stamp * 1e-9 if stamp else None, x, y, radius)
+            elif disc[i]:
+                t = seconds[i]
+                tracks.seen(key, None if t != t else t, xs[i], ys[i], rs[i])
         self._tracks = tracks
 
 
-def occupied_cells(msg: OccupancyGrid, frame: str, threshold: int = LETHAL
+def occupied_cells(grid: Grid | OccupancyGrid, frame: str, threshold: int = LETHAL
                    ) -> tuple[np.ndarray, float]:
     """Centres (K, 2) of the cells at or above ``threshold`` in ``frame``, and the cell size."""
-    cv.check_frame(msg.header.frame_id, frame, 'costmap')
-    info = msg.info
-    size, width, height = info.resolution, info.width, info.height
+    if isinstance(grid, OccupancyGrid):
+        grid = Grid.of(grid)
+    cv.check_frame(grid.frame, frame, 'costmap')
+    size, width, height = grid.resolution, grid.width, grid.height
     if not (0 < size <= cv.MAX_POSITION / max(width, height, 1)) or \
-            len(msg.data) != width * height:
+            len(grid.data) != width * height:
         raise cv.InputRejected(f'costmap needs a resolution > 0 and width x height = len(data), '
-                               f'got {size}, {width} x {height} != {len(msg.data)}')
-    origin = cv.pose_array(info.origin, 'costmap origin')
-    grid = np.asarray(msg.data, dtype=np.int16).reshape(height, width)
-    rows, cols = np.nonzero(grid >= threshold)
-    local = np.c_[(cols + 0.5) * size, (rows + 0.5) * size]
+                               f'got {size}, {width} x {height} != {len(grid.data)}')
+    origin = cv.pose_values(grid.origin, 'costmap origin')
+    rows, cols = np.nonzero(grid.data.reshape(height, width) >= threshold)
+    x, y = (cols + 0.5) * size, (rows + 0.5) * size
     c, s = np.cos(origin[3]), np.sin(origin[3])
-    world = local @ np.array([[c, s], [-s, c]]) + origin[:2]
+    # (elementwise: a matrix product of this size wakes BLAS threads that spin a second core)
+    world = np.c_[origin[0] + c * x - s * y, origin[1] + s * x + c * y]
     return world, float(size)

@@ -142,14 +142,14 @@ class PlannerNode(RuntimeParameters, PlanOutputs, ObstacleListener, ClockWatchdo
                                                 clock=self.steady_clock))
         self._references = ReferenceReceiver(self, self.on_reference_path,
                                              self.on_reference_trajectory)
-        self._entities += self.listen_for_obstacles()
         self._entities += subscribe_latched(self, SpeedLimitMsg, 'speed_limit',
                                             self.on_speed_limit)
         self._discs_centre, self._displayed = np.zeros(2), None
         self._service_host = PlannerServices(self)
         self._follow_path = FollowPathServer.serve(self)
         session.start(self._publish_plan)
-        # last: its callbacks start at once, on their own thread, and need all of the above
+        # last: their callbacks start at once, on their own threads, and need all of the above
+        self.listen_for_obstacles()
         self._odometry = OdometryReceiver(self, 'odom', self.on_odom, self.on_joint_states
                                           if session.pose_map.hidden else None)
         self.get_logger().info(f'planning for {self.model} {self.physical} with '
@@ -207,6 +207,7 @@ class PlannerNode(RuntimeParameters, PlanOutputs, ObstacleListener, ClockWatchdo
         return self.on_cleanup(state)
 
     def _release(self) -> None:
+        self.stop_listening_for_obstacles()
         for receiver in (self._odometry, self._references):
             if receiver is not None:
                 receiver.close()
@@ -312,12 +313,16 @@ class PlannerNode(RuntimeParameters, PlanOutputs, ObstacleListener, ClockWatchdo
             health = replace(health, level=HealthLevel.STALE, message=clock)
         level = {HealthLevel.OK: DiagnosticStatus.OK, HealthLevel.WARN: DiagnosticStatus.WARN,
                  HealthLevel.STALE: DiagnosticStatus.STALE}[health.level]
-        message = health.message
+        message, values = health.message, health.values
+        if self.obstacle_receiver is not None:
+            values = {**values, **self.obstacle_receiver.values()}
+            if level == DiagnosticStatus.OK and (lagging := self.input_problems()):
+                level, message = DiagnosticStatus.WARN, '; '.join(lagging)
         if self.twins.check() is not TwinVerdict.ALONE:
             level, message = DiagnosticStatus.ERROR, self.twins.describe()
         array = DiagnosticArray(status=[msgs.diagnostic_status(
             f'{self.get_name()}: planning', self.get_fully_qualified_name(), level,
-            message, health.values)])
+            message, values)])
         array.header.stamp = msgs.time_msg(self.now_ns())
         self.pub_diag.publish(array)
 

@@ -38,7 +38,7 @@ from tf2_msgs.msg import TFMessage
 from trajectory_msgs.msg import JointTrajectory
 
 from nh_tracking import models
-from nh_tracking.costmap import gap
+from nh_tracking.costmap import CellsByX, gap, NO_CELLS_BY_X
 from nh_tracking.joints import joint_mapping
 from nh_tracking.limits import bounds_from_lists
 from nh_tracking.poses import carried, PoseMap
@@ -48,6 +48,7 @@ from nh_tracking.ros.guarded import guarded
 from nh_tracking.ros.obstacle_listener import ObstacleListener
 from nh_tracking.ros.parameters import declare, declare_all, declare_model, plain
 from nh_tracking.ros.planner_interface import COSTMAP_THRESHOLD, JOINT_NAMES
+from nh_tracking.ros.twin_watch import TwinVerdict, TwinWatch
 from nh_tracking.simulate import drive, LeftDomain, simulate
 
 Piece = tuple[int, int, np.ndarray | None]  # (from, to) in ns and the effort held (None: v)
@@ -131,8 +132,11 @@ class SimulatorNode(ObstacleListener):
                                  self.on_cmd_vel, 10)
         self.create_subscription(PoseWithCovarianceStamped, 'initialpose', self.on_initialpose,
                                  10)
+        self._cells_by_x = NO_CELLS_BY_X
         self.listen_for_obstacles()
         self.pub_diag = self.create_publisher(DiagnosticArray, '/diagnostics', 10)
+        self.twins = TwinWatch(self, 'simulate the robot (odometry, /tf, /clock)')
+        self.create_timer(1.0, self._report_twin, clock=Clock(clock_type=ClockType.STEADY_TIME))
         self.add_post_set_parameters_callback(self._apply_parameters)
         if self.publish_clock:
             self.create_timer(1.0 / (self.rate * scale), self.step,
@@ -258,10 +262,22 @@ class SimulatorNode(ObstacleListener):
             else:
                 q, v = self._integrate(q, v, self._pieces(t0, t1))
             self._q, self._v = q, v
+        if self.twins.yields:  # the twin started first simulates the robot
+            return
         if self.pub_clock is not None:
             self._sim_ns = t1
             self.pub_clock.publish(ClockMsg(clock=msgs.time_msg(t1)))
         self._publish_state(q, v, t1)
+
+    def _report_twin(self) -> None:
+        """Publish an ERROR diagnostic, each second while another node has this one's name."""
+        if self.twins.check() is TwinVerdict.ALONE:
+            return
+        array = DiagnosticArray(status=[msgs.diagnostic_status(
+            f'{self.get_name()}: simulating', self.get_fully_qualified_name(),
+            DiagnosticStatus.ERROR, self.twins.describe(), {})])
+        array.header.stamp = msgs.time_msg(self._now_ns())
+        self.pub_diag.publish(array)
 
     def _integrate(self, q: np.ndarray, v: np.ndarray, pieces: list[Piece]
                    ) -> tuple[np.ndarray, np.ndarray]:
@@ -295,11 +311,20 @@ class SimulatorNode(ObstacleListener):
             self.pub_tf.publish(msgs.tf_msg(self.frame, self.child_frame, stamp, pose))
         self._check_clearance(pose, stamp)
 
+    def reduce_costmap(self, cells: np.ndarray, size: float) -> None:
+        """Sort the cells for the clearance check: it looks only at those near the robot."""
+        self._cells_by_x = CellsByX(cells, size)
+
+    def destroy_node(self) -> None:
+        self.stop_listening_for_obstacles()
+        super().destroy_node()
+
     def _check_clearance(self, pose: np.ndarray, stamp: int) -> None:
         """Count a step that ends closer than robot_radius to an obstacle, and report it."""
-        cells, size = self.costmap
+        cells = self._cells_by_x
         discs = self.marker_obstacles.discs(stamp)
-        clearance = gap(pose, discs, cells, size) - self.robot_radius
+        near = cells.near(pose, self.robot_radius)  # (a cell farther away is no collision)
+        clearance = gap(pose, discs, near, cells.cell_size) - self.robot_radius
         if clearance >= 0:
             return
         self.collisions += 1

@@ -42,10 +42,13 @@ class TwinVerdict(ValueEnum):
 
 
 class TwinWatch:
-    """Listens for ``node``'s twin; :attr:`verdict` says what it does about one."""
+    """Listens for ``node``'s twin; :attr:`verdict` says what it does about one.
 
-    def __init__(self, node: Node) -> None:
-        self.node = node
+    ``role``: what a node that yields does not do, in words.
+    """
+
+    def __init__(self, node: Node, role: str = 'command the robot') -> None:
+        self.node, self.role = node, role
         self.verdict = TwinVerdict.ALONE
         self._seen = False  # the twin was seen on the graph (discovery is not instant)
         now = time.time_ns()
@@ -84,8 +87,8 @@ class TwinWatch:
         name = self.node.get_fully_qualified_name()
         if self.verdict is TwinVerdict.KEEPS:
             return (f'another node named {name} on the graph, started later: this one keeps the '
-                    'robot; stop the other')
+                    f'robot; stop the other')
         if self.verdict is TwinVerdict.YIELDS:
             return (f'another node named {name} was on the graph first: this one does not '
-                    'command the robot; stop one of them')
+                    f'{self.role}; stop one of them')
         return ''
