@@ -47,9 +47,9 @@ def costmap_discs(cells: np.ndarray, cell_size: float, size: float) -> np.ndarra
     large = (_enclosing(cells, group, half_diagonal)[:, 2] > size + half_diagonal)[group]
     squares = np.floor(cells / size).astype(np.int64)  # (a grid fixed in the frame)
     squares = np.where(large[:, None], squares - squares.min(axis=0), 0)
-    width, height = squares.max(axis=0) + 1
-    _, piece = np.unique((group * width + squares[:, 0]) * height + squares[:, 1],
-                         return_inverse=True)
+    _, square = np.unique(squares[:, 0] * (squares[:, 1].max() + 1) + squares[:, 1],
+                          return_inverse=True)  # (numbered 0..K-1: no product overflows)
+    _, piece = np.unique(group * (square.max() + 1) + square.ravel(), return_inverse=True)
     return _enclosing(cells, piece.ravel(), half_diagonal)
 
 

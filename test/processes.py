@@ -71,7 +71,7 @@ class Process:
 
     def __init__(self, executable: str, args: list[str], env: dict[str, str]) -> None:
         path = Path(executable) if os.sep in executable else BIN / executable
-        self.args, self.env = args, env
+        self.executable, self.args, self.env = executable, args, env
         self.proc = subprocess.Popen([str(path), *args], stdout=subprocess.PIPE,
                                      stderr=subprocess.STDOUT, text=True, env=env)
         self.lines: list[str] = []

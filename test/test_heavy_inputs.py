@@ -25,7 +25,7 @@ import threading
 import time
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
-from geometry_msgs.msg import Twist
+from geometry_msgs.msg import TwistStamped
 from nav_msgs.msg import OccupancyGrid
 import numpy as np
 import pytest
@@ -33,11 +33,14 @@ from rclpy.serialization import serialize_message
 from visualization_msgs.msg import Marker, MarkerArray
 
 from nh_tracking.examples.nav2 import polyline, route_msg
+from nh_tracking.ros import conversions as cv
 from nh_tracking.ros.graph import wait_until
-from nh_tracking.ros.obstacle_receiver import RECENT
+from nh_tracking.ros.obstacle_bytes import read_markers
+from nh_tracking.ros.obstacle_receiver import ObstacleReceiver, RECENT
 from nh_tracking.ros.planner_interface import LATCHED
 from processes import cpu_seconds
 from test_nav2 import nav2_pair, SPEED
+from test_ros import unique_namespace
 
 pytestmark = pytest.mark.timeout(300)
 PERIOD = 1 / 20.0  # diff_drive.yaml's cmd_rate
@@ -79,11 +82,12 @@ def test_a_flood_of_costmaps_and_markers_never_stalls_the_commands():
     grids = [costmap_bytes(rng) for _ in range(2)]
     now_s = int(time.time())
     marker_sets = [marker_bytes(rng, now_s + i) for i in range(4)]  # moving a little each
-    with nav2_pair(sim=('mode:=velocity',)) as (robot, planner, sim):
+    stamped = 'cmd_vel_stamped:=true'
+    with nav2_pair(stamped, sim=('mode:=velocity', stamped)) as (robot, planner, sim):
         node = robot.node
-        commands: list[float] = []
-        node.create_subscription(Twist, 'cmd_vel', lambda m: commands.append(time.monotonic()),
-                                 100)
+        commands: list[float] = []  # when the planner sent each (its stamp: system time)
+        node.create_subscription(TwistStamped, 'cmd_vel', lambda m: commands.append(
+            cv.stamp_ns(m.header.stamp) * 1e-9), 100)
         statuses: list[tuple[float, bytes, str, dict]] = []
         node.create_subscription(DiagnosticArray, '/diagnostics', lambda m: statuses.extend(
             (time.monotonic(), s.level, s.message, {kv.key: kv.value for kv in s.values})
@@ -95,7 +99,7 @@ def test_a_flood_of_costmaps_and_markers_never_stalls_the_commands():
             planner.output[-2000:]
 
         cpu = [cpu_seconds(p.proc.pid) for p in (planner, sim)]
-        started = time.monotonic()
+        started, started_ns = time.monotonic(), time.time_ns()
         stop = threading.Event()
 
         def flood() -> None:
@@ -110,13 +114,14 @@ def test_a_flood_of_costmaps_and_markers_never_stalls_the_commands():
         time.sleep(FLOOD)
         stop.set()
         flooding.join()
-        stopped = time.monotonic()
+        stopped, stopped_ns = time.monotonic(), time.time_ns()
         cpu = [(cpu_seconds(p.proc.pid) - c) / FLOOD for p, c in zip((planner, sim), cpu)]
         calm = wait_until(lambda: statuses[-1][1] == DiagnosticStatus.OK, RECENT + 5.0)
 
         times = np.array(commands)
-        during = times[(times > started) & (times < stopped)]
-        after = times[(times > stopped + 0.5) & (times < stopped + 2.5)]
+        start, stop_s = started_ns * 1e-9, stopped_ns * 1e-9
+        during = times[(times > start) & (times < stop_s)]
+        after = times[(times > stop_s + 0.5) & (times < stop_s + 2.5)]
         track = robot.track
         flooded = track[(track[:, 0] > started) & (track[:, 0] < stopped)]
         speed = (flooded[-1, 1] - flooded[0, 1]) / (flooded[-1, 0] - flooded[0, 0])
@@ -132,6 +137,33 @@ def test_a_flood_of_costmaps_and_markers_never_stalls_the_commands():
         assert np.diff(during).max() <= PERIOD + 0.1
         assert len(after) >= 0.9 * 2.0 / PERIOD and np.diff(after).max() <= PERIOD + 0.1
         assert speed >= 0.8 * SPEED and np.abs(flooded[:, 2]).max() < 0.1
-        assert lagging and calm, last  # WARN while dropping, OK again: nothing left over
+        dropped = int(inputs['costmap_dropped']) + int(inputs['obstacles_dropped'])
+        assert calm and (lagging or not dropped), last  # WARN while dropping, then OK again
         assert int(inputs['costmap_used']) >= 3 and int(inputs['obstacles_used']) >= 3
-        assert 'messages come faster than they can be read' in planner.output
+        assert 'messages come faster than they can be read' in planner.output or not dropped
+
+
+def test_a_burst_is_read_newest_first_and_what_it_replaced_is_counted_and_told(graph):
+    """Six messages at once to a reader that takes 0.3 s a message: the newest is used.
+
+    One is being read while the others come; of those, only the newest is read after it: the
+    rest are dropped, counted and told.
+    """
+    ns = unique_namespace()
+    owner, sender = graph.plain_node('owner', ns), graph.plain_node('sender', ns)
+    used: list[int] = []
+    receiver = ObstacleReceiver(owner, {'obstacles': (MarkerArray, lambda msg, _: (
+        used.append(read_markers(msg).keys[0][1]), time.sleep(0.3)))})
+    try:
+        publisher = sender.create_publisher(MarkerArray, 'obstacles', LATCHED)
+        assert wait_until(lambda: publisher.get_subscription_count() >= 2, 10.0)
+        for i in range(6):
+            publisher.publish(MarkerArray(markers=[Marker(ns='burst', id=i)]))
+        assert wait_until(lambda: len(used) >= 2, 10.0)
+        time.sleep(0.5)  # (nothing more comes)
+        load = receiver.loads['obstacles']
+        print(f'\nburst of 6: used {used}, dropped {load.dropped}; said: {receiver.problems()}')
+        assert used[-1] == 5 and len(used) + load.dropped == 6 and load.dropped >= 1
+        assert receiver.problems() and receiver.problems()[0].startswith('obstacles: ')
+    finally:
+        receiver.close()

@@ -29,7 +29,7 @@ import struct
 from geometry_msgs.msg import Point
 from nav_msgs.msg import OccupancyGrid
 import numpy as np
-from rclpy.serialization import serialize_message
+from rclpy.serialization import deserialize_message, serialize_message
 from visualization_msgs.msg import Marker, MarkerArray
 
 from nh_tracking.ros import cdr
@@ -82,6 +82,31 @@ class Grid:
 
 _GRID_INFO = struct.Struct('<iIfII')  # map_load_time, resolution, width, height
 _SEVEN = struct.Struct('<7d')
+
+
+def read_markers(msg: MarkerArray | bytes) -> Markers:
+    """Read a MarkerArray or its bytes (other encodings than plain CDR: by the middleware)."""
+    if isinstance(msg, MarkerArray):
+        return Markers.of(msg)
+    if msg[:HEAD] != ENCAPSULATION:
+        return Markers.of(_deserialized(msg, MarkerArray))
+    return markers_from_bytes(msg)
+
+
+def read_grid(msg: OccupancyGrid | bytes) -> Grid:
+    """Read an OccupancyGrid or its bytes (other encodings than plain CDR: by the middleware)."""
+    if isinstance(msg, OccupancyGrid):
+        return Grid.of(msg)
+    if msg[:HEAD] != ENCAPSULATION:
+        return Grid.of(_deserialized(msg, OccupancyGrid))
+    return grid_from_bytes(msg)
+
+
+def _deserialized(data: bytes, msg_type: type):
+    try:
+        return deserialize_message(data, msg_type)
+    except Exception as exc:  # noqa: BLE001 - rclpy raises plain exceptions for bad bytes
+        raise Unreadable(f'{msg_type.__name__} cannot be read: {exc}') from None
 
 
 def _check_head(data: bytes, what: str) -> None:
@@ -287,9 +312,9 @@ def _strings(raw: np.ndarray, first: str) -> list[str]:
 @functools.cache
 def agrees_with_rmw() -> bool:
     """Whether these readers read what the middleware's serializer writes (checked once)."""
-    markers = MarkerArray(markers=[Marker(ns='n' * (i % 3), id=i, type=Marker.CYLINDER,
-                                          action=i % 4, points=[Point(x=1.0)] * (i // 5))
-                                   for i in range(12)])
+    markers = MarkerArray(markers=[  # the first apart, the others alike (read as records)
+        Marker(ns='n' * (i == 0), id=i, type=Marker.CYLINDER, action=i % 4,
+               points=[Point(x=1.0)] * (i == 0)) for i in range(12)])
     for i, marker in enumerate(markers.markers):
         marker.header.frame_id, marker.header.stamp.sec = 'odom_x', 1_700_000_000 + i
         position = marker.pose.position

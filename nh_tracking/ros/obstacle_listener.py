@@ -18,6 +18,8 @@ Read and reduced on threads of their own, newest message first (:mod:`obstacle_r
 """
 from __future__ import annotations
 
+import threading
+
 from nav_msgs.msg import OccupancyGrid
 import numpy as np
 from visualization_msgs.msg import MarkerArray
@@ -27,7 +29,7 @@ from nh_tracking.costmap import costmap_discs
 from nh_tracking.limits import nearest_discs, obstacle_discs
 from nh_tracking.ros import conversions as cv
 from nh_tracking.ros.guarded import guarded, GuardedNode
-from nh_tracking.ros.obstacle_bytes import (grid_from_bytes, markers_from_bytes, Unreadable)
+from nh_tracking.ros.obstacle_bytes import read_grid, read_markers, Unreadable
 from nh_tracking.ros.obstacle_messages import MarkerObstacles, occupied_cells
 from nh_tracking.ros.obstacle_receiver import ObstacleReceiver
 
@@ -35,7 +37,11 @@ DISC_SIZE = 0.5  # [m] the largest costmap disc; wider groups of cells are cut i
 
 
 class ObstacleListener(GuardedNode):
-    """Subscribes to both topics; bad messages are rejected and the set in force stays."""
+    """Subscribes to both topics; bad messages are rejected and the set in force stays.
+
+    What a reading thread makes is committed under a lock, and only while the listening that
+    received it goes on: a cleanup (or a new configure) never sees an old message land.
+    """
 
     frame: str
     costmap_threshold: int
@@ -43,6 +49,7 @@ class ObstacleListener(GuardedNode):
 
     def listen_for_obstacles(self) -> None:
         """Start taking both topics (until :meth:`stop_listening_for_obstacles`)."""
+        self._commit = threading.Lock()
         self.marker_obstacles = MarkerObstacles(self.frame)
         self.costmap: tuple[np.ndarray, float] = (np.zeros((0, 2)), 0.0)
         self._costmap_discs = np.zeros((0, 5))  # drawn once per costmap, at rest
@@ -52,50 +59,49 @@ class ObstacleListener(GuardedNode):
             'costmap': (OccupancyGrid, self.on_costmap)})
 
     def stop_listening_for_obstacles(self) -> None:
-        if self.obstacle_receiver is not None:
-            self.obstacle_receiver.close()
-            self.obstacle_receiver = None
-
-    def input_problems(self) -> list[str]:
-        """Return what the inputs lag or drop now (none: an empty list)."""
-        return [] if self.obstacle_receiver is None else self.obstacle_receiver.problems()
+        if self.obstacle_receiver is None:
+            return
+        with self._commit:
+            receiver, self.obstacle_receiver = self.obstacle_receiver, None
+        if receiver is not None:
+            receiver.close()
 
     @guarded('obstacles')
-    def on_obstacles(self, msg: MarkerArray | bytes) -> None:
+    def on_obstacles(self, msg: MarkerArray | bytes, receiver: ObstacleReceiver) -> None:
         try:
-            markers = markers_from_bytes(msg) if isinstance(msg, bytes) else msg
+            markers = read_markers(msg)
         except Unreadable as exc:
             raise cv.InputRejected(str(exc)) from None
-        self.marker_obstacles.apply(markers)
-        self.obstacles_changed()
+        with self._commit:
+            if receiver is self.obstacle_receiver:
+                self.marker_obstacles.apply(markers)
+                self.obstacles_changed()
 
     @guarded('costmap')
-    def on_costmap(self, msg: OccupancyGrid | bytes) -> None:
+    def on_costmap(self, msg: OccupancyGrid | bytes, receiver: ObstacleReceiver) -> None:
         try:
-            grid = grid_from_bytes(msg) if isinstance(msg, bytes) else msg
+            grid = read_grid(msg)
         except Unreadable as exc:
             raise cv.InputRejected(str(exc)) from None
         cells, size = occupied_cells(grid, self.frame, self.costmap_threshold)
-        self.reduce_costmap(cells, size)
-        self.costmap = (cells, size)
-        self.obstacles_changed()
+        reduced = self.reduce_costmap(cells, size)
+        with self._commit:
+            if receiver is self.obstacle_receiver:
+                self.costmap_reduced(reduced)
+                self.costmap = (cells, size)
+                self.obstacles_changed()
 
-    def reduce_costmap(self, cells: np.ndarray, size: float) -> None:
-        """Cover the cells with discs for the plans, and index them for the command guard."""
-        self._costmap_discs = obstacle_discs(costmap_discs(cells, size, DISC_SIZE))
-        self.costmap_cells = OccupiedCells(cells, size)
+    def reduce_costmap(self, cells: np.ndarray, size: float) -> tuple:
+        """Return the cells as discs for the plans, and indexed for the command guard."""
+        return obstacle_discs(costmap_discs(cells, size, DISC_SIZE)), OccupiedCells(cells, size)
 
-    def obstacle_discs(self, centre: np.ndarray, reach: float, count: int
-                       ) -> tuple[np.ndarray, np.ndarray]:
-        """Return the marker discs and up to ``count`` discs covering the costmap near centre.
+    def costmap_reduced(self, reduced: tuple) -> None:
+        """Put what :meth:`reduce_costmap` made in force."""
+        self._costmap_discs, self.costmap_cells = reduced
 
-        (M, 5) x, y, r, vx, vy where each was seen, and when (ns; 0 for the costmap's, at
-        rest, and for markers without a stamp).
-        """
-        markers, stamps = self.marker_obstacles.sightings()
-        costmap = nearest_discs(self._costmap_discs, centre, count, reach)
-        return (np.vstack([markers, costmap]),
-                np.concatenate([stamps, np.zeros(len(costmap), dtype=np.int64)]))
+    def costmap_discs_near(self, centre: np.ndarray, reach: float, count: int) -> np.ndarray:
+        """Return up to ``count`` discs (M, 5) covering the costmap within reach of centre."""
+        return nearest_discs(self._costmap_discs, centre, count, reach)
 
     def obstacles_changed(self) -> None:
         """React to a new obstacle set (the node's own business)."""

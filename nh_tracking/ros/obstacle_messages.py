@@ -48,10 +48,11 @@ class MarkerObstacles:
         self._tracks = DiscTracks()
 
     def sightings(self) -> tuple[np.ndarray, np.ndarray]:
-        """Return the discs (M, 5) where last seen, and when (ns; 0: seen without a stamp)."""
-        seen = self._tracks.last_seen()
+        """Return the discs (M, 5) where last seen, and when (ns; 0: seen without a time)."""
+        tracks = self._tracks  # (one set: a message applied meanwhile replaces it whole)
+        seen = tracks.last_seen()
         stamps = np.where(np.isfinite(seen), np.round(seen * 1e9), 0).astype(np.int64)
-        return self._tracks.discs(), stamps
+        return tracks.discs(), stamps
 
     def discs(self, now_ns: int | None = None) -> np.ndarray:
         """Return where the discs will be at ``now_ns`` (None: last seen): x, y, r, vx, vy rows."""

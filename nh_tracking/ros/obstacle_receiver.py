@@ -18,9 +18,9 @@ A companion node's thread takes each message as CDR bytes (:mod:`obstacle_bytes`
 and only hands it on, to a worker of its topic that reads and reduces one message at a time.
 A message that arrives while the one before is still being worked on waits in a slot of one; a
 newer one takes its place, and the one it replaced is counted as dropped. So work never queues
-up behind a burst, and what is used is the newest there is. A worker rests as long as it
-worked before it takes the next message: a flood of input takes at most half of the
-interpreter, whatever its rate, and the commands and plans keep the rest. An input dropping
+up behind a burst, and what is used is the newest there is. One worker works at a time, and
+rests as long as it worked before any works again: floods of every input take at most half of
+the interpreter, whatever their rates, and the commands and plans keep the rest. An input dropping
 messages, or used more than :data:`LAG_WARNING` after its receipt, is reported for
 :data:`RECENT` seconds.
 """
@@ -88,7 +88,7 @@ class InputLoad:
 
 
 class ObstacleReceiver(CompanionNode):
-    """Calls ``use(msg)`` for each input topic on a worker of its own, newest message first.
+    """Calls ``use(msg, self)`` for each input topic on a worker of its own, newest first.
 
     ``inputs``: topic -> (message type, use). ``msg`` is the CDR bytes where
     :mod:`obstacle_bytes` reads them (else the message). Latched and volatile publishers are
@@ -96,12 +96,14 @@ class ObstacleReceiver(CompanionNode):
     """
 
     def __init__(self, owner: Node,
-                 inputs: dict[str, tuple[type, Callable[[Any], None]]]) -> None:
+                 inputs: dict[str, tuple[type, Callable[[Any, ObstacleReceiver], None]]]
+                 ) -> None:
         super().__init__(owner, 'obstacles', **LEAN)
         self._logger = owner.get_logger()
         raw = obstacle_bytes.agrees_with_rmw()
         self.loads = {topic: InputLoad() for topic in inputs}
         self._workers = []
+        self._working = threading.Lock()  # one at a time, and its rest
         self.subscriptions: list = []
         for topic, (msg_type, use) in inputs.items():
             slot = Newest()
@@ -128,22 +130,24 @@ class ObstacleReceiver(CompanionNode):
                 load.dropped, load.dropped_at = load.dropped + 1, now
         return arrived
 
-    def _work(self, topic: str, slot: Newest, use: Callable[[Any], None]) -> None:
+    def _work(self, topic: str, slot: Newest,
+              use: Callable[[Any, ObstacleReceiver], None]) -> None:
         load = self.loads[topic]
         while not self._stop.is_set():
             item = slot.take(POLL)
             if item is None:
                 continue
             received, msg = item
-            began = time.monotonic()
-            use(msg)
-            done = time.monotonic()
-            load.used, load.lag = load.used + 1, done - received
-            if load.lag > LAG_WARNING:
-                if done - load.lagged_at > RECENT:
-                    self._logger.warn(f'{topic}: used {load.lag:.2f} s after receipt')
-                load.lagged_at = done
-            self._stop.wait(done - began)  # at most half the interpreter, whatever comes
+            with self._working:
+                began = time.monotonic()
+                use(msg, self)
+                done = time.monotonic()
+                load.used, load.lag = load.used + 1, done - received
+                if load.lag > LAG_WARNING:
+                    if done - load.lagged_at > RECENT:
+                        self._logger.warn(f'{topic}: used {load.lag:.2f} s after receipt')
+                    load.lagged_at = done
+                self._stop.wait(done - began)  # at most half the interpreter, whatever comes
 
     def problems(self) -> list[str]:
         """Return each input's recent problem (none: an empty list)."""

@@ -19,6 +19,7 @@ plus the ROS-only ones).
 """
 from __future__ import annotations
 
+import collections
 from collections.abc import Callable
 from typing import Any
 
@@ -41,21 +42,34 @@ LATCHED = QoSProfile(depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL,
 # requested), so a volatile one listens too; a sample both deliver is recognised by its
 # publication stamp and sequence number. (BEST_AVAILABLE durability decides once, when the
 # subscription is made: with no publisher yet it is transient-local, deaf to volatile ones.)
-LATCHED_OR_VOLATILE = (LATCHED, QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE))
+# Both as deep: a burst comes through both in the order it was sent (one that kept only the
+# newest would hand it over before the other's older copies, and they would replace it).
+LATCHED_OR_VOLATILE = (
+    QoSProfile(depth=10, durability=DurabilityPolicy.TRANSIENT_LOCAL,
+               reliability=ReliabilityPolicy.RELIABLE),
+    QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE))
 
 
 class FirstDelivery:
-    """``self(info)`` is False for the second copy of a sample (both subscriptions get it)."""
+    """``self(info)`` is False for the second copy of a sample (both subscriptions get it).
+
+    The two copies of a burst can interleave: the last :data:`REMEMBERED` samples are kept.
+    """
+
+    REMEMBERED = 64
 
     def __init__(self) -> None:
-        self._last: tuple[object, object] | None = None
+        self._seen: collections.deque[tuple[object, object]] = collections.deque(
+            maxlen=self.REMEMBERED)
 
     def __call__(self, info: dict | None) -> bool:
         if not info:
             return True
         key = (info.get('source_timestamp'), info.get('publication_sequence_number'))
-        duplicate, self._last = key == self._last, key
-        return not duplicate
+        if key in self._seen:
+            return False
+        self._seen.append(key)
+        return True
 
 
 def subscribe_latched(node: Node, msg_type: type, topic: str,

@@ -287,9 +287,11 @@ class PlannerNode(RuntimeParameters, PlanOutputs, ObstacleListener, ClockWatchdo
             state, session = self.live.state, self.live
             centre = np.zeros(2) if state is None else session.pose_map.pose(state.q)[:2]
             self._discs_centre = centre
-            session.set_obstacles(*self.obstacle_discs(centre, self.params['costmap_reach'],
-                                                       MAX_OBSTACLES))
             markers, stamps = self.marker_obstacles.sightings()
+            costmap = self.costmap_discs_near(centre, self.params['costmap_reach'],
+                                              MAX_OBSTACLES)
+            session.set_obstacles(np.vstack([markers, costmap]), np.concatenate(
+                [stamps, np.zeros(len(costmap), dtype=np.int64)]))
             seen = np.where(stamps == 0, -np.inf,
                             session.seconds(stamps))  # type: ignore[arg-type]
             session.commands.set_obstacles(markers, seen, self.costmap_cells)
@@ -314,9 +316,9 @@ class PlannerNode(RuntimeParameters, PlanOutputs, ObstacleListener, ClockWatchdo
         level = {HealthLevel.OK: DiagnosticStatus.OK, HealthLevel.WARN: DiagnosticStatus.WARN,
                  HealthLevel.STALE: DiagnosticStatus.STALE}[health.level]
         message, values = health.message, health.values
-        if self.obstacle_receiver is not None:
-            values = {**values, **self.obstacle_receiver.values()}
-            if level == DiagnosticStatus.OK and (lagging := self.input_problems()):
+        if (receiver := self.obstacle_receiver) is not None:  # (a cleanup may drop it)
+            values = {**values, **receiver.values()}
+            if level == DiagnosticStatus.OK and (lagging := receiver.problems()):
                 level, message = DiagnosticStatus.WARN, '; '.join(lagging)
         if self.twins.check() is not TwinVerdict.ALONE:
             level, message = DiagnosticStatus.ERROR, self.twins.describe()

@@ -248,6 +248,9 @@ class SimulatorNode(ObstacleListener):
         self._last_ns = t1
         if t1 == t0 or (not self.publish_clock and (t0 == 0 or self._jumped(t0, t1))):
             return  # (t0 = 0: on /clock, before its first message)
+        if self.twins.yields:  # the twin started first simulates the robot: this one waits
+            self._sim_ns = t1
+            return
         # One step under the lock: a parameter change or a reset is applied between steps,
         # never lost to a step that began before it.
         with self._lock:
@@ -262,8 +265,6 @@ class SimulatorNode(ObstacleListener):
             else:
                 q, v = self._integrate(q, v, self._pieces(t0, t1))
             self._q, self._v = q, v
-        if self.twins.yields:  # the twin started first simulates the robot
-            return
         if self.pub_clock is not None:
             self._sim_ns = t1
             self.pub_clock.publish(ClockMsg(clock=msgs.time_msg(t1)))
@@ -311,9 +312,12 @@ class SimulatorNode(ObstacleListener):
             self.pub_tf.publish(msgs.tf_msg(self.frame, self.child_frame, stamp, pose))
         self._check_clearance(pose, stamp)
 
-    def reduce_costmap(self, cells: np.ndarray, size: float) -> None:
+    def reduce_costmap(self, cells: np.ndarray, size: float) -> tuple:
         """Sort the cells for the clearance check: it looks only at those near the robot."""
-        self._cells_by_x = CellsByX(cells, size)
+        return (CellsByX(cells, size),)
+
+    def costmap_reduced(self, reduced: tuple) -> None:
+        (self._cells_by_x,) = reduced
 
     def destroy_node(self) -> None:
         self.stop_listening_for_obstacles()
