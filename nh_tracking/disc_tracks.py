@@ -52,11 +52,6 @@ class DiscTrack:
         object.__setattr__(self, 'row', (*self.positions[-1], self.radius,
                                          *_slope(self.times, self.positions)))
 
-    @property
-    def velocity(self) -> tuple[float, float]:
-        """The least-squares slope of the positions over time, at most MAX_SPEED (m/s)."""
-        return self.row[3], self.row[4]
-
     def seen(self, t: float, x: float, y: float, radius: float) -> DiscTrack:
         """Return the track with a new position; a new history where it jumped or t went back."""
         last_t, last = self.times[-1], self.positions[-1]

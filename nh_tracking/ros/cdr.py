@@ -45,6 +45,12 @@ class Unreadable(ValueError):
     """Bytes that are not a little-endian CDR message of the expected type."""
 
 
+def check_head(data: bytes, what: str) -> None:
+    """Raise Unreadable unless ``data`` starts with the plain little-endian CDR header."""
+    if data[:HEAD] != ENCAPSULATION:
+        raise Unreadable(f'{what} is not little-endian CDR (header {data[:HEAD].hex()})')
+
+
 def aligned(position: int, size: int) -> int:
     """``position`` (from the start of the bytes) moved to a multiple of ``size`` in the body."""
     return position + (-(position - HEAD) % size)
@@ -61,8 +67,7 @@ def string_at(data: bytes, position: int) -> tuple[str, int]:
 
 def odometry_values(data: bytes) -> tuple[int, str, tuple[float, ...]]:
     """(stamp [ns], frame_id, (x, y, z, qx, qy, qz, qw, vx, vy, vz, wx, wy, wz)) of an Odometry."""
-    if data[:HEAD] != ENCAPSULATION:
-        raise Unreadable(f'odometry is not little-endian CDR (header {data[:HEAD].hex()})')
+    check_head(data, 'odometry')
     try:
         sec, nanosec = struct.unpack_from('<iI', data, HEAD)
         frame, position = string_at(data, HEAD + 8)
@@ -83,8 +88,7 @@ def path_values(data: bytes) -> tuple[int, str, np.ndarray, np.ndarray, dict[str
     multiple of 8, so when all frame_ids are as long as the first, the rest is one numpy record
     array of a fixed stride (100,000 poses in milliseconds); otherwise pose by pose.
     """
-    if data[:HEAD] != ENCAPSULATION:
-        raise Unreadable(f'path is not little-endian CDR (header {data[:HEAD].hex()})')
+    check_head(data, 'path')
     try:
         sec, nanosec = struct.unpack_from('<iI', data, HEAD)
         frame, position = string_at(data, HEAD + 8)

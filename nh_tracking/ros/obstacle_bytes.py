@@ -22,6 +22,7 @@ interrupt. An OccupancyGrid's cells are a view of the bytes.
 """
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 import functools
 import struct
@@ -86,37 +87,28 @@ _SEVEN = struct.Struct('<7d')
 
 def read_markers(msg: MarkerArray | bytes) -> Markers:
     """Read a MarkerArray or its bytes (other encodings than plain CDR: by the middleware)."""
-    if isinstance(msg, MarkerArray):
-        return Markers.of(msg)
-    if msg[:HEAD] != ENCAPSULATION:
-        return Markers.of(_deserialized(msg, MarkerArray))
-    return markers_from_bytes(msg)
+    return _read(msg, MarkerArray, Markers.of, markers_from_bytes)
 
 
 def read_grid(msg: OccupancyGrid | bytes) -> Grid:
     """Read an OccupancyGrid or its bytes (other encodings than plain CDR: by the middleware)."""
-    if isinstance(msg, OccupancyGrid):
-        return Grid.of(msg)
-    if msg[:HEAD] != ENCAPSULATION:
-        return Grid.of(_deserialized(msg, OccupancyGrid))
-    return grid_from_bytes(msg)
+    return _read(msg, OccupancyGrid, Grid.of, grid_from_bytes)
 
 
-def _deserialized(data: bytes, msg_type: type):
+def _read(msg, msg_type: type, of: Callable, from_bytes: Callable):
+    if isinstance(msg, msg_type):
+        return of(msg)
+    if msg[:HEAD] == ENCAPSULATION:
+        return from_bytes(msg)
     try:
-        return deserialize_message(data, msg_type)
+        return of(deserialize_message(msg, msg_type))
     except Exception as exc:  # noqa: BLE001 - rclpy raises plain exceptions for bad bytes
         raise Unreadable(f'{msg_type.__name__} cannot be read: {exc}') from None
 
 
-def _check_head(data: bytes, what: str) -> None:
-    if data[:HEAD] != ENCAPSULATION:
-        raise Unreadable(f'{what} is not little-endian CDR (header {data[:HEAD].hex()})')
-
-
 def grid_from_bytes(data: bytes) -> Grid:
     """Read an OccupancyGrid's CDR bytes (the cells are a view of them)."""
-    _check_head(data, 'costmap')
+    cdr.check_head(data, 'costmap')
     try:
         frame, at = cdr.string_at(data, HEAD + 8)
         _, _, resolution, width, height = _GRID_INFO.unpack_from(data, aligned(at, 4))
@@ -147,23 +139,20 @@ class _Cursor:
         self.at += layout.size
         return values
 
-    def length(self, string: bool = False) -> int:
+    def length(self) -> int:
         self.at = aligned(self.at, 4)
         (count,) = struct.unpack_from('<I', self.data, self.at)
-        self.lengths.append((self.at, count, string))
+        self.lengths.append((self.at, count, False))
         self.at += 4
         return count
 
     def string(self, name: str = '') -> str:
         """Read a string; ``name``: note where its characters lie, and how many."""
-        count = self.length(string=True)
-        end = self.at + count
-        if count < 1 or end > len(self.data) or self.data[end - 1] != 0:
-            raise Unreadable('a string runs past the end of the message')
+        at = aligned(self.at, 4)
+        text, self.at = cdr.string_at(self.data, at)
+        self.lengths.append((at, self.at - at - 4, True))
         if name:
-            self.where[name], self.where[f'{name}_size'] = self.at, count - 1
-        text = self.data[self.at:end - 1].decode('utf-8', 'replace')
-        self.at = end
+            self.where[name], self.where[f'{name}_size'] = at + 4, self.at - at - 5
         return text
 
     def skip(self, item: int, alignment: int) -> None:
@@ -212,7 +201,7 @@ def _marker(data: bytes, start: int) -> _Marker:
 
 def markers_from_bytes(data: bytes) -> Markers:
     """Read a MarkerArray's CDR bytes; Unreadable if they are not one."""
-    _check_head(data, 'obstacles')
+    cdr.check_head(data, 'obstacles')
     try:
         (count,) = struct.unpack_from('<I', data, HEAD)
         if count * 40 > len(data):

@@ -51,7 +51,6 @@ class ObstacleListener(GuardedNode):
         """Start taking both topics (until :meth:`stop_listening_for_obstacles`)."""
         self._commit = threading.Lock()
         self.marker_obstacles = MarkerObstacles(self.frame)
-        self.costmap: tuple[np.ndarray, float] = (np.zeros((0, 2)), 0.0)
         self._costmap_discs = np.zeros((0, 5))  # drawn once per costmap, at rest
         self.costmap_cells = NO_CELLS  # the same cells, indexed for the command guard
         self.obstacle_receiver = ObstacleReceiver(self, {
@@ -88,7 +87,6 @@ class ObstacleListener(GuardedNode):
         with self._commit:
             if receiver is self.obstacle_receiver:
                 self.costmap_reduced(reduced)
-                self.costmap = (cells, size)
                 self.obstacles_changed()
 
     def reduce_costmap(self, cells: np.ndarray, size: float) -> tuple:

@@ -248,7 +248,7 @@ class PlannerNode(RuntimeParameters, PlanOutputs, ObstacleListener, ClockWatchdo
             self.live.set_odometry(stamp, pose, twist, received)
         except ClockSkew as exc:
             raise cv.InputRejected(f'{exc}{self.other_clocks()}') from None
-        if len(self.costmap[0]) and np.hypot(*(pose[:2] - self._discs_centre)) > DISC_SIZE:
+        if len(self.costmap_cells) and np.hypot(*(pose[:2] - self._discs_centre)) > DISC_SIZE:
             self.obstacles_changed()  # re-choose the costmap discs near the robot
         arrived = info.get('received_timestamp') or 0  # 0: not known (rmw_cyclonedds)
         if self.params['replan_on_odom'] and 0 < arrived < self._planned_ns:
