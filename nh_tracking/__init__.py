@@ -14,20 +14,21 @@
 
 """nh_tracking: optimal trajectory tracking for nonholonomic mechanical systems.
 
-Layers, each usable without the ones above it: the geometric core (``NonholonomicSystem``,
-``models``, ``simulate``, the problem), the tracking methods (``solvers``), the planner
-(receding horizon, ``session``), the ROS 2 nodes (``nh_tracking.ros``, the only part that
-imports rclpy) and the examples (``nh_tracking.examples``: demo, benchmark, experiments).
+Layers, one package each and usable without the ones above it: ``core`` (``NonholonomicSystem``,
+``simulate``, trajectories), ``models``, ``problem`` and ``estimation``, ``solvers`` (the tracking
+methods), ``planning`` and ``navigation`` (receding horizon, routes, goals), ``session`` (the
+planner without ROS), ``ros`` (the nodes, the only part that imports rclpy) and ``examples``
+(demo, benchmark, experiments).
 """
 from importlib.metadata import PackageNotFoundError, version
 
 from nh_tracking import models
-from nh_tracking.estimation import estimate_parameters, ParameterEstimate
-from nh_tracking.problem import Solution, TrackingProblem
-from nh_tracking.simulate import simulate
+from nh_tracking.core.simulate import simulate
+from nh_tracking.core.system import NonholonomicSystem
+from nh_tracking.core.trajectory import Trajectory
+from nh_tracking.estimation.output_error import estimate_parameters, ParameterEstimate
+from nh_tracking.problem.tracking_problem import Solution, TrackingProblem
 from nh_tracking.solvers import solve
-from nh_tracking.system import NonholonomicSystem
-from nh_tracking.trajectory import Trajectory
 
 __all__ = ['NonholonomicSystem', 'ParameterEstimate', 'Solution', 'TrackingProblem',
            'Trajectory', 'estimate_parameters', 'models', 'simulate', 'solve']

@@ -23,9 +23,9 @@ import uuid
 import numpy as np
 import pytest
 
-from nh_tracking.adaptation import agreeing, mean_control, SentControls
-from nh_tracking.estimation import ParameterEstimate
-from nh_tracking.estimation_worker import EstimationWorker
+from nh_tracking.estimation.adaptation import agreeing, mean_control, SentControls
+from nh_tracking.estimation.output_error import ParameterEstimate
+from nh_tracking.estimation.worker import EstimationWorker
 from nh_tracking.examples.adapting import run_adaptation_demo
 from nh_tracking.ros import PlannerNode
 from nh_tracking.ros.graph import parameters

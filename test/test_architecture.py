@@ -26,14 +26,12 @@ import nh_tracking
 ROOT = Path(__file__).resolve().parents[1]
 PACKAGE = ROOT / 'nh_tracking'
 LAYERS = [  # lowest first; a module may import from its own layer and the ones below
-    {'geometry', 'system', 'family', 'lagrangian_data',
-     'models', 'simulate', 'trajectory', 'problem', 'numeric', 'metrics',
-     'settings', 'regularity', 'limits', 'costmap', 'lean', 'reference_checks', 'route',
-     'route_shape', 'goal_checking', 'detours', 'disc_tracks', 'parametric', 'estimation',
-     'estimation_worker', 'adaptation', 'attempts', 'command_guard'},
+    {'core'},
+    {'models'},
+    {'problem', 'estimation'},
     {'solvers'},
-    {'receding_horizon', 'avoidance', 'fallback', 'poses', 'session', 'session_types', 'health',
-     'following', 'joints', 'implied_shape', 'robot_state', 'guarded_plan', 'commanding'},
+    {'planning', 'navigation'},
+    {'session'},
     {'ros'},
     {'examples'},
 ]
@@ -58,9 +56,33 @@ def _imports(path: Path) -> list[str]:
     for node in ast.walk(ast.parse(path.read_text())):  # function-level imports count too
         if isinstance(node, ast.Import):
             found += [a.name for a in node.names]
+        elif isinstance(node, ast.ImportFrom) and node.module == 'nh_tracking':
+            found += [f'nh_tracking.{a.name}' for a in node.names if a.name in _packages()]
         elif isinstance(node, ast.ImportFrom) and node.module and node.level == 0:
             found.append(node.module)
     return found
+
+
+def _packages() -> set[str]:
+    return {p.parent.name for p in PACKAGE.glob('*/__init__.py')}
+
+
+def test_every_module_lives_in_a_layer():
+    """The tree is the architecture: no module beside the packages, each package a layer."""
+    loose = sorted(p.name for p in PACKAGE.glob('*.py') if p.name != '__init__.py')
+    assert loose == []
+    assert _packages() == set().union(*LAYERS)
+
+
+def test_the_user_guide_lists_the_packages():
+    """The layout table names each package once, in the order of the layers, with its modules."""
+    table = (ROOT / 'docs' / 'user_guide.md').read_text().split('## Layout', 1)[1]
+    rows = re.findall(r'^\| `nh_tracking/(\w+)/` \|[^|]*\|([^|]*)\|$', table, re.M)
+    assert [name for name, _ in rows] == [name for layer in LAYERS for name in sorted(layer)]
+    for name, cell in rows:
+        if listed := re.findall(r'`(\w+)`', cell):  # a row that names modules names them all
+            modules = {p.stem for p in (PACKAGE / name).glob('*.py')} - {'__init__'}
+            assert sorted(listed) == sorted(modules), name
 
 
 def test_no_module_imports_from_a_layer_above_it():

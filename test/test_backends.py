@@ -24,7 +24,7 @@ import numpy as np
 import pytest
 from scipy.optimize import lsq_linear, minimize
 
-from nh_tracking.numeric import NumericFunction
+from nh_tracking.core.numeric import NumericFunction
 from nh_tracking.solvers.compiled import wait_for_builds
 from nh_tracking.solvers.line_search import line_search_solve, LineSearchOptions
 from nh_tracking.solvers.newton import NewtonStep

@@ -20,12 +20,12 @@ import numpy as np
 import pytest
 
 import nh_tracking as nht
-from nh_tracking.command_guard import (arc, Clearance, CommandGuard, free_distance,
-                                       GuardAction, OccupiedCells, SpeedLimit,
-                                       stopping_speed)
-from nh_tracking.commanding import Commands
-from nh_tracking.guarded_plan import guard_controls
-from nh_tracking.poses import PoseMap
+from nh_tracking.core.poses import PoseMap
+from nh_tracking.planning.command_guard import (arc, Clearance, CommandGuard, free_distance,
+                                                GuardAction, OccupiedCells, SpeedLimit,
+                                                stopping_speed)
+from nh_tracking.planning.guarded_plan import guard_controls
+from nh_tracking.session.commanding import Commands
 
 # a differential drive: v = (forward speed, yaw rate) is its body twist's (vx, wz)
 UNICYCLE = np.array([[1.0, 0.0], [0.0, 0.0], [0.0, 0.0], [0.0, 1.0]])
@@ -239,7 +239,7 @@ def test_commands_ramp_from_the_one_before_while_a_base_holds_it_else_from_the_r
 
     A base holds a velocity command COMMAND_MEMORY (0.5 s); later it has stopped on its own.
     """
-    from nh_tracking.receding_horizon import PlannerSettings, RecedingHorizonPlanner
+    from nh_tracking.planning.receding_horizon import PlannerSettings, RecedingHorizonPlanner
 
     unicycle = nht.models.unicycle()
     planner = RecedingHorizonPlanner(unicycle, PlannerSettings(v_min=(-0.7, -3.0),

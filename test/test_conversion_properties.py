@@ -31,7 +31,7 @@ from trajectory_msgs.msg import (JointTrajectory, JointTrajectoryPoint, MultiDOF
                                  MultiDOFJointTrajectoryPoint)
 
 import nh_tracking as nht
-from nh_tracking.poses import PoseMap
+from nh_tracking.core.poses import PoseMap
 from nh_tracking.ros import conversions as cv
 from nh_tracking.ros import messages as msgs
 
@@ -279,7 +279,7 @@ def marker_arrays(draw):
 def test_obstacle_markers_give_finite_discs_or_a_rejection(messages):
     from nh_tracking.ros.obstacle_messages import MarkerObstacles
 
-    from nh_tracking.disc_tracks import MAX_SPEED
+    from nh_tracking.problem.disc_tracks import MAX_SPEED
 
     obstacles = MarkerObstacles('odom')
     for msg in messages:
@@ -300,8 +300,8 @@ def test_costmaps_give_finite_cells_or_a_rejection(resolution, width, height, da
                                                    frame):
     from nav_msgs.msg import OccupancyGrid
 
-    from nh_tracking.costmap import costmap_discs
-    from nh_tracking.limits import nearest_discs
+    from nh_tracking.navigation.costmap import costmap_discs
+    from nh_tracking.problem.limits import nearest_discs
     from nh_tracking.ros.obstacle_messages import occupied_cells
 
     grid = OccupancyGrid()

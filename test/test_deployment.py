@@ -34,7 +34,7 @@ from rclpy.parameter import Parameter
 from trajectory_msgs.msg import JointTrajectory
 import yaml
 
-from nh_tracking.metrics import cross_track_error
+from nh_tracking.core.metrics import cross_track_error
 from nh_tracking.ros import conversions as cv
 from nh_tracking.ros import messages as msgs
 from nh_tracking.ros.graph import wait_until

@@ -22,9 +22,9 @@ import pytest
 from test_following import Loop, polyline
 
 import nh_tracking as nht
-from nh_tracking.detours import blocking_discs, detour_guesses
-from nh_tracking.goal_checking import GoalState
-import nh_tracking.receding_horizon as rh
+from nh_tracking.navigation.goal_checking import GoalState
+import nh_tracking.planning.receding_horizon as rh
+from nh_tracking.problem.detours import blocking_discs, detour_guesses
 
 
 def _straight(system, speed_row, q0, v0, disc, duration=10.0):

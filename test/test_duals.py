@@ -20,8 +20,8 @@ import numpy as np
 import pytest
 
 import nh_tracking as nht
-from nh_tracking import receding_horizon as rh
 from nh_tracking.examples.obstacles import line_reference
+from nh_tracking.planning import receding_horizon as rh
 from nh_tracking.solvers import Guess, sample_plan
 from nh_tracking.solvers.duals import carried_multipliers
 from nh_tracking.solvers.inequalities import Shape

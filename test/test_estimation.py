@@ -25,10 +25,10 @@ import numpy as np
 import pytest
 
 import nh_tracking as nht
-from nh_tracking.adaptation import OnlineEstimator
-from nh_tracking.lagrangian_data import LagrangianData
+from nh_tracking.core.lagrangian_data import LagrangianData
+from nh_tracking.estimation.adaptation import OnlineEstimator
+from nh_tracking.estimation.parametric import parametric_model
 from nh_tracking.models import ModelSpec, PhysicalParameter
-from nh_tracking.parametric import parametric_model
 
 RATE = 50.0  # Hz, as odometry comes
 SECONDS = 10.0

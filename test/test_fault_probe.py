@@ -289,7 +289,7 @@ def test_a_planner_started_after_latched_obstacles_and_reference_uses_both():
     from visualization_msgs.msg import MarkerArray
 
     from nh_tracking.examples.obstacles import INFLATION, line_reference, OBSTACLES, ROBOT_RADIUS
-    from nh_tracking.poses import PoseMap
+    from nh_tracking.core.poses import PoseMap
     from nh_tracking.ros.markers import obstacle_markers
     import nh_tracking as nht
 
@@ -434,7 +434,7 @@ def test_a_100000_pose_path_never_pauses_control():
 
 
 def test_the_stale_fraction_is_over_the_last_second():
-    from nh_tracking.session_types import Staleness
+    from nh_tracking.session.interface import Staleness
 
     now = [100.0]
     staleness = Staleness(lambda: now[0])

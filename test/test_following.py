@@ -19,14 +19,14 @@ import numpy as np
 import pytest
 
 import nh_tracking as nht
+from nh_tracking.core.metrics import cross_track_error
+from nh_tracking.core.poses import PoseMap
 from nh_tracking.examples.nav2 import polyline
-from nh_tracking.goal_checking import (GoalChecker, GoalSettings, GoalState, PathProgress,
-                                       ProgressChecker)
-from nh_tracking.metrics import cross_track_error
-from nh_tracking.poses import PoseMap
-from nh_tracking.receding_horizon import PlannerSettings, PlanStatus
-from nh_tracking.reference_checks import ReferenceRejected
-from nh_tracking.session import TrackingSession
+from nh_tracking.navigation.goal_checking import (GoalChecker, GoalSettings, GoalState,
+                                                  PathProgress, ProgressChecker)
+from nh_tracking.navigation.reference_checks import ReferenceRejected
+from nh_tracking.planning.receding_horizon import PlannerSettings, PlanStatus
+from nh_tracking.session.tracking_session import TrackingSession
 from test_route import arc
 
 

@@ -18,7 +18,7 @@ import numpy as np
 import pytest
 
 import nh_tracking as nht
-from nh_tracking import geometry
+from nh_tracking.core import geometry
 from systems import (ALL_SYSTEMS, basis_acceleration, inclined_knife_edge,
                      lagrange_dalembert_acceleration, random_state)
 

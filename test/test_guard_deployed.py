@@ -31,10 +31,10 @@ import pytest
 from trajectory_msgs.msg import JointTrajectory
 
 from nh_tracking import models
-from nh_tracking.costmap import gap
+from nh_tracking.core.poses import PoseMap
 from nh_tracking.examples.nav2 import LETHAL, nav2_costmap, polyline, route_msg
-from nh_tracking.guarded_plan import replay
-from nh_tracking.poses import PoseMap
+from nh_tracking.navigation.costmap import gap
+from nh_tracking.planning.guarded_plan import replay
 from nh_tracking.ros import conversions as cv
 from nh_tracking.ros.graph import wait_until
 from nh_tracking.ros.planner_interface import LATCHED

@@ -20,9 +20,9 @@ import numpy as np
 import pytest
 
 import nh_tracking as nht
-from nh_tracking.joints import joint_mapping, JointMap, JointReading, JointsRejected, observe
-from nh_tracking.poses import PoseMap
-from nh_tracking.robot_state import RobotState
+from nh_tracking.core.joints import joint_mapping, JointMap, JointReading, JointsRejected, observe
+from nh_tracking.core.poses import PoseMap
+from nh_tracking.session.robot_state import RobotState
 from user_robots import car_like
 
 

@@ -26,7 +26,8 @@ import casadi as ca
 import numpy as np
 import pytest
 
-from nh_tracking import lean, models
+from nh_tracking import models
+from nh_tracking.core import lean
 from nh_tracking.models.snakeboard import snakeboard
 
 Q, V, U = ca.SX.sym('q', 5), ca.SX.sym('v', 3), ca.SX.sym('u', 3)
@@ -197,7 +198,7 @@ def test_features_the_samples_miss_are_kept(potential, q, expected):
     one, a winding penalty past the sampled angles.
     """
     import nh_tracking as nht
-    import nh_tracking.lean as module
+    import nh_tracking.core.lean as module
 
     def build(name: str):
         return nht.NonholonomicSystem.from_constraints(

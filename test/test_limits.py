@@ -145,8 +145,8 @@ def test_a_plan_that_touches_a_left_out_obstacle_is_replanned_with_it(monkeypatc
 
     No plan in force goes through an obstacle the planner knows of.
     """
-    import nh_tracking.avoidance as avoidance
-    import nh_tracking.receding_horizon as rh
+    import nh_tracking.planning.avoidance as avoidance
+    import nh_tracking.planning.receding_horizon as rh
 
     unicycle = nht.models.unicycle()
     t = np.linspace(0.0, 20.0, 201)
@@ -255,7 +255,7 @@ def test_a_plan_among_many_discs_is_clear_of_every_one(method, discs):
     all of them at its points and between them, and a minimum of the problem with every disc
     at every point (a solve from it stays there).
     """
-    from nh_tracking.limits import plan_path
+    from nh_tracking.problem.limits import plan_path
     from nh_tracking.solvers.base import Guess
     from nh_tracking.solvers.routes import Route, solve_route
 
@@ -281,7 +281,7 @@ def test_a_path_through_a_disc_between_its_points_is_caught():
     cuts in by 17 % of the radius; a jump across the disc from one side to the other, both
     points clear of it: caught, by nearly the radius.
     """
-    from nh_tracking.limits import Limits
+    from nh_tracking.problem.limits import Limits
 
     limits = Limits.of(nht.models.unicycle(), None, None, [(0.5, 0.0, 0.1)], 0.05)  # R = 0.15
 
@@ -309,8 +309,8 @@ def test_costmap_discs_do_not_move_with_the_robot():
 
     Discs redrawn about the robot's position put a plan hugging one inside the next one.
     """
-    from nh_tracking.costmap import costmap_discs
-    from nh_tracking.limits import nearest_discs
+    from nh_tracking.navigation.costmap import costmap_discs
+    from nh_tracking.problem.limits import nearest_discs
 
     size = 0.05
     x, y = np.meshgrid(np.arange(-40, 200) * size, np.arange(-40, 40) * size)
@@ -336,7 +336,7 @@ def test_costmap_discs_do_not_move_with_the_robot():
 
 
 def test_the_gap_to_costmap_cells_is_to_their_squares_and_to_disc_edges():
-    from nh_tracking.costmap import gap
+    from nh_tracking.navigation.costmap import gap
 
     cells = np.array([[1.0, 0.0], [1.0, 0.1]])  # 0.1 m squares: x 0.95-1.05, y -0.05-0.15
     discs = np.array([[-2.0, 0.0, 0.5]])
@@ -349,7 +349,7 @@ def test_the_gap_to_costmap_cells_is_to_their_squares_and_to_disc_edges():
 
 def test_a_robot_inside_the_margin_it_keeps_still_gets_an_optimal_plan():
     """0.01 m inside an obstacle's clearance: the prepared NLP plans, keeping its distance."""
-    import nh_tracking.receding_horizon as rh
+    import nh_tracking.planning.receding_horizon as rh
 
     unicycle = nht.models.unicycle()
     planner = rh.RecedingHorizonPlanner(unicycle, rh.PlannerSettings(
@@ -428,7 +428,7 @@ def test_the_cache_keeps_the_horizon_sizes_used_last_and_drops_older_ones_togeth
 
 def test_the_fallback_brakes_where_tracking_would_hit_an_obstacle():
     """No optimal plan and an obstacle on the reference: brake as hard as the limits allow."""
-    from nh_tracking.fallback import fallback
+    from nh_tracking.planning.fallback import fallback
 
     unicycle = nht.models.unicycle()
     problem = nht.TrackingProblem(unicycle, _line(), [0.0, 0.0, 0.0], [0.5, 0.0], 5.0, 50,
@@ -453,7 +453,7 @@ def test_a_robot_inside_an_obstacle_is_given_the_way_out():
     have; then the least-violating plan leaves the obstacle. One that would go deeper first
     (through it and out: a smaller summed violation than braking) is not put in force.
     """
-    import nh_tracking.receding_horizon as rh
+    import nh_tracking.planning.receding_horizon as rh
     from nh_tracking.ros.graph import wait_until
 
     unicycle = nht.models.unicycle()
@@ -492,7 +492,7 @@ def test_a_previous_plan_that_breaks_the_limits_now_in_force_is_not_kept(change)
     new clearance (the soft NLP not yet built, every replan failed): it kept its old plan down
     to the bare disc's edge.
     """
-    import nh_tracking.receding_horizon as rh
+    import nh_tracking.planning.receding_horizon as rh
 
     unicycle = nht.models.unicycle()
     planner = rh.RecedingHorizonPlanner(unicycle, rh.PlannerSettings(horizon=5.0, steps=50))

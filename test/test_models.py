@@ -18,8 +18,8 @@ import numpy as np
 import pytest
 
 import nh_tracking as nht
-from nh_tracking.lagrangian_data import POSE_AXES
-from nh_tracking.poses import bases, PoseMap
+from nh_tracking.core.lagrangian_data import POSE_AXES
+from nh_tracking.core.poses import bases, PoseMap
 
 
 @pytest.mark.parametrize('m, J, a', [(1.0, 4.0, 0.2), (2.5, 0.3, 0.9), (0.7, 1.1, -0.4)])

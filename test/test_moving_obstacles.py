@@ -24,8 +24,8 @@ import numpy as np
 import pytest
 
 import nh_tracking as nht
-from nh_tracking.limits import obstacle_discs
-from nh_tracking.receding_horizon import PlannerSettings, RecedingHorizonPlanner
+from nh_tracking.planning.receding_horizon import PlannerSettings, RecedingHorizonPlanner
+from nh_tracking.problem.limits import obstacle_discs
 
 ROBOT_RADIUS = 0.1
 REPLAY_TOL = 0.01  # [m] a replay may come this much closer than the knots and midpoints
@@ -147,8 +147,8 @@ def test_a_replanning_robot_crosses_behind_a_disc_crossing_its_way():
 
 
 def test_a_disc_seen_moving_gets_its_velocity_and_loses_it_where_it_jumps_or_time_goes_back():
-    from nh_tracking.disc_tracks import DiscTracks, MAX_SPEED
-    from nh_tracking.limits import PREDICTION
+    from nh_tracking.problem.disc_tracks import DiscTracks, MAX_SPEED
+    from nh_tracking.problem.limits import PREDICTION
 
     rng = np.random.default_rng(3)
     tracks, velocity = DiscTracks(), np.array([0.3, -0.2])
@@ -181,7 +181,7 @@ def test_a_disc_seen_moving_gets_its_velocity_and_loses_it_where_it_jumps_or_tim
 
 
 def test_discs_move_on_from_when_each_was_seen_never_back_and_at_most_the_prediction():
-    from nh_tracking.limits import moved, PREDICTION
+    from nh_tracking.problem.limits import moved, PREDICTION
 
     discs = np.tile([0.0, 0.0, 0.2, 1.0, 0.5], (3, 1))
     out = moved(discs, [-5.0, 1.0, 10.0])  # stamped ahead of the clock, 1 s ago, long ago

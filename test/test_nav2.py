@@ -31,12 +31,12 @@ import numpy as np
 import pytest
 from rclpy.action import ActionClient
 
+from nh_tracking.core.metrics import cross_track_error
 from nh_tracking.examples.nav2 import nav2_costmap, polyline, route_msg
-from nh_tracking.metrics import cross_track_error
+from nh_tracking.navigation.route_shape import closest_point
 from nh_tracking.ros import messages as msgs
 from nh_tracking.ros.graph import wait_until
 from nh_tracking.ros.planner_interface import LATCHED
-from nh_tracking.route_shape import closest_point
 from processes import domain_env, Peer, Process
 from test_route import arc
 

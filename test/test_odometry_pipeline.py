@@ -22,8 +22,8 @@ import numpy as np
 import pytest
 from trajectory_msgs.msg import JointTrajectory
 
+from nh_tracking.core.poses import PoseMap
 from nh_tracking.examples.demo import sleigh_reference
-from nh_tracking.poses import PoseMap
 from nh_tracking.ros import conversions as cv
 from nh_tracking.ros import messages as msgs
 from nh_tracking.ros import PlannerNode

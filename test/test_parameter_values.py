@@ -25,9 +25,10 @@ import pytest
 from test_estimation import PUSHED
 
 import nh_tracking as nht
-from nh_tracking import models, poses
-from nh_tracking.poses import PoseMap
-from nh_tracking.robot_state import RobotState
+from nh_tracking import models
+from nh_tracking.core import poses
+from nh_tracking.core.poses import PoseMap
+from nh_tracking.session.robot_state import RobotState
 from nh_tracking.solvers import midpoint
 from systems import basis_acceleration, lagrange_dalembert_acceleration
 

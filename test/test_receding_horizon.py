@@ -20,10 +20,10 @@ import pytest
 
 from faults import Faulty
 import nh_tracking as nht
+from nh_tracking.core.poses import PoseMap, wrap_angle
 from nh_tracking.examples.experiments import SLEIGH_REFERENCE_START, SLEIGH_START
-from nh_tracking.fallback import fallback_plan, TrackingLaw
-from nh_tracking.poses import PoseMap, wrap_angle
-import nh_tracking.receding_horizon as rh
+from nh_tracking.planning.fallback import fallback_plan, TrackingLaw
+import nh_tracking.planning.receding_horizon as rh
 from systems import ALL_SYSTEMS, random_state
 
 

@@ -30,8 +30,8 @@ from sensor_msgs.msg import JointState
 from tf2_msgs.msg import TFMessage
 
 import nh_tracking as nht
-from nh_tracking.metrics import cross_track_error
-from nh_tracking.poses import PoseMap
+from nh_tracking.core.metrics import cross_track_error
+from nh_tracking.core.poses import PoseMap
 from nh_tracking.ros import conversions as cv
 from nh_tracking.ros import messages as msgs
 from nh_tracking.ros.graph import wait_until

@@ -34,10 +34,10 @@ from visualization_msgs.msg import Marker, MarkerArray
 
 from faults import Faulty
 from nh_tracking import models
+from nh_tracking.core.metrics import cross_track_error
 from nh_tracking.examples.demo import ClosedLoop, sleigh_reference, START
 from nh_tracking.examples.experiments import SLEIGH_REFERENCE_START
 from nh_tracking.examples.obstacles import costmap_msg
-from nh_tracking.metrics import cross_track_error
 from nh_tracking.ros import conversions as cv
 from nh_tracking.ros import messages as msgs
 from nh_tracking.ros import PlannerNode, SimulatorNode

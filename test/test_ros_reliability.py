@@ -28,8 +28,8 @@ from rclpy.qos import QoSProfile
 from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint, MultiDOFJointTrajectory
 from visualization_msgs.msg import Marker, MarkerArray
 
+from nh_tracking.core.metrics import cross_track_error
 from nh_tracking.examples.demo import ClosedLoop, sleigh_reference, START
-from nh_tracking.metrics import cross_track_error
 from nh_tracking.ros import messages as msgs
 from nh_tracking.ros.graph import wait_until
 from test_ros import WallClockPair

@@ -17,10 +17,10 @@ import numpy as np
 import pytest
 
 from nh_tracking import models
+from nh_tracking.core.poses import PoseMap
 from nh_tracking.examples.nav2 import polyline
-from nh_tracking.poses import PoseMap
-from nh_tracking.route import RouteHeadings, RouteSettings, time_route
-from nh_tracking.route_shape import closest_point
+from nh_tracking.navigation.route import RouteHeadings, RouteSettings, time_route
+from nh_tracking.navigation.route_shape import closest_point
 
 
 def arc(radius: float, sweep: float, spacing=0.05) -> np.ndarray:

@@ -20,8 +20,8 @@ import numpy as np
 import pytest
 
 import nh_tracking as nht
-from nh_tracking.attempts import Backend, Status
 from nh_tracking.examples.experiments import particle_problem, sleigh_problem
+from nh_tracking.problem.attempts import Backend, Status
 from nh_tracking.solvers import sample_plan, Variational
 from nh_tracking.solvers.base import Guess
 from nh_tracking.solvers.routes import NOT_FINITE, PAUSE, PAUSE_AFTER, ROUTES

@@ -322,7 +322,7 @@ def test_methods_are_objects_with_their_own_options(sleigh_literal):
 
     An option a method does not take is an error naming the methods that do; backends agree.
     """
-    from nh_tracking.receding_horizon import PlannerSettings
+    from nh_tracking.planning.receding_horizon import PlannerSettings
     from nh_tracking.solvers import make_method, METHODS, Variational
 
     problem, reference = sleigh_literal

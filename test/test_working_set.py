@@ -24,7 +24,7 @@ import numpy as np
 import pytest
 
 import nh_tracking as nht
-import nh_tracking.receding_horizon as rh
+import nh_tracking.planning.receding_horizon as rh
 from nh_tracking.solvers import routes, sample_plan, variational
 from nh_tracking.solvers.inequalities import Shape
 from nh_tracking.solvers.midpoint import working_set_step

@@ -28,8 +28,8 @@ import time
 from diagnostic_msgs.msg import DiagnosticArray
 import numpy as np
 
+from nh_tracking.core.metrics import cross_track_error
 from nh_tracking.examples.demo import ClosedLoop, sleigh_reference, START
-from nh_tracking.metrics import cross_track_error
 from nh_tracking.ros.graph import InProcessGraph
 from nh_tracking.ros.runner import responsive_threads
 

@@ -30,13 +30,13 @@ from typing import Any, TypeVar
 import numpy as np
 
 from nh_tracking import models
+from nh_tracking.core.metrics import cross_track_error, percentiles_ms
+from nh_tracking.core.simulate import simulate
 from nh_tracking.examples.cold import cold_past_a_disc, cold_solve, interleaved
 from nh_tracking.examples.experiments import (particle_problem, sleigh_problem,
                                               SLEIGH_REFERENCE_START, SLEIGH_START)
-from nh_tracking.metrics import cross_track_error, percentiles_ms
-from nh_tracking.problem import TrackingProblem
-from nh_tracking.receding_horizon import PlannerSettings, RecedingHorizonPlanner
-from nh_tracking.simulate import simulate
+from nh_tracking.planning.receding_horizon import PlannerSettings, RecedingHorizonPlanner
+from nh_tracking.problem.tracking_problem import TrackingProblem
 from nh_tracking.solvers.compiled import wait_for_builds
 from nh_tracking.solvers.midpoint import transcription
 from nh_tracking.solvers.pmp import solve_pmp
@@ -209,9 +209,9 @@ def command_guard_cost(log: Callable[[str], None], calls: int = 500) -> dict:
     control sequence that keeps to its limits (the replay and its checks), each the median
     over rounds of ``calls`` calls.
     """
-    from nh_tracking.command_guard import Clearance, CommandGuard, OccupiedCells
-    from nh_tracking.guarded_plan import guard_controls
-    from nh_tracking.poses import PoseMap
+    from nh_tracking.planning.command_guard import Clearance, CommandGuard, OccupiedCells
+    from nh_tracking.planning.guarded_plan import guard_controls
+    from nh_tracking.core.poses import PoseMap
 
     pose_map = PoseMap(models.unicycle())
     guard = CommandGuard(np.array([[-0.7, -3.0], [0.7, 3.0]]), 0.5, 1.0, 0.2)

@@ -23,8 +23,8 @@ import sys
 import numpy as np
 
 from nh_tracking import models
+from nh_tracking.core.simulate import simulate
 from nh_tracking.examples.plotting import plot_simulation
-from nh_tracking.simulate import simulate
 
 
 def _floats(text: str) -> list[float]:

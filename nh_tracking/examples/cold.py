@@ -24,10 +24,10 @@ from typing import Any, TypeVar
 import numpy as np
 
 from nh_tracking import models
+from nh_tracking.core.simulate import simulate
 from nh_tracking.examples import peers
 from nh_tracking.examples.experiments import sleigh_problem
-from nh_tracking.problem import TrackingProblem
-from nh_tracking.simulate import simulate
+from nh_tracking.problem.tracking_problem import TrackingProblem
 from nh_tracking.solvers import solve
 from nh_tracking.solvers.compiled import wait_for_builds
 from nh_tracking.solvers.midpoint import transcription

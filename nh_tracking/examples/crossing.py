@@ -33,13 +33,13 @@ from rclpy.node import Node
 from visualization_msgs.msg import Marker, MarkerArray
 
 from nh_tracking import models
-from nh_tracking.poses import PoseMap
+from nh_tracking.core.poses import PoseMap
+from nh_tracking.core.trajectory import Trajectory
 from nh_tracking.ros import conversions as cv
 from nh_tracking.ros import messages as msgs
 from nh_tracking.ros.graph import InProcessGraph, parameters, wait_until
 from nh_tracking.ros.planner_node import LATCHED, PlannerNode
 from nh_tracking.ros.simulator_node import SimulatorNode
-from nh_tracking.trajectory import Trajectory
 
 ROBOT_RADIUS, INFLATION = 0.2, 0.05  # [m]: the planner keeps the inflation more
 SPEED, DISC_SPEED, DISC_RADIUS = 0.8, 0.3, 0.25  # [m/s], [m/s], [m]

@@ -30,17 +30,17 @@ import numpy as np
 from trajectory_msgs.msg import MultiDOFJointTrajectory
 
 from nh_tracking import models
+from nh_tracking.core.metrics import cross_track_error, percentiles_ms
+from nh_tracking.core.poses import PoseMap
+from nh_tracking.core.simulate import simulate
+from nh_tracking.core.trajectory import Trajectory
 from nh_tracking.examples.experiments import SLEIGH_REFERENCE_START, SLEIGH_START
-from nh_tracking.metrics import cross_track_error, percentiles_ms
-from nh_tracking.poses import PoseMap
 from nh_tracking.ros import conversions as cv
 from nh_tracking.ros import messages as msgs
 from nh_tracking.ros.graph import InProcessGraph, parameters, wait_until
 from nh_tracking.ros.planner_node import LATCHED, PlannerNode
 from nh_tracking.ros.runner import responsive_threads
 from nh_tracking.ros.simulator_node import SimulatorNode
-from nh_tracking.simulate import simulate
-from nh_tracking.trajectory import Trajectory
 
 START = 1.0  # s on the simulated clock when the robot starts and the reference begins
 INERTIA_MISMATCH = 1.10

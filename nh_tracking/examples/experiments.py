@@ -27,11 +27,11 @@ import time
 import numpy as np
 
 from nh_tracking import models
+from nh_tracking.core.simulate import simulate
+from nh_tracking.core.trajectory import Trajectory
 from nh_tracking.examples.plotting import plot_energy, plot_tracking
-from nh_tracking.problem import running_cost_profile, Terminal, TrackingProblem
-from nh_tracking.simulate import simulate
+from nh_tracking.problem.tracking_problem import running_cost_profile, Terminal, TrackingProblem
 from nh_tracking.solvers import solve
-from nh_tracking.trajectory import Trajectory
 
 SLEIGH_START = ([0.0, 0.0, 4 * np.pi / 3], [0.25, 1.0])  # gamma(0) of §5
 SLEIGH_REFERENCE_START = ([0.0, 0.5, 0.0], [1 / 3, 1.0])  # the uncontrolled reference's start

@@ -39,7 +39,7 @@ from diagnostic_msgs.msg import DiagnosticArray
 from nav_msgs.msg import Odometry, Path as PathMsg
 import numpy as np
 
-from nh_tracking.metrics import cross_track_error
+from nh_tracking.core.metrics import cross_track_error
 from nh_tracking.ros import conversions as cv
 from nh_tracking.ros import messages as msgs
 from nh_tracking.ros.graph import InProcessGraph, wait_until

@@ -33,14 +33,14 @@ from nav_msgs.msg import Odometry, Path as PathMsg
 import numpy as np
 
 from nh_tracking import models
+from nh_tracking.core.metrics import percentiles_ms
+from nh_tracking.core.poses import PoseMap
+from nh_tracking.core.trajectory import Trajectory
 from nh_tracking.examples.demo import ClosedLoop, sleigh_reference
-from nh_tracking.metrics import percentiles_ms
-from nh_tracking.poses import PoseMap
 from nh_tracking.ros import messages as msgs
 from nh_tracking.ros.graph import InProcessGraph, wait_until
 from nh_tracking.ros.planner_interface import LATCHED
 from nh_tracking.ros.runner import responsive_threads
-from nh_tracking.trajectory import Trajectory
 
 
 REAL_TIME = {'iterations': 1}  # the planner's fastest mode: one Gauss-Newton step a replan

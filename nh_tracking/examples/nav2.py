@@ -30,7 +30,7 @@ from nav_msgs.msg import OccupancyGrid, Odometry
 import numpy as np
 from rclpy.action import ActionClient
 
-from nh_tracking.metrics import cross_track_error
+from nh_tracking.core.metrics import cross_track_error
 from nh_tracking.ros import messages as msgs
 from nh_tracking.ros.graph import InProcessGraph, parameters, wait_until
 from nh_tracking.ros.obstacle_messages import LETHAL

@@ -35,15 +35,15 @@ from trajectory_msgs.msg import JointTrajectory
 from visualization_msgs.msg import MarkerArray
 
 from nh_tracking import models
-from nh_tracking.metrics import cross_track_error
-from nh_tracking.poses import PoseMap
+from nh_tracking.core.metrics import cross_track_error
+from nh_tracking.core.poses import PoseMap
+from nh_tracking.core.trajectory import Trajectory
 from nh_tracking.ros import conversions as cv
 from nh_tracking.ros import messages as msgs
 from nh_tracking.ros.graph import InProcessGraph, parameters, wait_until
 from nh_tracking.ros.markers import obstacle_markers
 from nh_tracking.ros.planner_node import LATCHED, PlannerNode
 from nh_tracking.ros.simulator_node import SimulatorNode
-from nh_tracking.trajectory import Trajectory
 
 OBSTACLES = np.array([(3.0, 0.05, 0.3), (6.0, -0.05, 0.3)])  # x, y, r [m], on the line
 ROBOT_RADIUS = 0.2

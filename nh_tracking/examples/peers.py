@@ -47,7 +47,7 @@ import warnings
 import casadi as ca
 import numpy as np
 
-from nh_tracking.problem import TrackingProblem
+from nh_tracking.problem.tracking_problem import TrackingProblem
 
 IPOPT_QUIET: dict[str, Any] = {'ipopt.print_level': 0, 'ipopt.sb': 'yes', 'print_time': 0}
 

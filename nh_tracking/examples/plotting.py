@@ -25,8 +25,8 @@ from typing import Protocol
 from matplotlib.figure import Figure
 import numpy as np
 
-from nh_tracking.system import NonholonomicSystem
-from nh_tracking.trajectory import Trajectory
+from nh_tracking.core.system import NonholonomicSystem
+from nh_tracking.core.trajectory import Trajectory
 
 
 def _subplots(*grid: int, figsize: tuple[float, float]):

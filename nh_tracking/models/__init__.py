@@ -26,6 +26,7 @@ from collections.abc import Mapping
 import importlib
 from importlib.metadata import entry_points
 
+from nh_tracking.core.system import NonholonomicSystem
 from nh_tracking.models import chaplygin_sleigh as _sleigh
 from nh_tracking.models import nonholonomic_particle as _particle
 from nh_tracking.models import rolling_disk as _disk
@@ -37,7 +38,6 @@ from nh_tracking.models.rolling_disk import rolling_disk
 from nh_tracking.models.snakeboard import snakeboard
 from nh_tracking.models.spec import ModelSpec, PhysicalParameter
 from nh_tracking.models.unicycle import unicycle
-from nh_tracking.system import NonholonomicSystem
 
 __all__ = ['MODELS', 'ModelSpec', 'PhysicalParameter', 'chaplygin_sleigh', 'create',
            'create_parametrised', 'model_parameters', 'nonholonomic_particle', 'rolling_disk',

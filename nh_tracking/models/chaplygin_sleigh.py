@@ -19,9 +19,9 @@ import math
 
 import casadi as ca
 
-from nh_tracking.lagrangian_data import LagrangianData
+from nh_tracking.core.lagrangian_data import LagrangianData
+from nh_tracking.core.system import NonholonomicSystem
 from nh_tracking.models.spec import ModelSpec, PhysicalParameter, positive, Scalar
-from nh_tracking.system import NonholonomicSystem
 
 
 def chaplygin_sleigh(m: float = 1.0, J: float = 4.0, a: float = 0.2) -> NonholonomicSystem:

@@ -17,8 +17,8 @@ from __future__ import annotations
 
 import casadi as ca
 
+from nh_tracking.core.system import NonholonomicSystem
 from nh_tracking.models.spec import ModelSpec
-from nh_tracking.system import NonholonomicSystem
 
 
 def nonholonomic_particle() -> NonholonomicSystem:

@@ -26,8 +26,8 @@ import math
 
 import casadi as ca
 
-from nh_tracking.lagrangian_data import LagrangianData
-from nh_tracking.system import NonholonomicSystem
+from nh_tracking.core.lagrangian_data import LagrangianData
+from nh_tracking.core.system import NonholonomicSystem
 
 POSITIVE = (1e-6, 1e6)
 Scalar = float | ca.SX  # a physical parameter: a number to build with, a symbol to estimate

@@ -17,9 +17,9 @@ from __future__ import annotations
 
 import casadi as ca
 
-from nh_tracking.lagrangian_data import LagrangianData
+from nh_tracking.core.lagrangian_data import LagrangianData
+from nh_tracking.core.system import NonholonomicSystem
 from nh_tracking.models.spec import ModelSpec, PhysicalParameter, positive, Scalar
-from nh_tracking.system import NonholonomicSystem
 
 
 def unicycle(m: float = 1.0, J: float = 1.0) -> NonholonomicSystem:

@@ -225,7 +225,7 @@ def joint_state_arrays(msg: JointState) -> tuple[int, list[str], np.ndarray, np.
     """(stamp [ns], names, positions, velocities (empty: not given)) of a JointState.
 
     Joints of other parts of the robot may be NaN; the hidden coordinates' values are checked
-    where they are read (:mod:`nh_tracking.joints`).
+    where they are read (:mod:`nh_tracking.core.joints`).
     """
     names, count = list(msg.name), len(msg.name)
     if len(msg.position) != count:

@@ -33,7 +33,7 @@ from typing import Any
 from rclpy.action import ActionServer, CancelResponse, GoalResponse
 from rclpy.task import Future
 
-from nh_tracking.goal_checking import GoalState
+from nh_tracking.navigation.goal_checking import GoalState
 from nh_tracking.ros import conversions as cv
 from nh_tracking.ros.companion import CompanionNode, LEAN
 from nh_tracking.ros.path_input import take_path

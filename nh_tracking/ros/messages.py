@@ -30,8 +30,8 @@ from tf2_msgs.msg import TFMessage
 from trajectory_msgs.msg import (JointTrajectory, JointTrajectoryPoint, MultiDOFJointTrajectory,
                                  MultiDOFJointTrajectoryPoint)
 
-from nh_tracking.poses import PoseMap
-from nh_tracking.trajectory import Trajectory
+from nh_tracking.core.poses import PoseMap
+from nh_tracking.core.trajectory import Trajectory
 
 
 def time_msg(ns: int) -> Time:

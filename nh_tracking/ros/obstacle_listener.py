@@ -24,9 +24,9 @@ from nav_msgs.msg import OccupancyGrid
 import numpy as np
 from visualization_msgs.msg import MarkerArray
 
-from nh_tracking.command_guard import NO_CELLS, OccupiedCells
-from nh_tracking.costmap import costmap_discs
-from nh_tracking.limits import nearest_discs, obstacle_discs
+from nh_tracking.navigation.costmap import costmap_discs
+from nh_tracking.planning.command_guard import NO_CELLS, OccupiedCells
+from nh_tracking.problem.limits import nearest_discs, obstacle_discs
 from nh_tracking.ros import conversions as cv
 from nh_tracking.ros.guarded import guarded, GuardedNode
 from nh_tracking.ros.obstacle_bytes import read_grid, read_markers, Unreadable

@@ -18,7 +18,7 @@
 scale.x / 2 at their pose; ADD/MODIFY move the marker of the same (ns, id), DELETE removes
 it, DELETEALL clears the set; other marker types (labels, arrows) are ignored. A marker seen
 again at a later header stamp moves: its velocity is estimated from its last positions
-(:mod:`nh_tracking.disc_tracks`); one stamped 0 is at rest. ``costmap``
+(:mod:`nh_tracking.problem.disc_tracks`); one stamped 0 is at rest. ``costmap``
 (nav_msgs/OccupancyGrid): cells at or above a threshold are occupied — by default Nav2's
 lethal cost, 100, so the inflation a Nav2 costmap carries (99 inscribed, 1-98 inflated) is not
 taken for obstacle and then inflated again by the robot's radius; -1 (unknown) is free. A
@@ -31,7 +31,7 @@ from nav_msgs.msg import OccupancyGrid
 import numpy as np
 from visualization_msgs.msg import Marker, MarkerArray
 
-from nh_tracking.disc_tracks import DiscTracks
+from nh_tracking.problem.disc_tracks import DiscTracks
 from nh_tracking.ros import conversions as cv
 from nh_tracking.ros.obstacle_bytes import Grid, Markers
 

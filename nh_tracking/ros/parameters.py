@@ -34,7 +34,7 @@ from rclpy.parameter import Parameter
 import yaml
 
 from nh_tracking import models
-from nh_tracking.settings import check, described, markdown_table, Setting
+from nh_tracking.core.settings import check, described, markdown_table, Setting
 
 
 @dataclass(frozen=True)

@@ -23,10 +23,10 @@ from nav_msgs.msg import Path
 import numpy as np
 from trajectory_msgs.msg import MultiDOFJointTrajectory
 
-from nh_tracking.reference_checks import ReferenceRejected
+from nh_tracking.navigation.reference_checks import ReferenceRejected
+from nh_tracking.navigation.route import RouteHeadings
 from nh_tracking.ros import conversions as cv
 from nh_tracking.ros.planner_host import PlannerHost
-from nh_tracking.route import RouteHeadings
 
 
 def take_path(node: PlannerHost, msg: Path | bytes, goal: bool = False) -> None:

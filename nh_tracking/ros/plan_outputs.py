@@ -25,7 +25,7 @@ from nh_tracking.ros import cdr, messages as msgs
 from nh_tracking.ros.guarded import guarded, GuardedNode
 from nh_tracking.ros.markers import obstacle_markers, plan_markers
 from nh_tracking.ros.twin_watch import TwinWatch
-from nh_tracking.session import PlanResult, TrackingSession
+from nh_tracking.session.tracking_session import PlanResult, TrackingSession
 
 
 class PlanOutputs(GuardedNode):

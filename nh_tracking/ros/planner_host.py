@@ -22,7 +22,7 @@ from typing import Any, Protocol
 
 from nh_tracking.ros.companion import Owner
 from nh_tracking.ros.twin_watch import TwinWatch
-from nh_tracking.session import TrackingSession
+from nh_tracking.session.tracking_session import TrackingSession
 
 
 class PlannerHost(Owner, Protocol):

@@ -27,12 +27,12 @@ from rclpy.event_handler import SubscriptionEventCallbacks
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 
-from nh_tracking.command_guard import GuardSettings
-from nh_tracking.goal_checking import GoalSettings
-from nh_tracking.receding_horizon import PlannerSettings
+from nh_tracking.navigation.goal_checking import GoalSettings
+from nh_tracking.navigation.route import RouteSettings
+from nh_tracking.planning.command_guard import GuardSettings
+from nh_tracking.planning.receding_horizon import PlannerSettings
 from nh_tracking.ros.parameters import ParameterSpec, plain
-from nh_tracking.route import RouteSettings
-from nh_tracking.session_types import SessionSettings
+from nh_tracking.session.interface import SessionSettings
 
 LATCHED = QoSProfile(depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL,
                      reliability=ReliabilityPolicy.RELIABLE)

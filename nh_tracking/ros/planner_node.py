@@ -14,9 +14,10 @@
 
 """The planner node: reference + odometry in, optimal tracking plans out, as a lifecycle node.
 
-Numerics live in a ROS-free :class:`~nh_tracking.session.TrackingSession`; callbacks only
-convert messages. Services and odometry run on threads of their own (``replan_on_odom``: plans
-on receipt). Lifecycle as in Nav2; ``autostart`` (default true) goes to active at start-up.
+Numerics live in a ROS-free :class:`~nh_tracking.session.tracking_session.TrackingSession`;
+callbacks only convert messages. Services and odometry run on threads of their own
+(``replan_on_odom``: plans on receipt). Lifecycle as in Nav2; ``autostart`` (default true) goes to
+active at start-up.
 """
 from __future__ import annotations
 
@@ -34,10 +35,9 @@ from sensor_msgs.msg import JointState
 from trajectory_msgs.msg import JointTrajectory, MultiDOFJointTrajectory
 from visualization_msgs.msg import MarkerArray
 
-from nh_tracking.command_guard import SpeedLimit
-from nh_tracking.health import HealthLevel, session_health
-from nh_tracking.joints import JointsRejected
-from nh_tracking.receding_horizon import PlannerSettings
+from nh_tracking.core.joints import JointsRejected
+from nh_tracking.planning.command_guard import SpeedLimit
+from nh_tracking.planning.receding_horizon import PlannerSettings
 from nh_tracking.ros import conversions as cv, messages as msgs
 from nh_tracking.ros.clock_watch import ClockWatchdog
 from nh_tracking.ros.follow_path import FollowPathServer
@@ -54,8 +54,9 @@ from nh_tracking.ros.planner_services import PlannerServices
 from nh_tracking.ros.reference_receiver import ReferenceReceiver
 from nh_tracking.ros.runner import autostart, settle_heap
 from nh_tracking.ros.twin_watch import TwinVerdict, TwinWatch
-from nh_tracking.session import TrackingSession
-from nh_tracking.session_types import ClockSkew
+from nh_tracking.session.health import HealthLevel, session_health
+from nh_tracking.session.interface import ClockSkew
+from nh_tracking.session.tracking_session import TrackingSession
 from nh_tracking.solvers.obstacles import MAX_OBSTACLES
 
 

@@ -19,13 +19,13 @@ from typing import Any
 
 from rcl_interfaces.msg import SetParametersResult
 
-from nh_tracking.command_guard import GuardSettings
-from nh_tracking.goal_checking import GoalSettings
-from nh_tracking.receding_horizon import PlannerSettings
+from nh_tracking.navigation.goal_checking import GoalSettings
+from nh_tracking.navigation.route import RouteSettings
+from nh_tracking.planning.command_guard import GuardSettings
+from nh_tracking.planning.receding_horizon import PlannerSettings
 from nh_tracking.ros.guarded import guarded, GuardedNode
 from nh_tracking.ros.planner_interface import GOAL, GUARD, ROUTE, SETTINGS
-from nh_tracking.route import RouteSettings
-from nh_tracking.session import TrackingSession
+from nh_tracking.session.tracking_session import TrackingSession
 
 _SETTING_NAMES = {s.name for s in SETTINGS}
 

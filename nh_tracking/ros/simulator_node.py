@@ -38,10 +38,11 @@ from tf2_msgs.msg import TFMessage
 from trajectory_msgs.msg import JointTrajectory
 
 from nh_tracking import models
-from nh_tracking.costmap import CellsByX, gap, NO_CELLS_BY_X
-from nh_tracking.joints import joint_mapping
-from nh_tracking.limits import bounds_from_lists
-from nh_tracking.poses import carried, PoseMap
+from nh_tracking.core.joints import joint_mapping
+from nh_tracking.core.poses import carried, PoseMap
+from nh_tracking.core.simulate import drive, LeftDomain, simulate
+from nh_tracking.navigation.costmap import CellsByX, gap, NO_CELLS_BY_X
+from nh_tracking.problem.limits import bounds_from_lists
 from nh_tracking.ros import conversions as cv
 from nh_tracking.ros import messages as msgs
 from nh_tracking.ros.guarded import guarded
@@ -49,7 +50,6 @@ from nh_tracking.ros.obstacle_listener import ObstacleListener
 from nh_tracking.ros.parameters import declare, declare_all, declare_model, plain
 from nh_tracking.ros.planner_interface import COSTMAP_THRESHOLD, JOINT_NAMES
 from nh_tracking.ros.twin_watch import TwinVerdict, TwinWatch
-from nh_tracking.simulate import drive, LeftDomain, simulate
 
 Piece = tuple[int, int, np.ndarray | None]  # (from, to) in ns and the effort held (None: v)
 CLOCK_JUMP = 1.0  # [s] a step's clock time this far (and 5 steps) from what passed: a jump

@@ -27,7 +27,7 @@ from builtin_interfaces.msg import Time
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 
-from nh_tracking.settings import ValueEnum
+from nh_tracking.core.settings import ValueEnum
 
 INSTANCE_QOS = QoSProfile(depth=4, durability=DurabilityPolicy.TRANSIENT_LOCAL,
                           reliability=ReliabilityPolicy.RELIABLE)

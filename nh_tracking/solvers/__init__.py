@@ -23,14 +23,14 @@ from __future__ import annotations
 
 import numpy as np
 
-from nh_tracking.problem import Solution, TrackingProblem
+from nh_tracking.core.trajectory import Trajectory
+from nh_tracking.problem.tracking_problem import Solution, TrackingProblem
 from nh_tracking.solvers import search
 from nh_tracking.solvers.base import Guess, Method, Structure
 from nh_tracking.solvers.multiple_shooting import MultipleShooting
 from nh_tracking.solvers.nlp import deadline_after
 from nh_tracking.solvers.pmp import Pontryagin
 from nh_tracking.solvers.variational import Variational
-from nh_tracking.trajectory import Trajectory
 
 __all__ = ['METHODS', 'Guess', 'Method', 'MultipleShooting', 'Pontryagin', 'Structure',
            'Variational', 'make_method', 'solve']

@@ -14,11 +14,11 @@
 
 """What every tracking method is: an object that carries its own options.
 
-As in rockit and acados, the problem (:class:`~nh_tracking.problem.TrackingProblem`) is apart
-from how it is transcribed and solved. A method is a frozen dataclass whose fields are its
-options (checked when it is made); :meth:`Method.prepare` builds what depends only on the
-system and the problem's structure (an NLP, a flow — seconds, so once), and
-:meth:`Method.solve` takes the numbers.
+As in rockit and acados, the problem
+(:class:`~nh_tracking.problem.tracking_problem.TrackingProblem`) is apart from how it is
+transcribed and solved. A method is a frozen dataclass whose fields are its options (checked when
+it is made); :meth:`Method.prepare` builds what depends only on the system and the problem's
+structure (an NLP, a flow — seconds, so once), and :meth:`Method.solve` takes the numbers.
 """
 from __future__ import annotations
 
@@ -31,14 +31,14 @@ from typing import ClassVar, NamedTuple
 
 import numpy as np
 
-from nh_tracking.attempts import Attempt
-from nh_tracking.detours import detour_guesses, joined
-from nh_tracking.problem import Solution, Terminal, TrackingProblem
+from nh_tracking.core.system import NonholonomicSystem
+from nh_tracking.problem.attempts import Attempt
+from nh_tracking.problem.detours import detour_guesses, joined
+from nh_tracking.problem.tracking_problem import Solution, Terminal, TrackingProblem
 from nh_tracking.solvers.cache import builds_until, NotPrepared
 from nh_tracking.solvers.guess import Guess
 from nh_tracking.solvers.inequalities import Shape
 from nh_tracking.solvers.nlp import before, deadline_after
-from nh_tracking.system import NonholonomicSystem
 
 
 def time_left(previous: Solution, stop: float | None) -> bool:
@@ -143,9 +143,9 @@ class Method(ABC):
         """Solve ``problem`` from ``guess`` (default: the reference).
 
         Without a guess, where the reference runs through obstacles, from the reference pushed
-        round them each way (:mod:`nh_tracking.detours`): the cheapest plan found. ``deadline``
-        [s, > 0] bounds the solve's wall time, every route and NLP build included (it then
-        stops and reports failure; a build goes on in the background, ready for a later call).
+        round them each way (:mod:`nh_tracking.problem.detours`): the cheapest plan found.
+        ``deadline`` [s, > 0] bounds the solve's wall time, every route and NLP build included (it
+        then stops and reports failure; a build goes on in the background, ready for a later call).
         A plan that leaves the model's domain is no success.
         """
         return self.solve_before(problem, guess, deadline_after(deadline))

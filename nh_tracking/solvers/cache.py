@@ -15,8 +15,8 @@
 """Compiled solver structures, built once per (owner, structure) and freed with the owner.
 
 The owner is a system, or the family of systems whose NLPs take its parameters' values as
-numbers (:class:`~nh_tracking.family.DynamicsFamily`). Per owner only the structures of the few
-horizon sizes used last are kept: a parameter storm (every ``steps`` value in turn) must not
+numbers (:class:`~nh_tracking.core.family.DynamicsFamily`). Per owner only the structures of the
+few horizon sizes used last are kept: a parameter storm (every ``steps`` value in turn) must not
 grow memory without bound (each size holds ~15 MB).
 
 A replanning loop must never stop to build one: inside :func:`builds_deferred` a structure not
@@ -40,8 +40,8 @@ import time
 from typing import Generic, TypeVar
 import weakref
 
-from nh_tracking.family import DynamicsFamily
-from nh_tracking.system import NonholonomicSystem
+from nh_tracking.core.family import DynamicsFamily
+from nh_tracking.core.system import NonholonomicSystem
 
 LOG = logging.getLogger(__name__)
 T = TypeVar('T')

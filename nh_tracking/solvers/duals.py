@@ -30,7 +30,7 @@ from collections.abc import Hashable
 
 import numpy as np
 
-from nh_tracking.problem import Multipliers, TrackingProblem
+from nh_tracking.problem.tracking_problem import Multipliers, TrackingProblem
 from nh_tracking.solvers.base import Guess
 from nh_tracking.solvers.midpoint import Transcription
 

@@ -19,7 +19,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from nh_tracking.problem import Multipliers
+from nh_tracking.problem.tracking_problem import Multipliers
 
 
 class Guess(NamedTuple):

@@ -23,10 +23,10 @@ from dataclasses import dataclass
 
 import casadi as ca
 
-from nh_tracking.numeric import NumericFunction
-from nh_tracking.problem import tracking_lagrangian
+from nh_tracking.core.numeric import NumericFunction
+from nh_tracking.core.system import NonholonomicSystem
+from nh_tracking.problem.tracking_problem import tracking_lagrangian
 from nh_tracking.solvers.cache import PerSystemCache
-from nh_tracking.system import NonholonomicSystem
 
 
 @dataclass

@@ -36,9 +36,9 @@ from dataclasses import dataclass, field
 import casadi as ca
 import numpy as np
 
-from nh_tracking.limits import Limits, plan_times, VIOLATION_TOL
-from nh_tracking.problem import LimitCheck, TrackingProblem
-from nh_tracking.regularity import Domain
+from nh_tracking.core.regularity import Domain
+from nh_tracking.problem.limits import Limits, plan_times, VIOLATION_TOL
+from nh_tracking.problem.tracking_problem import LimitCheck, TrackingProblem
 from nh_tracking.solvers.obstacles import limit_check, nearest_per_point, obstacle_slots
 
 SOFT_WEIGHT = 1e4  # per unit of violation: above the multipliers of any sane tracking cost

@@ -17,8 +17,8 @@
 Unknowns are the knots x_k = (q_k, v_k) of a curve on D and, per interval, the next velocity and
 the midpoint configuration (and the control, when it cannot be eliminated); see
 :class:`Transcription`. Built once per structure and family of systems
-(:class:`~nh_tracking.family.DynamicsFamily`) and cached; the numbers of a problem, the family's
-parameter values among them, are its parameters and bounds.
+(:class:`~nh_tracking.core.family.DynamicsFamily`) and cached; the numbers of a problem, the
+family's parameter values among them, are its parameters and bounds.
 """
 from __future__ import annotations
 
@@ -29,14 +29,15 @@ from typing import Any
 import casadi as ca
 import numpy as np
 
-from nh_tracking.limits import clearance_points, plane
-from nh_tracking.numeric import NumericFunction
-from nh_tracking.problem import tracking_lagrangian, tracking_residual, TrackingProblem
+from nh_tracking.core.numeric import NumericFunction
+from nh_tracking.core.system import NonholonomicSystem
+from nh_tracking.problem.limits import clearance_points, plane
+from nh_tracking.problem.tracking_problem import (tracking_lagrangian, tracking_residual,
+                                                  TrackingProblem)
 from nh_tracking.solvers.cache import by_steps, PerSystemCache
 from nh_tracking.solvers.inequalities import ConstraintStack, Rows, Shape, soft_bounds, soften
 from nh_tracking.solvers.newton import GaussNewtonStep, NewtonStep
 from nh_tracking.solvers.nlp import BoundedNlp
-from nh_tracking.system import NonholonomicSystem
 
 BACKENDS = ('fatrop', 'ipopt')
 

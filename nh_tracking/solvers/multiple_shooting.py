@@ -26,18 +26,17 @@ from typing import ClassVar
 import casadi as ca
 import numpy as np
 
-from nh_tracking.attempts import Attempt, Backend
-from nh_tracking.limits import clearance_points, plane, VIOLATION_TOL
-from nh_tracking.problem import (Solution, terminal_cost, terminal_error, tracking_lagrangian,
-                                 TrackingProblem)
-from nh_tracking.solvers.base import (Guess, Method, next_route, Structure,
-                                      time_left)
+from nh_tracking.core.system import NonholonomicSystem
+from nh_tracking.problem.attempts import Attempt, Backend
+from nh_tracking.problem.limits import clearance_points, plane, VIOLATION_TOL
+from nh_tracking.problem.tracking_problem import (Solution, terminal_cost, terminal_error,
+                                                  tracking_lagrangian, TrackingProblem)
+from nh_tracking.solvers.base import Guess, Method, next_route, Structure, time_left
 from nh_tracking.solvers.cache import by_steps, PerSystemCache
 from nh_tracking.solvers.inequalities import (ConstraintStack, DOMAIN_MARGIN, judged, Rows, Shape,
                                               soft_bounds, soften, start_violation)
 from nh_tracking.solvers.nlp import BoundedNlp, deadline_after, Pace
 from nh_tracking.solvers.obstacles import clear_of_every_disc
-from nh_tracking.system import NonholonomicSystem
 
 SUBSTEPS = 2  # RK4 steps per control interval
 

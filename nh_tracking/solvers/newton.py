@@ -38,7 +38,7 @@ from typing import Any, TypeVar
 import casadi as ca
 import numpy as np
 
-from nh_tracking.numeric import NumericFunction
+from nh_tracking.core.numeric import NumericFunction
 from nh_tracking.solvers.compiled import LibraryBuild
 
 Symbolic = TypeVar('Symbolic', ca.SX, ca.MX)
@@ -183,7 +183,7 @@ class Inertia(ca.Callback):
     A callback, so a Function computes the matrix and hands it over as CasADi's own matrix:
     assembled from numpy arguments through buffers, the check costs a third of a plain
     Function call's conversions. Its factorisation's pattern is analysed on the first call.
-    One call at a time: its one caller is a :class:`~nh_tracking.numeric.NumericFunction`,
+    One call at a time: its one caller is a :class:`~nh_tracking.core.numeric.NumericFunction`,
     whose lock covers the call (steps are shared by the planners of a process).
     """
 

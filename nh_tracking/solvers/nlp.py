@@ -35,7 +35,7 @@ from typing import Any, NamedTuple
 import casadi as ca
 import numpy as np
 
-from nh_tracking.attempts import Status
+from nh_tracking.problem.attempts import Status
 from nh_tracking.solvers.compiled import LibraryBuild
 
 MAX_ITERATIONS = 500

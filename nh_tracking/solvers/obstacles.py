@@ -26,7 +26,7 @@
   points) and :func:`clear_of_discs_left_out` (a replan's discs, of which an NLP takes some).
 
 Discs are (x, y, r, vx, vy), or (x, y, r) at rest, at the start (moving ones:
-:mod:`nh_tracking.limits`).
+:mod:`nh_tracking.problem.limits`).
 """
 from __future__ import annotations
 
@@ -35,9 +35,9 @@ import dataclasses
 
 import numpy as np
 
-from nh_tracking.limits import (centres_at, Limits, nearest_discs, obstacle_discs, plan_path,
-                                plan_times, VIOLATION_TOL)
-from nh_tracking.problem import LimitCheck, Solution, TrackingProblem
+from nh_tracking.problem.limits import (centres_at, Limits, nearest_discs, obstacle_discs,
+                                        plan_path, plan_times, VIOLATION_TOL)
+from nh_tracking.problem.tracking_problem import LimitCheck, Solution, TrackingProblem
 from nh_tracking.solvers.guess import Guess
 from nh_tracking.solvers.nlp import before
 

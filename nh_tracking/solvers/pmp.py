@@ -39,7 +39,9 @@ from typing import ClassVar
 
 import numpy as np
 
-from nh_tracking.problem import Solution, terminal_cost, terminal_error, TrackingProblem
+from nh_tracking.core.system import NonholonomicSystem
+from nh_tracking.problem.tracking_problem import (Solution, terminal_cost, terminal_error,
+                                                  TrackingProblem)
 from nh_tracking.solvers.base import Guess, Method, Structure
 from nh_tracking.solvers.hamiltonian import pontryagin_flow
 from nh_tracking.solvers.nlp import DEADLINE, deadline_after
@@ -47,7 +49,6 @@ from nh_tracking.solvers.pmp_shooting import (Diverged, mu_knots, OutOfTime, sho
                                               shoot_whole, Shooter)
 from nh_tracking.solvers.replay import held_controls
 from nh_tracking.solvers.variational import Variational
-from nh_tracking.system import NonholonomicSystem
 
 SEGMENTS = 10  # of the first multiple-shooting PMP; then one per interval
 

@@ -28,7 +28,7 @@ import numpy as np
 from scipy.integrate import solve_ivp
 from scipy.optimize import root
 
-from nh_tracking.problem import Solution, TrackingProblem
+from nh_tracking.problem.tracking_problem import Solution, TrackingProblem
 from nh_tracking.solvers.hamiltonian import pontryagin_flow
 
 BLOW_UP = 1e6  # |state, costate| beyond this ends an integration as diverged

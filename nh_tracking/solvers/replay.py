@@ -25,10 +25,10 @@ from __future__ import annotations
 import casadi as ca
 import numpy as np
 
-from nh_tracking.numeric import NumericFunction
-from nh_tracking.simulate import held_rk4
+from nh_tracking.core.numeric import NumericFunction
+from nh_tracking.core.simulate import held_rk4
+from nh_tracking.core.system import NonholonomicSystem
 from nh_tracking.solvers.cache import PerSystemCache
-from nh_tracking.system import NonholonomicSystem
 
 SUBSTEPS = 8  # RK4 steps per interval: their error is far below the fit's
 ITERATIONS = 4

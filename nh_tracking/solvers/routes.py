@@ -16,11 +16,11 @@
 
 :data:`ROUTES` lists (backend, when it runs, how). The first row that applies runs; Newton
 steps that do not settle hand over to the next row that applies; the interior point, last,
-always applies. Each run is an :class:`~nh_tracking.attempts.Attempt` of the plan's
+always applies. Each run is an :class:`~nh_tracking.problem.attempts.Attempt` of the plan's
 ``attempts``. A new backend is one function from a :class:`Start` (the NLP, the guess as its
 unknowns ``w0`` and parameters ``p``, the deadline's pace) to an :class:`~.nlp.Outcome` (the
 primal-dual :class:`~.nlp.Iterate` it ended at, and flags its status is read from), or a
-:class:`~nh_tracking.attempts.Status` where it has none (handed over, paused), and one row.
+:class:`~nh_tracking.problem.attempts.Status` where it has none (handed over, paused), and one row.
 """
 from __future__ import annotations
 
@@ -31,9 +31,9 @@ import time
 
 import numpy as np
 
-from nh_tracking.attempts import Attempt, Backend, Status
-from nh_tracking.limits import plan_path, VIOLATION_TOL
-from nh_tracking.problem import Solution, TrackingProblem
+from nh_tracking.problem.attempts import Attempt, Backend, Status
+from nh_tracking.problem.limits import plan_path, VIOLATION_TOL
+from nh_tracking.problem.tracking_problem import Solution, TrackingProblem
 from nh_tracking.solvers.base import Guess, unsolved
 from nh_tracking.solvers.cache import NotPrepared
 from nh_tracking.solvers.duals import carried_multipliers, multipliers_at

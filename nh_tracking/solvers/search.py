@@ -30,8 +30,8 @@ import os
 
 import numpy as np
 
-from nh_tracking.problem import Solution, TrackingProblem
-from nh_tracking.simulate import simulate
+from nh_tracking.core.simulate import simulate
+from nh_tracking.problem.tracking_problem import Solution, TrackingProblem
 from nh_tracking.solvers.base import Guess, Method, Structure, time_left
 from nh_tracking.solvers.replay import interval_gap, REPLAY_RTOL
 

@@ -34,11 +34,11 @@ from dataclasses import dataclass
 from functools import partial
 from typing import ClassVar, Literal
 
-from nh_tracking.attempts import Status
-from nh_tracking.limits import VIOLATION_TOL
-from nh_tracking.problem import Solution, TrackingProblem
-from nh_tracking.solvers.base import (Guess, Method, next_route, Structure,
-                                      time_left)
+from nh_tracking.core.system import NonholonomicSystem
+from nh_tracking.problem.attempts import Status
+from nh_tracking.problem.limits import VIOLATION_TOL
+from nh_tracking.problem.tracking_problem import Solution, TrackingProblem
+from nh_tracking.solvers.base import Guess, Method, next_route, Structure, time_left
 from nh_tracking.solvers.cache import builds_until, NotPrepared
 from nh_tracking.solvers.duals import carried_multipliers
 from nh_tracking.solvers.inequalities import Shape, start_violation
@@ -47,7 +47,6 @@ from nh_tracking.solvers.nlp import deadline_after
 from nh_tracking.solvers.obstacles import clear_of_every_disc
 from nh_tracking.solvers.routes import misses_after, Route, RTI_RESIDUAL, solve_route
 from nh_tracking.solvers.working_set import WorkingSet
-from nh_tracking.system import NonholonomicSystem
 
 CONTINUATION_MIN_STEPS = 100  # cold solves with this many intervals or more start coarse
 COARSE_STEPS = 50

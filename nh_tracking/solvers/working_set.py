@@ -37,7 +37,7 @@ from functools import partial
 
 import numpy as np
 
-from nh_tracking.numeric import NumericFunction
+from nh_tracking.core.numeric import NumericFunction
 from nh_tracking.solvers.newton import NewtonStep
 from nh_tracking.solvers.nlp import Pace
 
