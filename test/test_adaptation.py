@@ -23,7 +23,7 @@ import uuid
 import numpy as np
 import pytest
 
-from nh_tracking.estimation.adaptation import agreeing, mean_control, SentControls
+from nh_tracking.estimation.adaptation import combined_estimate, mean_control, SentControls
 from nh_tracking.estimation.output_error import ParameterEstimate
 from nh_tracking.estimation.worker import EstimationWorker
 from nh_tracking.examples.adapting import run_adaptation_demo
@@ -87,12 +87,12 @@ def test_fits_under_both_readings_of_the_controls_are_used_only_when_they_agree(
         return ParameterEstimate({'m': m}, {'m': std}, excited, {}, 0, 'excited')
 
     start = {'m': 1.0}
-    both = agreeing([fit(0.800), fit(0.804)], 0.01, start)
+    both = combined_estimate([fit(0.800), fit(0.804)], 0.01, start)
     assert both.excited and both.values['m'] == pytest.approx(0.802)
     assert both.std['m'] == pytest.approx(0.002)  # half the spread, over each fit's own
-    apart = agreeing([fit(0.78), fit(0.82)], 0.01, start)
+    apart = combined_estimate([fit(0.78), fit(0.82)], 0.01, start)
     assert not apart.excited and apart.values == start and 'when the controls' in apart.message
-    assert not agreeing([fit(0.8), fit(0.8, excited=False)], 0.01, start).excited
+    assert not combined_estimate([fit(0.8), fit(0.8, excited=False)], 0.01, start).excited
 
 
 def test_the_worker_process_answers_says_what_failed_and_stays_closed():

@@ -100,8 +100,8 @@ def test_a_point_keeps_its_clearance_multipliers_while_its_discs_stay_the_same()
     guess = sample_plan(later, plan)
     carried = _carried(tr, later, guess)
     half = np.flatnonzero(tr.limits.inequality_mask(tr.rows, ('clear',))).reshape(40, 4)
-    before = tr.limits.assigned(plan.multipliers.obstacles.ravel()).reshape(40, 4, 4)
-    now = tr.limits.assigned(tr.parameters(later, guess.q)).reshape(40, 4, 4)
+    before = tr.limits.assigned_discs(plan.multipliers.obstacles.ravel()).reshape(40, 4, 4)
+    now = tr.limits.assigned_discs(tr.parameters(later, guess.q)).reshape(40, 4, 4)
     kept = lost = 0
     for k, rows in enumerate(half):
         if np.array_equal(now[k], before[min(k + 2, 39)]):  # 1 interval: 2 points on

@@ -227,7 +227,7 @@ def test_each_knot_and_midpoint_keeps_clear_of_the_discs_nearest_it():
         tr = transcription(problem.system, 30, 'cost', shape=Shape.of(problem.limits))
         slots = tr.limits.shape.slots
         built[count] = (id(tr), slots)
-        assigned = tr.limits.assigned(tr.parameters(problem, q)).reshape(60, slots, 4)
+        assigned = tr.limits.assigned_discs(tr.parameters(problem, q)).reshape(60, slots, 4)
         for j in range(60):
             point = 0.5 * (q[j // 2] + q[j // 2 + 1]) if j % 2 == 0 else q[j // 2 + 1]
             edge = [np.hypot(*(point[:2] - d[:2])) - d[2] - 0.1 for d in discs]

@@ -293,7 +293,7 @@ def test_a_plan_that_does_not_replay_is_no_minimum():
 
 
 def test_solver_messages_are_words():
-    from nh_tracking.solvers.nlp import words
+    from nh_tracking.solvers.nlp import status_message
 
     from nh_tracking.solvers import Variational
 
@@ -302,8 +302,9 @@ def test_solver_messages_are_words():
     assert sol.route == 'fatrop' and sol.message == 'converged'
     sol = nht.solve(problem, second_look=False)
     assert sol.route == 'newton (line search)' and sol.message == 'converged'
-    assert words(1) == 'maximum iterations reached' and words('4') == 'locally infeasible'
-    assert words('Maximum_Iterations_Exceeded') == 'maximum iterations exceeded'
+    assert status_message(1) == 'maximum iterations reached'
+    assert status_message('4') == 'locally infeasible'
+    assert status_message('Maximum_Iterations_Exceeded') == 'maximum iterations exceeded'
 
 
 def test_pmp_controls_replay_their_plan():

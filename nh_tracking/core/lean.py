@@ -17,8 +17,8 @@
 Derived by automatic differentiation, the equations keep every intermediate of the derivation:
 CasADi does not know that cos^2 + sin^2 = 1, that the metric on D of an orthonormal basis is the
 identity (so its derivatives vanish and solving with it is a no-op), or that two differently built
-subexpressions are the same function. Written by hand, none of that would be there; the sleigh's
-derived dynamics were 7.5x heavier than its hand-written ones, and every solve paid for it.
+subexpressions are the same function. Written by hand, none of that would be there, and every
+solve evaluates what is left.
 
 :func:`lean` rebuilds a Function's graph instruction by instruction while evaluating each
 intermediate at random inputs of the model's domain (a probabilistic identity test: an analytic

@@ -59,7 +59,7 @@ def _by_name(system: NonholonomicSystem) -> dict[str, str]:
 def bases(system: NonholonomicSystem, qs: np.ndarray) -> np.ndarray:
     """(N, n, k) adapted bases rho at N configurations, in one CasADi call.
 
-    A reference has thousands of poses: one call per pose cost 0.3 s for 6000 of them.
+    A reference has thousands of poses: one call for all of them, not one per pose.
     """
     qs = np.asarray(qs, dtype=float).reshape(-1, system.n)
     blocks = np.array(system.rho_fn.map(len(qs))(qs.T)).reshape(system.n, len(qs), system.k)
@@ -138,9 +138,9 @@ class PoseMap:
     def _normal_equations(self) -> NumericFunction | None:
         """(q, body twist) -> v in one call, where the pose rows of rho keep full rank.
 
-        The least-squares solution is then that of the normal equations, written out. A call
-        costs a tenth of rho, rotation and ``lstsq`` one by one, which every odometry message
-        paid. None where a basis direction moves hidden coordinates alone (the snakeboard's
+        The least-squares solution is then that of the normal equations, written out: one call
+        on every odometry message instead of rho, rotation and ``lstsq`` one by one. None where a
+        basis direction moves hidden coordinates alone (the snakeboard's
         shape): there the minimum-norm solution is wanted, from ``lstsq``.
         """
         system = self.system
@@ -183,7 +183,7 @@ class PoseMap:
 
         With the ``rates`` of hidden coordinates ``rows`` too. One least-squares solve (the
         tracking law's, and odometry's where the pose rows of rho lose rank or joints are
-        measured): a third of a batched pseudo-inverse.
+        measured), not a batched pseudo-inverse.
         """
         matrix = self.system.rho(q)[self.pose_rows + list(rows or ()), :]
         measured = np.concatenate([np.asarray(world, dtype=float)[self._axes],

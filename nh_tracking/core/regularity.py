@@ -185,8 +185,8 @@ def check_constraint_rank(constraints: Callable[[np.ndarray], np.ndarray],
                          'gives the wrong number of degrees of freedom); give independent rows')
     if rank_deficient.any():
         worst = samples[int(np.argmin(sv[:, -1]))]
-        near = implicated(lambda q: float(_smallest_svs(constraints(q))[-1]), worst,
-                          coordinates)
+        near = implicated_coordinates(lambda q: float(_smallest_svs(constraints(q))[-1]),
+                                      worst, coordinates)
         raise ValueError(f'constraints(q) lose rank near {near} (at '
                          f'{describe(coordinates, worst)}): the distribution changes rank '
                          'there; restrict the configurations with domain=')
@@ -239,15 +239,15 @@ def basis_condition(rho_and_metric: Callable[[np.ndarray], tuple[np.ndarray, ...
         def at(q: np.ndarray) -> float:
             rho, g = rho_and_metric(q)
             return condition(rho.T @ g @ rho)
-        near = implicated(at, samples[worst], coordinates)
+        near = implicated_coordinates(at, samples[worst], coordinates)
         raise ValueError(f'{what} loses rank near {near}: condition {values[worst]:.2g} < '
                          f'{BASIS_CONDITION_MIN:g} at {describe(coordinates, samples[worst])} '
                          '(its fields shrink or become dependent there)')
     return float(values[worst])
 
 
-def implicated(score: Callable[[np.ndarray], float], worst: np.ndarray,
-               coordinates: Sequence[str]) -> str:
+def implicated_coordinates(score: Callable[[np.ndarray], float], worst: np.ndarray,
+                           coordinates: Sequence[str]) -> str:
     """Name the coordinates whose change lifts ``score`` out of its low at ``worst``."""
     base = max(score(worst), 1e-9)  # (scores are scale-free: below this, rounding)
     names = []

@@ -114,7 +114,7 @@ class OnlineEstimator:
 
     def accept(self, estimates: Sequence[ParameterEstimate]) -> ParameterEstimate:
         """Move the values in use toward the fits' estimate, if it holds, by ``step`` at most."""
-        estimate = agreeing(estimates, self.settings.agree, self.values)
+        estimate = combined_estimate(estimates, self.settings.agree, self.values)
         if estimate.excited:
             step = self.settings.step
             self.values = {n: float(np.clip(estimate.values[n], v - step * max(abs(v), 1e-3),
@@ -128,8 +128,8 @@ class OnlineEstimator:
         return self.accept([estimate_parameters(self.spec, **r) for r in self.requests()])
 
 
-def agreeing(estimates: Sequence[ParameterEstimate], agree: float,
-             start: Mapping[str, float]) -> ParameterEstimate:
+def combined_estimate(estimates: Sequence[ParameterEstimate], agree: float,
+                      start: Mapping[str, float]) -> ParameterEstimate:
     """Return the estimate the fits under each reading of the controls support together.
 
     Their mean, each std widened to half their spread; excited only when every fit is and the

@@ -30,7 +30,7 @@ fallback, braking). On the model's quasi-velocities v, with the body twist ``M(q
   it does not touch now); the speed is cut to the largest that stops short, to zero if need be.
   A stop may be harder than ``max_decel``: an obstacle comes first.
 
-A fraction of a millisecond a call (a few dozen small numpy operations), no solve. Nothing
+No solve: a few dozen small numpy operations a call (timings in docs/performance.md). Nothing
 here knows ROS.
 """
 from __future__ import annotations

@@ -94,9 +94,9 @@ _REPLAYS: PerSystemCache[ca.Function] = PerSystemCache()  # by number of interva
 def held_rollout(problem: TrackingProblem, control: TrackingLaw) -> Trajectory:
     """Roll ``control`` out the way a plan is applied: its value at each knot, held.
 
-    What the robot given the plan's controls does. The continuous feedback rollout predicted a
-    motion the robot never makes, and integrating the law adaptively took 120-230 ms; here each
-    interval is one call of fixed RK4 steps. A state outside the model's domain is refused.
+    What the robot given the plan's controls does (a continuous feedback rollout would predict
+    a motion the robot never makes). Each interval is one call of fixed RK4 steps, not an
+    adaptive integration. A state outside the model's domain is refused.
     """
     system, grid = problem.system, problem.grid
     step = held_step(system)

@@ -35,7 +35,7 @@ from nh_tracking.core.system import NonholonomicSystem
 from nh_tracking.core.trajectory import Trajectory
 from nh_tracking.planning.avoidance import Avoidance
 from nh_tracking.planning.fallback import braking_plan, fallback, stop_plan
-from nh_tracking.problem.detours import held_up, joined
+from nh_tracking.problem.detours import joined, stops_short_of_disc
 from nh_tracking.problem.limits import (bounds_from_lists, in_the_plane, Limits, moved,
                                         obstacle_discs, VIOLATION_TOL)
 from nh_tracking.problem.tracking_problem import (Solution, Terminal, terminal_error,
@@ -177,7 +177,7 @@ class RecedingHorizonPlanner:
         and midpoint's nearest discs, and with room for every disc at every point (a crowd's
         last resort), if its model has a pose in the plane, where obstacles are; the Newton
         steps of warm replans without obstacles and with the nearest discs (the others' are
-        built in the background when first needed: they made a planner's start 0.7 s longer).
+        built in the background when first needed, which keeps the planner's start short).
         The soft forms, for a start that breaks a limit (a robot pushed into an obstacle), are
         built when first needed: rare, and building every form up front would hold the
         interpreter for seconds after each parameter change.
@@ -325,7 +325,7 @@ class RecedingHorizonPlanner:
         """
         left = DETOUR_BUDGET * (self.settings.max_solve_time - warm.solve_time)
         q, _ = joined(problem)
-        if left <= 0.0 or not held_up(problem, q, warm.q):
+        if left <= 0.0 or not stops_short_of_disc(problem, q, warm.q):
             return warm
         detoured = self.method.round_obstacles(problem, deadline_after(left))
         other = detoured.plan

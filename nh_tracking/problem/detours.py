@@ -15,12 +15,11 @@
 """Guesses that go round the obstacles a reference runs through, one per way round.
 
 A cold solve started from a reference that runs through a disc sits on the disc's symmetry
-line: the interior point then spends its iteration limit there (2 s for a unicycle on a line
-through a disc's centre) or slides round the side the start leans to, which need not be the
-cheaper one. The reference pushed round each blocking disc on a chosen side, onto the circle
-of its clearance, is a guess near one local minimum per side: solved from each in a few
-milliseconds, the cheaper plan is kept (:meth:`.solvers.base.Method.solve`). A moving disc is
-gone round in its own frame: relative to it the reference runs past a disc at rest.
+line: the interior point then spends its iteration limit there or slides round the side the
+start leans to, which need not be the cheaper one. The reference pushed round each blocking
+disc on a chosen side, onto the circle of its clearance, is a guess near one local minimum per
+side: solved from each, the cheaper plan is kept (:meth:`.solvers.base.Method.solve`). A moving
+disc is gone round in its own frame: relative to it the reference runs past a disc at rest.
 """
 from __future__ import annotations
 
@@ -83,7 +82,7 @@ def detour_guesses(problem: TrackingProblem, q: np.ndarray
     return [(_pushed(problem, q, blocking, choice), choice) for choice in sides]
 
 
-def held_up(problem: TrackingProblem, q: np.ndarray, plan: np.ndarray) -> bool:
+def stops_short_of_disc(problem: TrackingProblem, q: np.ndarray, plan: np.ndarray) -> bool:
     """Whether a plan's knots stop short of a disc that the knots ``q`` run through and pass.
 
     Short: its last knot not past the disc's centre in the direction ``q`` passes it, where

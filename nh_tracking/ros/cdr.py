@@ -14,13 +14,13 @@
 
 """The wire bytes (CDR) of the messages on the replanning path, read and written directly.
 
-rclpy turns a received Odometry into ~10 Python objects before the callback runs, and a
-published JointTrajectory of 30 points is built from ~100 objects (~170 us) that rclpy then
-walks again to convert (~90 us): half of a real-time replan's latency. The bytes themselves are
-a fixed layout — the encapsulation header, then each field little-endian at its natural
-alignment (at most 8) counted from the end of that header, strings as a length (with the
-terminating NUL) and the characters — read with one ``struct.unpack_from`` and written with
-one ``struct.pack``. Raw subscriptions and publishers carry them (the pattern of
+rclpy turns a received Odometry into Python objects before the callback runs, and a published
+JointTrajectory is built from an object per point and field that rclpy then walks again to
+convert: a large share of a real-time replan's latency (figures in docs/performance.md). The
+bytes themselves are a fixed layout — the encapsulation header, then each field little-endian
+at its natural alignment (at most 8) counted from the end of that header, strings as a length
+(with the terminating NUL) and the characters — read with one ``struct.unpack_from`` and
+written with one ``struct.pack``. Raw subscriptions and publishers carry them (the pattern of
 rclpy's ``raw=True``). :func:`agrees_with_rmw` checks both directions against the middleware's
 own serializer; where they differ the nodes use messages as usual.
 """
@@ -86,7 +86,7 @@ def path_values(data: bytes) -> tuple[int, str, np.ndarray, np.ndarray, dict[str
 
     A pose (x, y, z, qx, qy, qz, qw) of a nav_msgs/Path. Every pose after the first starts at a
     multiple of 8, so when all frame_ids are as long as the first, the rest is one numpy record
-    array of a fixed stride (100,000 poses in milliseconds); otherwise pose by pose.
+    array of a fixed stride, read in one call; otherwise pose by pose.
     """
     check_head(data, 'path')
     try:

@@ -81,7 +81,7 @@ class CompanionNode:
         """Stop the thread, then the executor, then free the node.
 
         In that order: rclpy's ``Executor.shutdown`` does not wait for a spinning thread and
-        destroys the guard conditions it may be using (a traceback in 10 of 300 closes).
+        destroys the guard conditions it may be using (an occasional traceback on close).
         """
         self._stop.set()
         self._executor.wake()

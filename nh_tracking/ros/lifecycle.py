@@ -27,7 +27,7 @@ from lifecycle_msgs.srv import ChangeState
 from rclpy.lifecycle import LifecycleNode
 
 
-def offered(node: LifecycleNode) -> dict[int, str]:
+def offered_transitions(node: LifecycleNode) -> dict[int, str]:
     """Return the transitions (id: label) the node's current state offers."""
     return {row[0]: row[1] for row in node._state_machine.available_transitions}
 
@@ -37,7 +37,7 @@ def refusal(node: LifecycleNode, request: ChangeState.Request) -> str:
 
     A label, when given, names the transition (rclpy's own rule); otherwise the id does.
     """
-    transitions = offered(node)
+    transitions = offered_transitions(node)
     wanted = request.transition
     if wanted.label:
         if wanted.label in transitions.values():

@@ -14,11 +14,12 @@
 
 """What the planner reads of ``obstacles`` and ``costmap`` messages, from messages or CDR bytes.
 
-rclpy builds a MarkerArray of 5,000 markers in ~0.4 s, all of it in C holding the interpreter:
-no other thread of the process runs meanwhile. Read from the bytes, a marker array whose markers
-share one layout (the usual case: one frame, one namespace length, no points or text) is one
-numpy record array; others are read marker by marker, in Python, which other threads can
-interrupt. An OccupancyGrid's cells are a view of the bytes.
+rclpy builds a MarkerArray in C, holding the interpreter throughout (a time that grows with the
+markers; figures in docs/performance.md): no other thread of the process runs meanwhile. Read
+from the bytes, a marker array whose markers share one layout (the usual case: one frame, one
+namespace length, no points or text) is one numpy record array; others are read marker by
+marker, in Python, which other threads can interrupt. An OccupancyGrid's cells are a view of
+the bytes.
 """
 from __future__ import annotations
 

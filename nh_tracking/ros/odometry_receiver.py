@@ -15,10 +15,10 @@
 """Odometry (and joint states) on a thread of their own: a lean node and its own executor.
 
 rclpy rebuilds its wait set in Python on every wake-up, for every entity of every node in the
-executor (a lifecycle planner has ~40 with their QoS event handlers: ~1 ms a wake-up here). At
-100 Hz odometry that kept the planner's executor busy 40 % of a core, competing for the
-interpreter with the solver. Here each message wakes an executor that waits on one subscription,
-and the callback may plan at once, on this thread: a hand-off to the solver thread costs ~1 ms.
+executor (a lifecycle planner has about 40 with their QoS event handlers); at odometry rates
+that keeps the planner's executor busy, competing for the interpreter with the solver (figures
+in docs/performance.md). Here each message wakes an executor that waits on one subscription,
+and the callback may plan at once, on this thread, without a hand-off to the solver thread.
 Not for a message that arrived while the last such plan was being made (DDS's reception stamp
 says so): newer ones may wait behind it, and planning for each in turn would fall further behind
 with every plan slower than the odometry; the solver thread plans for the latest instead. Joint

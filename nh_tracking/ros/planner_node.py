@@ -222,7 +222,7 @@ class PlannerNode(RuntimeParameters, PlanOutputs, ObstacleListener, ClockWatchdo
         if self.session is not None:
             self.live.stop()
             self.session = None
-            settle_heap(release=True)  # its models and NLPs (~20 MB) go now
+            settle_heap(release=True)  # its models and NLPs go with it
         for entity in self._entities:
             if hasattr(entity, 'timer_period_ns'):
                 self.destroy_timer(entity)

@@ -14,9 +14,9 @@
 
 """References on a thread of their own: a large one is read there, never where cmd_vel is sent.
 
-``reference_path`` is taken as CDR bytes where :mod:`cdr` reads them (100,000 poses in
-milliseconds, against ~2 s to build the message), and the second delivery of a sample (latched
-and volatile subscriptions) is dropped before it is read.
+``reference_path`` is taken as CDR bytes where :mod:`cdr` reads them (far faster than
+building the message; figures in docs/performance.md), and the second delivery of a sample
+(latched and volatile subscriptions) is dropped before it is read.
 """
 from __future__ import annotations
 

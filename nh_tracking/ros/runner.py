@@ -42,8 +42,8 @@ STOP_POLL = 0.1  # [s] the longest an executor wait lasts before a stop request 
 def settle_heap(release: bool = False) -> None:
     """Collect, then exempt every object alive from later collections. Process-wide.
 
-    A full collection holds the interpreter while it walks every tracked object: 100 ms in a
-    planner process (imports, models, NLPs), which stopped ``cmd_vel`` and the solver alike.
+    A full collection holds the interpreter while it walks every tracked object (in a planner
+    process: imports, models, NLPs), stopping ``cmd_vel`` and the solver alike.
     Called as a planner starts commanding; ``release``: when one is dropped (a lifecycle
     cleanup), the exempt objects are collected first, so that it goes with them.
     """
@@ -90,7 +90,7 @@ class StopRequest:
     Python's own SIGINT handler raises KeyboardInterrupt at whatever line the main thread is on:
     inside a ``with lock`` before its ``try`` (the lock stays held and every thread that needs it
     hangs), inside rclpy's ``Task.__init__`` (a traceback from its ``__del__``), or during
-    start-up, where it aborted the process (``terminate called``) or left it running. rclpy's
+    start-up, where it can abort the process (``terminate called``) or leave it running. rclpy's
     own handlers are not installed: they shut the context down at once, before the node could
     send a last command. The main loop looks at the request between waits of at most
     :data:`STOP_POLL`. A second request is the user insisting and is not absorbed: it raises
@@ -139,7 +139,7 @@ def run(make_node: Callable[[], Node], usage: Callable[[Sequence[str]], str],
     try:
         # Single-threaded on purpose: the solver runs in the planner's own worker thread, and
         # rclpy's MultiThreadedExecutor (7.1, Jazzy) starves timers when another node
-        # subscribes to what they publish (ros2/rclpy#1223, #1452).
+        # subscribes to what they publish (github.com/ros2/rclpy/issues/1223 and 1452).
         executor = SingleThreadedExecutor()
         try:
             node = make_node()  # a stop meanwhile is looked at once it is built

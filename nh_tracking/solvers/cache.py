@@ -17,7 +17,7 @@
 The owner is a system, or the family of systems whose NLPs take its parameters' values as
 numbers (:class:`~nh_tracking.core.family.DynamicsFamily`). Per owner only the structures of the
 few horizon sizes used last are kept: a parameter storm (every ``steps`` value in turn) must not
-grow memory without bound (each size holds ~15 MB).
+grow memory without bound.
 
 A replanning loop must never stop to build one: inside :func:`builds_deferred` a structure not
 built yet is built on a background thread instead, and the call raises :class:`NotPrepared`

@@ -15,12 +15,11 @@
 
 """Compiled NLPs and steps: C code of their functions, built in the background, cached on disk.
 
-Compiled, a solve's function evaluations cost a fifth of the interpreted ones (a real-time
-iteration's Gauss-Newton step, with its factorisation written out, a quarter). Building takes
-seconds to tens of seconds (growing with N), so it never happens where a caller waits: a child
-process (at the lowest priority, one at a time) generates the C code from the serialized NLP
-and compiles it, while solves go on interpreted; the solver switches to the library when it is
-ready.
+Compiled, a solve's function evaluations cost a fraction of the interpreted ones (figures in
+docs/performance.md). Building takes seconds to tens of seconds (growing with N), so it never
+happens where a caller waits: a child process (at the lowest priority, one at a time)
+generates the C code from the serialized NLP and compiles it, while solves go on interpreted;
+the solver switches to the library when it is ready.
 
 A library is keyed by its content — the serialized expressions, the solver and its options,
 the CasADi version and the compiler's identity and flags — and kept in ``$NH_TRACKING_CACHE``
@@ -225,7 +224,7 @@ def _stop_builds() -> None:
     """Stop an unfinished build (and its compiler) when the process that wanted it ends.
 
     Its working directory goes too: the compiler's thread, which would remove it, is a daemon
-    that never gets there (a stopped planner had left one directory per queued build).
+    that never gets there: without this, each queued build would leave its directory behind.
     """
     for job in _BUILDS.values():
         _stop(job)

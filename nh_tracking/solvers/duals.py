@@ -57,7 +57,7 @@ def multipliers_at(tr: Transcription, problem: TrackingProblem, values: np.ndarr
     if len(values) != tr.rows or not np.isfinite(values).all():
         return None
     return Multipliers(values, float(problem.grid[0]), problem.h, _layout(tr, problem),
-                       tr.limits.assigned(p))
+                       tr.limits.assigned_discs(p))
 
 
 def carried_multipliers(tr: Transcription, problem: TrackingProblem, guess: Guess | None,
@@ -83,7 +83,7 @@ def carried_multipliers(tr: Transcription, problem: TrackingProblem, guess: Gues
     _shift(carried, old.values, interval, stages)
     if clearance.size:  # blocks half an interval apart
         _shift(carried, old.values, clearance, 2 * stages)
-        discs = tr.limits.assigned(p)
+        discs = tr.limits.assigned_discs(p)
         other = np.zeros(len(discs), dtype=bool)
         for moved in _moved(old.obstacles, 2 * stages):  # (moving discs: to rounding)
             other |= ~np.all(np.isclose(moved, discs, rtol=0.0, atol=SAME_DISC), axis=1)

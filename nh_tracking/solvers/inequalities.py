@@ -19,11 +19,10 @@ each clearance point has — so replanning with new bound values or moving obsta
 numbers. Each knot and midpoint has slots of its own, filled with the discs nearest it on the
 guess (parameters of the solve): all of them while they fit, the nearest
 :data:`.obstacles.POINT_SLOTS` of more, so past that many obstacles the NLP's size does not grow
-with them (8 discs in every point's rows would make every replan about 2x a free one, in contact or
+with them (every disc in every point's rows would make every replan costlier, in contact or
 not); how many, which, and what a plan that meets another calls for is :mod:`.obstacles`'s
-policy. The plan is then checked
-against every disc, and re-solved where it touches one it was not given. Clearance is written
-squared, |p - c|^2 - R^2 >= 0, which is smooth.
+policy. The plan is then checked against every disc, and re-solved where it touches one it was
+not given. Clearance is written squared, |p - c|^2 - R^2 >= 0, which is smooth.
 
 Soft form, for a start that itself breaks a limit (inside an obstacle, faster than a bound):
 each row gets a slack s >= 0 (lo - s <= g <= hi + s) and the cost an exact L1 penalty
@@ -128,7 +127,7 @@ class Rows:
         self.kinds.append((start, expr.shape[0], kind))
         return [expr]
 
-    def assigned(self, p: np.ndarray) -> np.ndarray:
+    def assigned_discs(self, p: np.ndarray) -> np.ndarray:
         """Return the discs each clearance point has in parameters ``p`` (they come last).
 
         (points, 4 slots): the parameters of the point's rows.
@@ -136,7 +135,7 @@ class Rows:
         size = 4 * self.shape.slots * self.points
         return p[len(p) - size:].reshape(self.points, 4 * self.shape.slots)
 
-    def built(self) -> None:
+    def check_all_points_built(self) -> None:
         """Check that the NLP took every clearance point's parameters (none left, none more)."""
         if self.shape.slots and self.plane is not None and self._point != self.points:
             raise RuntimeError(f'{self._point} clearance points built for {self.points}')
@@ -233,9 +232,9 @@ def start_violation(problem: TrackingProblem) -> float:
     return problem.limits.violation(problem.q0[None], problem.v0[None], t=[0.0])
 
 
-def judged(rows: Rows, limits: Limits, soft: bool, converged: bool, path: np.ndarray,
-           v: np.ndarray, u: np.ndarray | None, h: float,
-           message: str) -> tuple[bool, str, float, LimitCheck]:
+def assess_limits(rows: Rows, limits: Limits, soft: bool, converged: bool, path: np.ndarray,
+                  v: np.ndarray, u: np.ndarray | None, h: float,
+                  message: str) -> tuple[bool, str, float, LimitCheck]:
     """Return whether a plan succeeded within its limits, why not, its violation and check.
 
     ``path``: its configurations at the start and the clearance points, in time order (knots

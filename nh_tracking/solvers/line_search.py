@@ -14,10 +14,10 @@
 
 """Newton's method with a filter line search: cold solves without obstacles.
 
-fatrop spends about 0.27 ms an iteration on the sleigh at N = 50 (its Riccati recursion, the
-stage blocks copied out of CasADi's evaluations, its line search); the same Newton step as one
-CasADi call (:meth:`.newton.NewtonStep.direction`: assembly, sparse LDLᵀ, and the merits at the
-full step) costs 0.08 ms. Globalised the way an interior-point solver without inequalities is
+Each Newton step is one CasADi call (:meth:`.newton.NewtonStep.direction`: assembly, sparse
+LDLᵀ, and the merits at the full step), a fraction of an interior-point iteration (fatrop's
+Riccati recursion, the stage blocks copied out of CasADi's evaluations, its line search; figures
+in docs/performance.md). Globalised the way an interior-point solver without inequalities is
 — a filter line search on (infeasibility, f) (Wächter & Biegler 2006, §2), the Hessian shifted
 until each step curves up along itself (the inertia-free test of Chiang & Zavala 2016) — a cold
 solve takes about as many iterations as fatrop.
@@ -25,13 +25,11 @@ solve takes about as many iterations as fatrop.
 Bounds on controls and velocities make it a sequential QP: each step's QP (the limits
 linearised) is solved on a working set of the limit rows held at a bound, carried from step to
 step and changed the primal-dual way (:func:`_qp_step`); the infeasibility in the filter counts
-how far the limits are broken as well as the equalities. An interior point spends 13-14
-iterations on the same problems from the barrier's start (a |u| bound on the paper's sleigh:
-4.9 ms, here 11 factorisations, 2.5 ms); on a review's 34 random bounded problems on six
-systems 22 were solved so (0.3-0.9x fatrop's time), 12 went to fatrop, and all 34 took 0.91x
-fatrop's time alone. Obstacles are left to the interior point: from the
-reference, which runs through them, the way round is too nonconvex for these steps (tried: the
-Hessian needed more shifts than allowed in every case).
+how far the limits are broken as well as the equalities. On such problems it takes fewer
+factorisations than an interior point takes iterations from its barrier's start
+(docs/performance.md). Obstacles are left to the interior point: from the reference, which runs
+through them, the way round is too nonconvex for these steps (the Hessian needs more shifts than
+allowed).
 
 There is no restoration phase and no second-order correction: a step the filter still rejects
 at ``alpha_min``, the iteration budget, too many shifts (a nonconvex stretch), a step that is
@@ -40,10 +38,8 @@ ill-conditioned KKT matrix whose LDLᵀ stalls the steps short of the solution),
 point that is not a minimum, a working set that keeps cycling or steps that crawl
 (``max_unsettled``, ``max_crawled``; all in :class:`LineSearchOptions`), or the deadline end
 it unconverged, and the caller solves by interior point from the same guess (but not past its
-deadline). A local method with
-another globalisation than fatrop's: on nonconvex problems it may settle in another local
-minimum than fatrop from the same guess (a review: 5 of 80 problems with jumps in the
-reference and headings turns away, 4 lower, 1 higher by 9.5 %).
+deadline). A local method with another globalisation than fatrop's: on nonconvex problems it
+may settle in another local minimum than fatrop from the same guess, lower or higher.
 """
 from __future__ import annotations
 
@@ -53,7 +49,7 @@ import numpy as np
 
 from nh_tracking.solvers.newton import NewtonStep
 from nh_tracking.solvers.nlp import DEADLINE, Iterate, Outcome, Pace
-from nh_tracking.solvers.working_set import at_least_one, WorkingSet
+from nh_tracking.solvers.working_set import check_budgets, WorkingSet
 
 
 @dataclass(frozen=True)
@@ -65,8 +61,8 @@ class LineSearchOptions:
     """
 
     max_iterations: int = 20
-    """fatrop takes 10 on the paper's sleigh from the reference, 11 with a terminal cost (these
-    steps: 11 and 17, the last one counted)."""
+    """Newton steps at most, the last one counted (the paper's sleigh from the reference takes
+    11, with a terminal cost 17)."""
     alpha_min: float = 1e-6
     """The shortest step tried before giving up to the interior point."""
     gamma_theta: float = 1e-5
@@ -89,9 +85,8 @@ class LineSearchOptions:
     """dwᵀ(H + shift I)dw >= this |dw|², or the Hessian is shifted."""
     max_shifted: int = 6
     """Shifted factorisations in all: past this the way is nonconvex, where this test lets the
-    steps end on saddles and fatrop's inertia correction does better (seen: 0-4 in solves that
-    converge, 5-37 in those that end on a saddle or run out of iterations); it also bounds the
-    shift, 1e-4 * 100^6 at most."""
+    steps end on saddles and fatrop's inertia correction does better (solves that converge
+    need few shifts); it also bounds the shift, 1e-4 * 100^6 at most."""
     shift_first: float = 1e-4
     """The shift's first try (IPOPT's inertia correction), ..."""
     shift_jump: float = 100.0
@@ -108,20 +103,18 @@ class LineSearchOptions:
     final_infeasibility: float = 1e-9
     """... which the infeasibility after that step must show."""
     max_qp_factorisations: int = 2
-    """Tries to settle a step's working set; then the last try is the step (on the paper's
-    sleigh with |u| bounded: 11 factorisations in all; 4 tries: 15; 8: 17). With bounds the
-    steps are given up early where they fail (then fatrop takes over, the attempt paid on top):
-    a review's 34 random bounded problems failed in 12, which cost up to 4.5x fatrop alone;
-    with these, at most 2.1x, and all 34 together 0.91x fatrop's time (1.07x before)."""
+    """Tries to settle a step's working set; then the last try is the step. With bounds the
+    steps are given up early where they fail (then fatrop takes over, the attempt paid on top),
+    which bounds what a failed attempt adds to fatrop's time (docs/performance.md)."""
     max_unsettled: int = 10
-    """Unsettled steps in a row: the set cycles (converged solves: 7 at most)."""
+    """Unsettled steps in a row: the set cycles (converged solves stay below this)."""
     crawl: float = 0.05
     """Unsettled steps taken this short ..."""
     max_crawled: int = 2
     """... this many times: the QP's direction is poor."""
 
     def __post_init__(self) -> None:
-        at_least_one(self, 'max_iterations', 'max_qp_factorisations')
+        check_budgets(self, 'max_iterations', 'max_qp_factorisations')
 
 
 DEFAULTS = LineSearchOptions()
@@ -177,7 +170,7 @@ def line_search_solve(step: NewtonStep, w: np.ndarray, p: np.ndarray, lower: np.
     unsettled, crawled = 0, 0  # unsettled steps in a row, unsettled steps shorter than o.crawl
     pace = Pace(stop)
     for _ in range(o.max_iterations):
-        if not pace.room():
+        if not pace.has_time_for_step():
             return Outcome(Iterate(w, multipliers), False, factorisations, DEADLINE,
                            ran_out=True)
         shift = 0.0

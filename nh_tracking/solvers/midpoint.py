@@ -230,7 +230,7 @@ def _stage_form(system: NonholonomicSystem, steps: int, terminal: str,
                          - family.rho(qm, physical) @ (0.5 * (v + xs[i + 1][n:])))
     w.append(xs[-1])
     knot_limits(xs[-1])
-    limits.built()
+    limits.check_all_points_built()
     objective = running
     if terminal == 'cost':
         objective += 0.5 * omega * ca.sumsqr(xs[-1][:n] - q_end)

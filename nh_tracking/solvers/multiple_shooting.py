@@ -33,8 +33,8 @@ from nh_tracking.problem.tracking_problem import (Solution, terminal_cost, termi
                                                   tracking_lagrangian, TrackingProblem)
 from nh_tracking.solvers.base import Guess, Method, next_route, Structure, time_left
 from nh_tracking.solvers.cache import by_steps, PerSystemCache
-from nh_tracking.solvers.inequalities import (ConstraintStack, DOMAIN_MARGIN, judged, Rows, Shape,
-                                              soft_bounds, soften, start_violation)
+from nh_tracking.solvers.inequalities import (assess_limits, ConstraintStack, DOMAIN_MARGIN, Rows,
+                                              Shape, soft_bounds, soften, start_violation)
 from nh_tracking.solvers.nlp import BoundedNlp, deadline_after, Pace
 from nh_tracking.solvers.obstacles import clear_of_every_disc
 
@@ -113,7 +113,7 @@ def _build(system: NonholonomicSystem, steps: int, terminal: str,
         g.add(x - xs[i + 1])
     g.add(*limits.velocity(xs[-1][n:], g.rows))
     g.add(*limits.clearance(xs[-1][:n], g.rows))
-    limits.built()
+    limits.check_all_points_built()
     objective = running
     if terminal == 'cost':
         objective += 0.5 * omega * ca.sumsqr(xs[-1][:n] - q_ref[:, -1])
@@ -191,7 +191,7 @@ def _solve_once(problem: TrackingProblem, initial_guess: Guess | None,
     x = np.vstack([stage[:, :n + k], w[-(n + k):]])
     q, v, u = x[:, :n], x[:, n:], stage[:, n + k:]
     cost = float(tr.running_cost(w, p)) + terminal_cost(problem, q[-1])
-    success, message, violation, check = judged(
+    success, message, violation, check = assess_limits(
         tr.limits, problem.limits, tr.soft_index is not None,
         outcome.success and bool(np.all(np.isfinite(w))),
         np.vstack([q[:1], np.array(tr.clearance_at(w, p))]), v, u,  # knots, RK4 midpoints

@@ -47,7 +47,7 @@ REGULARISATION = 1e-10  # of JᵀJ: the step only, no bias at the solution
 DUAL_REGULARISATION = 1e-13  # of the (2, 2) block: the solution moves by about this times λ
 # ... of the working set's Newton step, which takes the last multipliers: a proximal term,
 # -δ(λ - λ_last), so the solution does not move, and a δ large enough for the unpivoted LDLᵀ to
-# stay accurate on an indefinite Hessian (at 1e-13 the snakeboard's steps shrank by only 0.45)
+# stay accurate on an indefinite Hessian
 PROXIMAL_REGULARISATION = 1e-10
 DIRECTION_LDL = 'newton_direction_ldl'  # the line search's direction, written out (compiled)
 
@@ -146,9 +146,9 @@ class GaussNewtonStep:
 
     The read-out of the new unknowns (the plan, its admissibility) comes with the step: one
     call fewer per step. Interpreted, the KKT system is factorised by CasADi's sparse LDLᵀ;
-    ``compiled``, the factorisation is written out symbolically (fill-reducing order, ~40 000
-    instructions for the sleigh on 30 intervals: 3x slower interpreted, 4x faster as C),
-    compiled in the background (:mod:`.compiled`) and swapped in when ready.
+    ``compiled``, the factorisation is written out symbolically (fill-reducing order: slower
+    than CasADi's LDLᵀ interpreted, faster as C), compiled in the background (:mod:`.compiled`)
+    and swapped in when ready.
     """
 
     def __init__(self, w: ca.SX, p: ca.SX, residual: ca.SX, g: ca.SX, readout: list[ca.SX],
@@ -181,8 +181,8 @@ class Inertia(ca.Callback):
     """KKT matrix -> its number of negative eigenvalues (an LDLᵀ factorisation's D).
 
     A callback, so a Function computes the matrix and hands it over as CasADi's own matrix:
-    assembled from numpy arguments through buffers, the check costs a third of a plain
-    Function call's conversions. Its factorisation's pattern is analysed on the first call.
+    assembled from numpy arguments through buffers, the check skips a plain Function call's
+    conversions. Its factorisation's pattern is analysed on the first call.
     One call at a time: its one caller is a :class:`~nh_tracking.core.numeric.NumericFunction`,
     whose lock covers the call (steps are shared by the planners of a process).
     """
@@ -256,7 +256,7 @@ class NewtonStep:
     multipliers: zero at a KKT point. ``compiled``: the step, its factorisation written out
     (the same fill-reducing LDLᵀ) with the inertia beside it, and the line search's direction
     likewise (where a line search may ask for it: ``searched``), as C built in the background
-    and swapped in when ready (a third of the interpreted step's time).
+    and swapped in when ready.
     """
 
     def __init__(self, w: ca.SX, p: ca.SX, residual: ca.SX, g: ca.SX,
@@ -268,7 +268,7 @@ class NewtonStep:
             inequality, dtype=int)
         active, target, curvature = (ca.SX.sym(name, self.rows)
                                      for name in ('active', 'target', 'curvature'))
-        # JᵀJ + Σ r_i ∇²r_i + Σ λ_i ∇²g_i in one differentiation: 10 % fewer instructions
+        # JᵀJ + Σ r_i ∇²r_i + Σ λ_i ∇²g_i in one differentiation: fewer instructions than in parts
         lagrangian = ca.hessian(0.5 * ca.sumsqr(residual) + ca.dot(curvature, g), w)[0]
         matrix, vector, jac_g, gradient = _kkt(w, residual, g, active, target, lagrangian,
                                                PROXIMAL_REGULARISATION, curvature)
@@ -348,8 +348,8 @@ def newton_steps(step: Callable[[np.ndarray, np.ndarray], list[np.ndarray]], w: 
     where Gauss-Newton without a line search diverges: a converged solve is the caller's
     remedy). ``residual`` reads it from what a step returns beside (w, λ). Returns the
     unknowns, the last multipliers, what came with them and the number of steps taken. A step
-    costs a tenth of a millisecond, so a plan that one step leaves short of admissible (the
-    robot off the previous plan by centimetres) gets another rather than a converged solve.
+    is one CasADi call, far cheaper than a converged solve, so a plan that one step leaves short
+    of admissible (the robot off the previous plan by centimetres) gets another step instead.
     """
     multipliers, read, taken, last = np.zeros(0), [], 0, np.inf
     while taken < most:

@@ -19,8 +19,8 @@ IPOPT is stopped by an iteration callback that reads the deadline of the solve i
 chunks of iterations, each warm-started from the last, until it converges, fails for another
 reason, or the time is up — overrunning the limit by at most one chunk. A chunk is
 :data:`FATROP_CHUNK` iterations for an equality-constrained NLP; with inequalities (limits) it
-is :data:`FATROP_CHUNK_INTERIOR`: every restart resets the interior-point barrier, and chunks of
-10 kept a replanning solve from ever converging (0 of 150 failures with 50, 35-61 with 10).
+is :data:`FATROP_CHUNK_INTERIOR`, longer: every restart resets the interior-point barrier, so
+chunks of :data:`FATROP_CHUNK` would keep a replanning solve with limits from converging.
 """
 from __future__ import annotations
 
@@ -88,7 +88,7 @@ class Pace:
         self.step = 0.0  # [s] the longest step so far
         self._began: float | None = None
 
-    def room(self) -> bool:
+    def has_time_for_step(self) -> bool:
         """Whether the next step, beginning now, would end before the stop."""
         now = time.perf_counter()
         if self._began is not None:
@@ -102,7 +102,7 @@ def halfway(stop: float | None) -> float | None:
     return None if stop is None else 0.5 * (time.perf_counter() + stop)
 
 
-def words(status: object) -> str:
+def status_message(status: object) -> str:
     """Put a solver's status in words: fatrop says 0, 1, ..., IPOPT 'Solve_Succeeded'."""
     text = str(status)
     if text.isdigit():
@@ -138,7 +138,7 @@ class _Deadline(ca.Callback):
         return ca.Sparsity.dense(self.sizes.get(ca.nlpsol_out(i), 0), 1)
 
     def eval(self, arg: Sequence[ca.DM]) -> list[ca.DM]:  # noqa: A003 - CasADi's name
-        return [ca.DM(0.0 if self.pace.room() else 1.0)]
+        return [ca.DM(0.0 if self.pace.has_time_for_step() else 1.0)]
 
 
 class Iterate(NamedTuple):
@@ -257,7 +257,7 @@ class BoundedNlp:
         ``pace``: the route's, its steps so far measured (none: the solve starts if its stop is
         ahead).
         """
-        if not pace.room():  # not started
+        if not pace.has_time_for_step():  # not started
             return Outcome(Iterate(args['x0'], np.zeros(len(args['lbg']))), False, 0, DEADLINE,
                            ran_out=True)
         solver = self._solvers[warm and self._warm]  # (the set may be swapped meanwhile)
@@ -268,7 +268,7 @@ class BoundedNlp:
         result = solver(**args)
         stats = solver.stats()
         status = stats.get('return_status', 'failed')
-        message, success = words(status), bool(stats['success'])
+        message, success = status_message(status), bool(stats['success'])
         if self.iterations and message in (FATROP_STATUS[1], 'maximum number of iterations '
                                            'exceeded'):
             success, message = True, 'real-time iteration'
@@ -282,11 +282,11 @@ class BoundedNlp:
             result = chunk(**args)
             stats = chunk.stats()
             iterations += int(stats.get('iter_count', 0))
-            message = words(stats.get('return_status', 'failed'))
+            message = status_message(stats.get('return_status', 'failed'))
             if stats['success'] or message != FATROP_STATUS[1]:
                 return Outcome(Iterate.of(result), bool(stats['success']), iterations, message)
             if iterations >= MAX_ITERATIONS:
                 return Outcome(Iterate.of(result), False, iterations, message)
-            if not pace.room():
+            if not pace.has_time_for_step():
                 return Outcome(Iterate.of(result), False, iterations, DEADLINE, ran_out=True)
             args = {**args, 'x0': result['x'], 'lam_g0': result['lam_g']}

@@ -79,10 +79,9 @@ def clear_of_start(discs: np.ndarray, point: np.ndarray, velocity: np.ndarray,
     carries it in one ``interval`` (so the plan's first midpoint can be clear too): a
     replanning robot that drifted a little inside the margin it keeps (model error, a disc
     redrawn) gets a plan from the NLP it has, instead of no plan; it comes closer by at most
-    that one interval's approach per replan, while the plan brakes it (a robot at 0.41 m of a
-    disc when its clearance became 0.5 m stopped at 0.36 m). At rest nothing is given away, so
-    replans cannot ratchet a stopped robot in. A disc the robot is within
-    its radius of is shrunk to a point and still breaks the limit: the least-violating plan's.
+    that one interval's approach per replan, while the plan brakes it. At rest nothing is given
+    away, so replans cannot ratchet a stopped robot in. A disc the robot is within its radius of
+    is shrunk to a point and still breaks the limit: the least-violating plan's.
     ``discs``: (x, y, r, vx, vy), the approach is the robot's relative to the disc.
     """
     discs = obstacle_discs(discs)
@@ -147,12 +146,12 @@ def clear_of_every_disc(solve: Callable[[Guess | None, bool], Solution], guess: 
     guess (round an obstacle, into a crowd of them) may meet another. Solved again from that
     plan, its points get the discs nearest them there; if it still meets one (a point among
     more discs), a last solve from ``guess`` gives every point every disc (``every``; started
-    from the plan that ran into the crowd, it often ended infeasible). A
+    from the plan that ran into the crowd, it tends to end infeasible). A
     cold solve (no guess: the reference, which runs through the obstacles and tells little of
     where the plan will pass) has every disc at once. A plan that went through a disc between
     its points (fast: from the reference, a jump over an obstacle lying on it can look cheaper
     than the way round) is solved again from rest at the start (every disc), where the steps
-    start slow (seen: 13.8 m/s and cost 386 from the reference, 0.5 m/s and 3.97 from rest).
+    start slow.
     """
     result = solve(guess, guess is None)
     for every in (False, True):

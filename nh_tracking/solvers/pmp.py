@@ -81,7 +81,7 @@ def solve_pmp(problem: TrackingProblem, max_time: float = 60.0,
             tried.append('variational-costates')
             starts, ok = shoot_whole(shooter, np.concatenate([lam[0], mu_knots(mu)[0]]))
             # a few segments, then one per interval for a strongly unstable flow (between
-            # the two, root finding fails slowly: the snakeboard's 20 segments took 45 s)
+            # the two, root finding fails slowly)
             for segments in sorted({min(SEGMENTS, problem.steps), problem.steps}):
                 if ok or not variational.success:
                     break

@@ -33,7 +33,7 @@ from nh_tracking.solvers.hamiltonian import pontryagin_flow
 
 BLOW_UP = 1e6  # |state, costate| beyond this ends an integration as diverged
 MAX_RHS_EVALS = 40_000  # per integration: bounded work, so a stiff blow-up cannot hang
-DEADLINE_EVERY = 64  # right-hand sides between deadline checks (~3 ms)
+DEADLINE_EVERY = 64  # right-hand sides between deadline checks (a few milliseconds)
 RESIDUAL_TOL = 1e-7
 
 

@@ -37,7 +37,7 @@ from nh_tracking.problem.tracking_problem import Solution, TrackingProblem
 from nh_tracking.solvers.base import Guess, unsolved
 from nh_tracking.solvers.cache import NotPrepared
 from nh_tracking.solvers.duals import carried_multipliers, multipliers_at
-from nh_tracking.solvers.inequalities import judged, Shape
+from nh_tracking.solvers.inequalities import assess_limits, Shape
 from nh_tracking.solvers.line_search import line_search_solve
 from nh_tracking.solvers.midpoint import (Transcription, transcription, working_set_step,
                                           WorkingSetStep)
@@ -256,7 +256,7 @@ def solve_route(problem: TrackingProblem, initial_guess: Guess | None, stop: flo
     lam = -0.5 * lam_g[tr.admissibility_rows].reshape(problem.steps, sys.n)
     mu = (-problem.epsilon * u if sys.fully_actuated
           else -lam_g[tr.dynamics_rows].reshape(problem.steps, sys.k))
-    success, message, violation, check = judged(
+    success, message, violation, check = assess_limits(
         tr.limits, problem.limits, tr.soft_index is not None,
         outcome.success and bool(np.isfinite(w).all()), plan_path(q), v, u, problem.h,
         outcome.message)

@@ -15,19 +15,18 @@
 """Newton steps with a working set of inequality rows: warm replanning with limits.
 
 An interior-point solve starts its barrier afresh at every replan (fatrop takes no
-multipliers back), so even from the previous plan it spends 7-10 iterations near an obstacle
-where the same plan without limits takes 2. Near the previous plan the set of active limits
-rarely changes. Each Newton step here solves its QP (the Lagrangian's quadratic model subject to
-the linearised limits) by a primal active-set method: the rows of a working set are held at
-their bounds, which is one factorisation of one fixed-pattern KKT matrix
+multipliers back), so even from the previous plan it spends several times the iterations near
+an obstacle that the same plan takes without limits. Near the previous plan the set of active
+limits rarely changes. Each Newton step here solves its QP (the Lagrangian's quadratic model
+subject to the linearised limits) by a primal active-set method: the rows of a working set are
+held at their bounds, which is one factorisation of one fixed-pattern KKT matrix
 (:class:`.newton.NewtonStep`); a step that would break a free row stops at it and takes it in;
 held rows whose multipliers have the wrong sign are let go. The steps go on until they stop
 moving the plan, each starting from the last step's working set, the first from the rows the
 guess (a previous plan within the limits) has at a bound. A local method: from the same guess
 it may settle on other contact points with an obstacle than fatrop does — another local
-minimum (1 in 17 perturbed guesses ended 1.25 % above fatrop's). Nothing globalises it: a
-budget exceeded, a step twice the last, a non-finite step, the deadline or a saddle returns
-None, and the caller solves by interior point.
+minimum. Nothing globalises it: a budget exceeded, a step twice the last, a non-finite step,
+the deadline or a saddle returns None, and the caller solves by interior point.
 """
 from __future__ import annotations
 
@@ -60,22 +59,20 @@ class WorkingSetOptions:
     a stationary point, and the one the steps reach is checked to be a minimum."""
     step_tol: float = 1e-5
     """Converged once a step moves no unknown by more (relative to the largest); it is taken,
-    and as the convergence is quadratic there (a step of 3e-7 is followed by one of 2e-12) the
-    plan is then within about 1e-9 of the solution (1e-7 cost a confirming step more)."""
+    and as the convergence is quadratic there the plan is then within about 1e-9 of the
+    solution."""
     stationarity_tol: float = 1e-4
     """|Jᵀr + Gᵀλ|∞ at the step's start with its multipliers, for that test: about |H dw|."""
     contraction: float = 0.1
     """Or converged once two steps on the same set shrink quadratically, |dw₂| <= this |dw₁|,
     so far that the next, about |dw₂|³/|dw₁|², would move less than ``next_tol``."""
     next_tol: float = 1e-9
-    """(Relative.) The plan is then as close as ``step_tol``'s, a factorisation sooner (a
-    unicycle sliding along a disc: steps of 1e-2, 5e-5, then 3e-9)."""
+    """(Relative.) The plan is then as close as ``step_tol``'s, a factorisation sooner."""
     feasible_tol: float = 1e-8
     """... and g at the plan within this of the set (equalities, held rows, free rows' bounds):
-    the estimate runs up to 44x optimistic, and this keeps an optimistic one from ending the
-    solve short of admissible (one evaluation of g: 20 us). Past two discs g was within 3.5e-10
-    in the median where the estimate held, 1.1e-8 at worst; 1e-9 here made those replans 1.88x
-    the free ones instead of about 1.6x."""
+    the quadratic estimate can be optimistic by over an order of magnitude, and this keeps an
+    optimistic one from ending the solve short of admissible, for one evaluation of g. A
+    tighter value costs replans past discs more factorisations (docs/performance.md)."""
     contradiction_tol: float = 1e-6
     """Settled steps with g further off the set: limits that cannot all hold."""
     near_bound: float = 1e-6
@@ -88,10 +85,10 @@ class WorkingSetOptions:
     """A held row whose multiplier has the wrong sign by more is let go."""
 
     def __post_init__(self) -> None:
-        at_least_one(self, 'max_steps', 'max_factorisations')
+        check_budgets(self, 'max_steps', 'max_factorisations')
 
 
-def at_least_one(options: object, *budgets: str) -> None:
+def check_budgets(options: object, *budgets: str) -> None:
     """Refuse an options dataclass whose ``budgets`` are not whole numbers >= 1."""
     for name in budgets:
         value = getattr(options, name)
@@ -124,7 +121,7 @@ class WorkingSet:
 
     Kept for the inequality rows alone (equalities are always held), and the step's
     arguments rebuilt only when the set changes: a replan asks for them at every
-    factorisation, and a large g made these few array operations a third of its time.
+    factorisation, and with a large g these array operations would weigh on each one.
     Without inequality rows (``limited`` False) the set never changes: its methods return at
     once.
     """
@@ -253,7 +250,7 @@ def working_set_solve(step: NewtonStep, constraints: NumericFunction, w: np.ndar
     A plan converged with a row of ``nonconvex`` held (clearance: the way round an obstacle,
     where saddles are generic), or reached from a guess far from it (a first step longer than
     ``options.wandered``: a push, a jump of the reference), is checked to be a minimum, not a
-    saddle (a factorisation more, about 0.1 ms); plans continued from a nearby guess (the
+    saddle (a factorisation more); plans continued from a nearby guess (the
     previous plan, shifted) are not, and carry the check instead. Without inequality rows the
     set never changes: the steps are Newton's on the KKT system, and g is not looked at.
     ``multipliers``: estimates at w (the previous plan's, :mod:`.duals`) for the first step's
@@ -279,7 +276,7 @@ def working_set_solve(step: NewtonStep, constraints: NumericFunction, w: np.ndar
         guessed = rows.held() if guessed is None else guessed  # the guess's contacts
         changed, offset = False, np.zeros_like(w)
         while True:
-            if factorisations >= o.max_factorisations or not pace.room():
+            if factorisations >= o.max_factorisations or not pace.has_time_for_step():
                 return None
             w_full, multipliers, full, stationarity = step(w, p, *rows.arguments(), curvature)
             factorisations += 1
