@@ -27,7 +27,6 @@ import pytest
 import nh_tracking as nht
 from nh_tracking.core.lagrangian_data import LagrangianData
 from nh_tracking.estimation.adaptation import OnlineEstimator
-from nh_tracking.estimation.parametric import parametric_model
 from nh_tracking.models import ModelSpec, PhysicalParameter
 
 RATE = 50.0  # Hz, as odometry comes
@@ -85,14 +84,14 @@ def _log(spec: ModelSpec, truth: dict, law: Callable, seconds: float = SECONDS,
 
 
 def _noisy(spec: ModelSpec, q: np.ndarray, seed: int) -> np.ndarray:
-    angles = np.array([c in ('theta', 'psi', 'phi') for c in parametric_model(
-        spec, [spec.parameters[0].name]).coordinates])
+    angles = np.array([c in ('theta', 'psi', 'phi') for c in spec.parametrised(
+        [spec.parameters[0].name]).coordinates])
     scale = np.where(angles, NOISE[1], NOISE[0])
     return q + np.random.default_rng(seed).normal(size=q.shape) * scale
 
 
 CASES = [  # the spec, the truth (the start is the spec's defaults), the controls
-    (nht.models.spec('chaplygin_sleigh'), {'m': 0.8, 'J': 5.2}, _waves),  # the demo
+    (nht.models.spec('chaplygin_sleigh'), {'m': 0.8, 'J': 5.2}, _waves),
     (nht.models.spec('snakeboard'), {'m': 1.2, 'J': 0.13, 'J_r': 0.04}, _snakeboard_gait),
     (PUSHED, {'m': 1.7, 'J': 0.6}, _waves),
 ]
@@ -162,13 +161,13 @@ def test_the_symbolic_dynamics_are_the_built_models_at_any_parameters():
         names = [p.name for p in spec.parameters]
         if not names:
             continue
-        plant = parametric_model(spec, names)
+        plant = spec.parametrised(names)
         values = {n: d * rng.uniform(0.5, 2.0) for n, d in spec.defaults.items()}
         built = spec.create(**values)
         for _ in range(5):
             q, v, u = rng.uniform(-1, 1, built.n), rng.normal(size=built.k), rng.normal(
                 size=built.r)
-            rate = plant.ode(np.r_[q, v], u, [values[n] for n in names])
+            rate = plant.family.ode(np.r_[q, v], u, [values[n] for n in names])
             assert np.allclose(np.array(rate).ravel(), np.concatenate(built.dynamics(q, v, u)),
                                rtol=1e-12, atol=1e-12), spec.name
 

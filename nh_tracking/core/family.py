@@ -21,6 +21,7 @@ from __future__ import annotations
 
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
+import functools
 import math
 import numbers
 
@@ -35,7 +36,8 @@ class DynamicsFamily:
     Those are an input ``p`` here (empty when none is symbolic), so the NLPs built from these
     functions — cached per family — serve every member: a new value is a new number in the
     next solve. ``dynamics(q, v, u, p)`` -> (qdot, vdot); ``rho(q, p)``; ``input_matrix(q, p)``;
-    ``velocity(q, qdot, p)`` -> v of qdot's G-orthogonal projection on D.
+    ``velocity(q, qdot, p)`` -> v of qdot's G-orthogonal projection on D; :attr:`ode` the
+    dynamics on the state x = (q, v).
     """
 
     names: tuple[str, ...]
@@ -43,6 +45,15 @@ class DynamicsFamily:
     rho: ca.Function
     input_matrix: ca.Function
     velocity: ca.Function
+
+    @functools.cached_property
+    def ode(self) -> ca.Function:
+        """The dynamics on the state x = (q, v) as one column function: (x, u, p) -> xdot."""
+        n, k, r = (self.dynamics.size1_in(i) for i in range(3))
+        x, u = ca.SX.sym('x', n + k), ca.SX.sym('u', r)
+        p = ca.SX.sym('p', self.dynamics.size1_in(3))
+        return ca.Function('ode', [x, u, p], [ca.vertcat(*self.dynamics(x[:n], x[n:], u, p))],
+                           ['x', 'u', 'p'], ['xdot'])
 
     def singular_at(self, p: Sequence[float], configurations: np.ndarray) -> np.ndarray | None:
         """Return a configuration where the dynamics at values ``p`` are not finite, or None."""

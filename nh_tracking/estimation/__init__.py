@@ -14,6 +14,7 @@
 
 """Physical parameters from a robot's own motion: output-error fits, offline and online.
 
-A model's dynamics with parameters left symbolic, the least-squares fit of them, sliding-window
-estimates while tracking, and the worker process the fits run in.
+The least-squares fit of parameters left symbolic in a model's dynamics
+(:meth:`~nh_tracking.models.spec.ModelSpec.parametrised`), sliding-window estimates while
+tracking, and the worker process the fits run in.
 """

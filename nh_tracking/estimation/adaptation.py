@@ -32,7 +32,6 @@ from numpy.typing import ArrayLike
 
 from nh_tracking import models
 from nh_tracking.estimation.output_error import estimate_parameters, ParameterEstimate
-from nh_tracking.estimation.parametric import parametric_model
 from nh_tracking.estimation.worker import EstimationWorker
 from nh_tracking.models.spec import ModelSpec
 
@@ -154,7 +153,7 @@ def combined_estimate(estimates: Sequence[ParameterEstimate], agree: float,
 
 
 class BackgroundEstimates:
-    """An :class:`OnlineEstimator` whose fits run in a worker process (:mod:`estimation_worker`).
+    """An :class:`OnlineEstimator` whose fits run in a worker process (:mod:`.worker`).
 
     ``on_values()`` is called (on the thread that waits for the worker) when a fit moved a
     value in use by more than ``agree`` (relative): :attr:`values` are then the new ones.
@@ -164,7 +163,7 @@ class BackgroundEstimates:
                  on_values: Callable[[], None],
                  settings: AdaptationSettings = AdaptationSettings()) -> None:
         spec = models.spec(model)
-        parametric_model(spec, names, values)  # a ValueError now, not in the worker
+        spec.parametrised(names, **values)  # a ValueError now, not in the worker
         self.model = model
         self.estimator = OnlineEstimator(spec, names, values, settings)
         self.failure = ''  # the last fit's exception, if it raised

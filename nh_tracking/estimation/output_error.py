@@ -37,7 +37,7 @@ import scipy.sparse
 import scipy.sparse.linalg
 
 from nh_tracking import models
-from nh_tracking.estimation.parametric import parametric_model, ParametricModel
+from nh_tracking.core.system import NonholonomicSystem
 from nh_tracking.models.spec import ModelSpec
 
 EXCITED = 0.05  # largest relative standard deviation, in any direction, of estimates returned
@@ -96,22 +96,22 @@ def estimate_parameters(
     overlap = set(fixed) & set(names)
     if overlap:
         raise ValueError(f'parameters {sorted(overlap)} are both estimated and fixed')
-    plant = parametric_model(spec, names, {**fixed, **dict(start or {})})
-    times, measured, controls = _checked_log(plant, t, q, u)
-    fit = _Fit(plant, times, controls)
+    system = spec.parametrised(names, **{**fixed, **dict(start or {})})
+    times, measured, controls = _checked_log(system, t, q, u)
+    fit = _Fit(spec, system, times, controls)
     outliers, noise = _against_neighbours(measured)
-    x = _first_guess(plant, times, measured)
-    delta = np.zeros(len(plant.names))
+    x = _first_guess(system, times, measured)
+    delta = np.zeros(len(system.family.names))
     covariance = fit.covariance(x, delta, ~outliers, noise)
     if _worst(covariance) > HOPELESS * EXCITED:  # no fit can pin them down: spare the work
-        return _estimate(plant, fit.scale, delta, covariance, noise, int(outliers.sum()))
+        return _estimate(system, fit.scale, delta, covariance, noise, int(outliers.sum()))
     for _ in range(PASSES):
         try:
             x, delta = fit.solve(measured, ~outliers, noise, x, delta)
         except _NotFitted as failure:
-            return _unfitted(plant, f'the fit did not converge ({failure}): starting values '
+            return _unfitted(system, f'the fit did not converge ({failure}): starting values '
                              'kept; is u what this model takes as controls?')
-        residual = measured - x[:plant.n].T
+        residual = measured - x[:system.n].T
         kept = ~outliers
         new_noise = _robust_scale(residual[kept])
         new_outliers = outliers | np.any(
@@ -122,24 +122,24 @@ def estimate_parameters(
         if settled:
             break
     covariance = fit.covariance(x, delta, ~outliers, noise)
-    return _estimate(plant, fit.scale, delta, covariance, noise, int(outliers.sum()))
+    return _estimate(system, fit.scale, delta, covariance, noise, int(outliers.sum()))
 
 
-def _checked_log(plant: ParametricModel, t: ArrayLike, q: ArrayLike,
+def _checked_log(system: NonholonomicSystem, t: ArrayLike, q: ArrayLike,
                  u: ArrayLike) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     times = np.asarray(t, dtype=float).reshape(-1)
     count = len(times)
     if count < 3 or not np.all(np.isfinite(times)) or np.any(np.diff(times) <= 0):
         raise ValueError('t must be finite and strictly increasing, with at least 3 times')
     measured = np.array(q, dtype=float)
-    if measured.shape != (count, plant.n) or not np.all(np.isfinite(measured)):
-        raise ValueError(f'q must be a finite ({count}, {plant.n}) array of '
-                         f'{plant.coordinates}, got shape {np.shape(q)}')
+    if measured.shape != (count, system.n) or not np.all(np.isfinite(measured)):
+        raise ValueError(f'q must be a finite ({count}, {system.n}) array of '
+                         f'{system.coordinates}, got shape {np.shape(q)}')
     controls = np.asarray(u, dtype=float)
-    if controls.shape != (count - 1, plant.r) or not np.all(np.isfinite(controls)):
-        raise ValueError(f'u must be a finite ({count - 1}, {plant.r}) array (the controls '
+    if controls.shape != (count - 1, system.r) or not np.all(np.isfinite(controls)):
+        raise ValueError(f'u must be a finite ({count - 1}, {system.r}) array (the controls '
                          f'held on each interval), got shape {np.shape(u)}')
-    measured[:, plant.angle_mask] = np.unwrap(measured[:, plant.angle_mask], axis=0)
+    measured[:, system.angle_mask] = np.unwrap(measured[:, system.angle_mask], axis=0)
     return times, measured, controls
 
 
@@ -161,10 +161,11 @@ def _robust_scale(deviations: np.ndarray) -> np.ndarray:
     return np.maximum(RESOLUTION, 1.4826 * np.median(np.abs(deviations), axis=0))
 
 
-def _first_guess(plant: ParametricModel, times: np.ndarray, measured: np.ndarray) -> np.ndarray:
+def _first_guess(system: NonholonomicSystem, times: np.ndarray,
+                 measured: np.ndarray) -> np.ndarray:
     """(n + k, T) states: the measured q, and v from central differences projected on D."""
     rates = np.gradient(measured, times, axis=0)
-    v = plant.velocity.map(len(times))(measured.T, rates.T, plant.start)
+    v = system.family.velocity.map(len(times))(measured.T, rates.T, system.family_values)
     return np.vstack([measured.T, np.array(v)])
 
 
@@ -175,33 +176,34 @@ class _Fit:
     dynamics (second order).
     """
 
-    def __init__(self, plant: ParametricModel, times: np.ndarray, controls: np.ndarray) -> None:
-        self.plant = plant
-        count, nx, size = len(times), plant.n + plant.k, len(plant.names)
+    def __init__(self, spec: ModelSpec, system: NonholonomicSystem, times: np.ndarray,
+                 controls: np.ndarray) -> None:
+        self.system = system
+        count, nx, size = len(times), system.n + system.k, len(system.family.names)
         # delta = (value - start) / scale; a zero start is scaled by its default's size
-        defaults = plant.spec.defaults
+        defaults = spec.defaults
         self.scale = np.array([abs(v) if v else max(abs(defaults[n]), 1.0)
-                               for n, v in zip(plant.names, plant.start)])
-        x0, x1, u = ca.SX.sym('x0', nx), ca.SX.sym('x1', nx), ca.SX.sym('u', plant.r)
+                               for n, v in zip(system.family.names, system.family_values)])
+        x0, x1, u = ca.SX.sym('x0', nx), ca.SX.sym('x1', nx), ca.SX.sym('u', system.r)
         delta, h = ca.SX.sym('delta', size), ca.SX.sym('h')
-        values = plant.start + self.scale * delta
+        values = system.family_values + self.scale * delta
         defect = ca.Function('defect', [x0, x1, u, delta, h], [
-            x1 - x0 - h * plant.ode((x0 + x1) / 2, u, values)])
+            x1 - x0 - h * system.family.ode((x0 + x1) / 2, u, values)])
         states = ca.MX.sym('X', nx, count)
         d = ca.MX.sym('d', size)
-        weights = ca.MX.sym('w', plant.n, count)  # 1 / noise, 0 for an outlier
-        target = ca.MX.sym('q', plant.n, count)
+        weights = ca.MX.sym('w', system.n, count)  # 1 / noise, 0 for an outlier
+        target = ca.MX.sym('q', system.n, count)
         dynamics = ca.vec(defect.map(count - 1)(
             states[:, :-1], states[:, 1:], controls.T, ca.repmat(d, 1, count - 1),
             np.diff(times)[None, :]))
-        misfit = (states[:plant.n, :] - target) * weights
+        misfit = (states[:system.n, :] - target) * weights
         cost = (0.5 * ca.sumsqr(misfit) + 0.5 * PRIOR * ca.sumsqr(d)) / count
-        bounds = {p.name: p.bounds for p in plant.spec.parameters}
-        move = [_move(v) for v in plant.start]  # within a factor MOVE, the sign kept
-        low = [max((bounds[n][0] - plant.values[n]) / s, m[0])
-               for n, s, m in zip(plant.names, self.scale, move)]
-        high = [min((bounds[n][1] - plant.values[n]) / s, m[1])
-                for n, s, m in zip(plant.names, self.scale, move)]
+        bounds = {p.name: p.bounds for p in spec.parameters}
+        move = [_move(v) for v in system.family_values]  # within a factor MOVE, the sign kept
+        low = [max((bounds[n][0] - system.parameters[n]) / s, m[0])
+               for n, s, m in zip(system.family.names, self.scale, move)]
+        high = [min((bounds[n][1] - system.parameters[n]) / s, m[1])
+                for n, s, m in zip(system.family.names, self.scale, move)]
         self.size, self.nx, self.count = size, nx, count
         self.bounds = (np.r_[np.full(nx * count, -np.inf), low],
                        np.r_[np.full(nx * count, np.inf), high])
@@ -240,7 +242,7 @@ class _Fit:
         later = -scipy.sparse.linalg.splu(by_state[:, nx:]).solve(np.hstack([
             by_state[:, :nx].toarray(), np.array(by_delta)]))
         sensitivity = np.vstack([np.hstack([np.eye(nx), np.zeros((nx, self.size))]), later])
-        rows = (np.arange(self.count)[:, None] * nx + np.arange(self.plant.n)[None, :]).ravel()
+        rows = (np.arange(self.count)[:, None] * nx + np.arange(self.system.n)[None, :]).ravel()
         weights = (kept[:, None] / noise[None, :]).ravel()
         weighted = sensitivity[rows] * weights[:, None]
         information = weighted.T @ weighted
@@ -261,21 +263,21 @@ def _move(start: float) -> tuple[float, float]:
     return -MOVE, MOVE  # in units of the default's size
 
 
-def _estimate(plant: ParametricModel, scale: np.ndarray, delta: np.ndarray,
+def _estimate(system: NonholonomicSystem, scale: np.ndarray, delta: np.ndarray,
               covariance: np.ndarray, noise: np.ndarray, outliers: int) -> ParameterEstimate:
     std = np.sqrt(np.abs(np.diag(covariance))) * scale
     relative = std / scale
     excited = bool(_worst(covariance) <= EXCITED)
-    values = plant.start + scale * delta if excited else plant.start
+    values = system.family_values + scale * delta if excited else system.family_values
     loose = [f'{n} (±{r:.0%})' if r < 10 else f'{n} (nothing)'
-             for n, r in zip(plant.names, relative) if not r <= EXCITED]
+             for n, r in zip(system.family.names, relative) if not r <= EXCITED]
     message = 'excited' if excited else (
-        'not excited: the data pin down ' + ', '.join(loose or plant.names)
+        'not excited: the data pin down ' + ', '.join(loose or system.family.names)
         + f' (together) to no better than {EXCITED:.0%}; starting values kept')
     return ParameterEstimate(
-        values={n: float(v) for n, v in zip(plant.names, values)},
-        std={n: float(s) for n, s in zip(plant.names, std)}, excited=excited,
-        noise={c: float(s) for c, s in zip(plant.coordinates, noise)}, outliers=outliers,
+        values={n: float(v) for n, v in zip(system.family.names, values)},
+        std={n: float(s) for n, s in zip(system.family.names, std)}, excited=excited,
+        noise={c: float(s) for c, s in zip(system.coordinates, noise)}, outliers=outliers,
         message=message)
 
 
@@ -286,10 +288,10 @@ def _worst(covariance: np.ndarray) -> float:
     return math.sqrt(max(np.linalg.eigvalsh(covariance)[-1], 0.0))
 
 
-def _unfitted(plant: ParametricModel, message: str) -> ParameterEstimate:
+def _unfitted(system: NonholonomicSystem, message: str) -> ParameterEstimate:
     return ParameterEstimate(
-        values={n: float(v) for n, v in zip(plant.names, plant.start)},
-        std={n: math.inf for n in plant.names}, excited=False,
+        values={n: float(v) for n, v in zip(system.family.names, system.family_values)},
+        std={n: math.inf for n in system.family.names}, excited=False,
         noise={}, outliers=0, message=message)
 
 

@@ -19,8 +19,9 @@ documentation — reads them from one place instead of knowing each robot.
 """
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
+import functools
 import inspect
 import math
 
@@ -124,6 +125,27 @@ class ModelSpec:
         except Exception:  # noqa: BLE001 - no basis given (a sampled one needs numbers), another
             return system  # model, or data a user wrote for numbers only (if m > 0: ...)
 
+    def parametrised(self, names: Sequence[str], **values: object) -> NonholonomicSystem:
+        """Build the model with the physical parameters ``names`` symbolic in its dynamics.
+
+        The others are at ``values`` or their defaults; ``names`` start at theirs. Its
+        ``family`` (:class:`~nh_tracking.core.family.DynamicsFamily`) takes ``names``' values
+        as its input ``p``; the family is derived once per spec, names and other values.
+        A ValueError names what is missing: symbolic Lagrangian data, a basis of D, or
+        parameters the model does not have.
+        """
+        names = tuple(names)
+        known = [p.name for p in self.parameters]
+        if not names or len(set(names)) != len(names) or not set(names) <= set(known):
+            raise ValueError(f'model {self.name}: parameters to leave symbolic must be distinct '
+                             f'names among {known}, got {list(names)}')
+        if self.lagrangian is None:
+            raise ValueError(f'model {self.name} gives no Lagrangian data with symbolic '
+                             'parameters (ModelSpec.lagrangian); its parameters can only be fixed')
+        checked = self.check(**values)
+        family = _family(self, names, tuple((k, x) for k, x in checked.items() if k not in names))
+        return family.with_values(**{name: checked[name] for name in names})
+
     @classmethod
     def from_factory(cls, name: str, factory: Callable[..., NonholonomicSystem]) -> ModelSpec:
         """Return a spec for a plain factory function: its keyword defaults are the parameters.
@@ -137,3 +159,14 @@ class ModelSpec:
                                  'to be a physical parameter')
             parameters.append(PhysicalParameter(p.name, float(p.default), '', p.name))
         return cls(name, factory, tuple(parameters), (factory.__doc__ or '').strip())
+
+
+@functools.lru_cache(maxsize=8)
+def _family(spec: ModelSpec, names: tuple[str, ...],
+            fixed: tuple[tuple[str, float], ...]) -> NonholonomicSystem:
+    """Return the model with ``names`` symbolic (at their defaults), the others ``fixed``."""
+    try:
+        system = spec.create(**dict(fixed))
+        return system.parametrised(spec.lagrangian, names)  # type: ignore[arg-type]
+    except ValueError as exc:
+        raise ValueError(f'model {spec.name}: {exc}') from None
