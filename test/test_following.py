@@ -25,6 +25,7 @@ from nh_tracking.examples.nav2 import polyline
 from nh_tracking.navigation.goal_checking import (GoalChecker, GoalSettings, GoalState,
                                                   PathProgress, ProgressChecker)
 from nh_tracking.navigation.reference_checks import ReferenceRejected
+from nh_tracking.navigation.route import RouteSettings
 from nh_tracking.planning.receding_horizon import PlannerSettings, PlanStatus
 from nh_tracking.session.tracking_session import TrackingSession
 from test_route import arc
@@ -99,7 +100,7 @@ class Loop:
     ('unicycle', polyline((0, 0), (2, 0), (2, 2))),  # a sharp 90-degree corner
     ('unicycle', np.vstack([polyline((0, 0), (1.5, 0)), arc(0.5, np.pi / 2)[1:] + [1.5, 0, 0, 0],
                             polyline((2, 0.5), (2, 2))[1:]])),
-    ('rolling_disk', polyline((0, 0), (1.5, 0.5), (3, 0))),  # a model no issue names
+    ('rolling_disk', polyline((0, 0), (1.5, 0.5), (3, 0))),  # a model with a hidden rolling angle
     ('user_robots:CAR', np.vstack([polyline((0, 0), (2, 0)),  # a car's cusp: stop, reverse
                                    polyline((2, 0), (0.8, 0))[1:]])),
 ])
@@ -153,7 +154,7 @@ def test_timed_references_that_cannot_be_meant_are_refused_or_warned():
     count = len(loop.logs)
     following.set_reference(t + 100.5, poses, None)  # on time: no word
     assert len(loop.logs) == count
-    loop.session.following.route_settings = nht.route.RouteSettings(reference_speed=0.0)
+    loop.session.following.route_settings = RouteSettings(reference_speed=0.0)
     with pytest.raises(ReferenceRejected, match='reference_speed is 0'):
         following.set_route(poses)
 
@@ -202,7 +203,7 @@ def test_a_route_sent_again_after_arriving_is_driven_again_and_new_settings_reti
     assert following.set_route(patrol) is not None  # a patrol sent again: round it again
     assert following.status.remaining == pytest.approx(6.0, abs=0.05)
     loop.run(2.0)
-    slower = nht.route.RouteSettings(reference_speed=0.2)
+    slower = RouteSettings(reference_speed=0.2)
     following.configure(slower, GoalSettings(xy_goal_tolerance=0.1))
     reference = loop.session.planner.reference  # re-timed at once from where the robot is
     speeds = np.hypot(*np.diff(reference.q[:, :2], axis=0).T) / np.diff(reference.t)

@@ -15,15 +15,16 @@
 """Warm replanning by Newton steps on a working set of the limit rows, against the interior point.
 
 The working set is checked against fatrop solving the same problem from the same guess (the
-independent solver), on models and limits no issue names — and without limits, where the set
-is empty and the steps are Newton's on the KKT conditions — and its saddle test on a problem
-whose two KKT points are known by hand.
+independent solver), on built-in models and made-up systems with several kinds of limits — and
+without limits, where the set is empty and the steps are Newton's on the KKT conditions — and
+its saddle test on a problem whose two KKT points are known by hand.
 """
 import casadi as ca
 import numpy as np
 import pytest
 
 import nh_tracking as nht
+from nh_tracking.core.numeric import NumericFunction
 import nh_tracking.planning.receding_horizon as rh
 from nh_tracking.solvers import routes, sample_plan, variational
 from nh_tracking.solvers.inequalities import Shape
@@ -43,7 +44,7 @@ def test_the_working_set_tells_the_minimum_beside_an_obstacle_from_the_saddle():
     w, p = ca.SX.sym('w', 2), ca.SX.sym('p', 0)
     g = ca.sumsqr(w)
     step = NewtonStep(w, p, w - ca.DM([0.5, 0.0]), g)
-    values = nht.numeric.NumericFunction(ca.Function('g', [w, p], [g]))
+    values = NumericFunction(ca.Function('g', [w, p], [g]))
     lower, upper, convex = np.ones(1), np.full(1, np.inf), np.ones(1, dtype=bool)
     found = working_set_solve(step, values, np.array([0.9, 0.5]), np.zeros(0), lower, upper,
                               convex, Pace(None))
