@@ -12,7 +12,11 @@
 # See the License for the specific language governing permissions and
 # limitations under the License.
 
-"""Shared test set-up: ROS traffic stays on this machine; test helpers importable."""
+"""Shared test set-up: ROS traffic stays on this machine; test helpers importable; tiers.
+
+Every test is in one tier, marked ``unit``, ``solve`` or ``ros`` (on the test or on its module);
+``slow`` marks those ``scripts/test.sh --fast`` leaves out.
+"""
 import os
 import sys
 
@@ -21,6 +25,15 @@ import pytest
 os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
 os.environ.setdefault('MPLBACKEND', 'Agg')
 sys.path.insert(0, os.path.dirname(__file__))
+TIERS = ('unit', 'solve', 'ros')
+
+
+def pytest_collection_modifyitems(config, items):
+    """Refuse a test that is in no tier or in more than one."""
+    wrong = [item.nodeid for item in items
+             if sum(1 for mark in item.iter_markers() if mark.name in TIERS) != 1]
+    if wrong:
+        raise pytest.UsageError(f'tests without exactly one tier marker {TIERS}: {wrong}')
 
 
 @pytest.fixture(autouse=True)

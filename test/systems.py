@@ -12,7 +12,7 @@
 # See the License for the specific language governing permissions and
 # limitations under the License.
 
-"""Test systems that no issue names, and the independent Lagrange–d'Alembert reference."""
+"""Test systems beyond the built-in models, and the independent Lagrange–d'Alembert reference."""
 from __future__ import annotations
 
 import casadi as ca

@@ -14,7 +14,7 @@
 
 """The planner learns the robot's masses while tracking it (parameter ``adapt``), through ROS.
 
-The simulated robot is the issue's: J 30 % above the planner's model, m 20 % below. The
+The simulated robot has J 30 % above the planner's model and m 20 % below. The
 estimates run in a worker process on the planner's odometry and the controls it sent.
 """
 import threading
@@ -38,6 +38,8 @@ def _near(values: dict) -> bool:
     return all(abs(values[n] / TRUTH[n] - 1) < 0.05 for n in TRUTH)
 
 
+@pytest.mark.ros
+@pytest.mark.slow
 def test_adapting_predicts_5x_better_and_tracks_no_worse_than_the_model_as_typed(tmp_path):
     """The demo (``nh-tracking demo --adapt``): the same ROS loop with and without adaptation.
 
@@ -59,12 +61,14 @@ def test_adapting_predicts_5x_better_and_tracks_no_worse_than_the_model_as_typed
     assert (tmp_path / 'adapt.png').stat().st_size > 10_000
 
 
+@pytest.mark.ros
 def test_parameters_that_cannot_be_estimated_stop_the_configure_with_a_reason(graph):
     with pytest.raises(ValueError, match='parameters to leave symbolic must be distinct'):
         graph.add(PlannerNode, namespace=f'/t{uuid.uuid4().hex[:8]}',
                   parameter_overrides=parameters(adapt=['mass']))
 
 
+@pytest.mark.unit
 def test_the_controls_sent_are_averaged_over_each_interval_as_they_were_in_force():
     t, u = np.array([0.0, 0.1, 0.2]), np.array([[1.0], [3.0]])
     assert mean_control(t, u, 0.05, 0.15)[0] == pytest.approx(2.0)
@@ -82,6 +86,7 @@ def test_the_controls_sent_are_averaged_over_each_interval_as_they_were_in_force
     assert [r[0] for r in sent.readings(0.25, 0.28)] == pytest.approx([5.0, 5.0])
 
 
+@pytest.mark.unit
 def test_fits_under_both_readings_of_the_controls_are_used_only_when_they_agree():
     def fit(m: float, std: float = 0.001, excited: bool = True) -> ParameterEstimate:
         return ParameterEstimate({'m': m}, {'m': std}, excited, {}, 0, 'excited')
@@ -95,6 +100,7 @@ def test_fits_under_both_readings_of_the_controls_are_used_only_when_they_agree(
     assert not combined_estimate([fit(0.8), fit(0.8, excited=False)], 0.01, start).excited
 
 
+@pytest.mark.solve
 def test_the_worker_process_answers_says_what_failed_and_stays_closed():
     worker = EstimationWorker()
     answers: list = []

@@ -21,7 +21,11 @@ import ast
 from pathlib import Path
 import re
 
+import pytest
+
 import nh_tracking
+
+pytestmark = pytest.mark.unit
 
 ROOT = Path(__file__).resolve().parents[1]
 PACKAGE = ROOT / 'nh_tracking'
@@ -111,6 +115,46 @@ def test_no_module_is_long():
     """Modules split where the seams are; one past this length is worth a look for one."""
     long = {m: n for m, p in _modules() if (n := _length(p)) > MAX_LINES}
     assert long == {}
+
+
+RCLPY_PRIVATE = 'nh_tracking.ros.rclpy_private'  # the one module that may use rclpy's privates
+RCLPY_PRIVATE_NAMES = {'_state_machine', '_service_change_state', '_parameter_overrides',
+                       '_take_service'}  # those it uses
+
+
+def _private_uses(path: Path) -> list[str]:
+    """Return where ``path`` reads a private attribute off anything but ``self`` or ``cls``.
+
+    Or names one of :data:`RCLPY_PRIVATE_NAMES` at all (on ``self``, in an override, as a
+    string).
+    """
+    found = []
+    for node in ast.walk(ast.parse(path.read_text())):
+        if isinstance(node, ast.Attribute):
+            name = node.attr
+            dunder = name.startswith('__') and name.endswith('__')
+            own = isinstance(node.value, ast.Name) and node.value.id in ('self', 'cls')
+            if name in RCLPY_PRIVATE_NAMES or (name.startswith('_') and not dunder and not own):
+                found.append(f'{node.lineno}: .{name}')
+        elif isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)) \
+                and node.name in RCLPY_PRIVATE_NAMES:
+            found.append(f'{node.lineno}: def {node.name}')
+        elif isinstance(node, ast.Constant) and node.value in RCLPY_PRIVATE_NAMES:
+            found.append(f'{node.lineno}: {node.value!r}')
+    return found
+
+
+def test_only_one_module_uses_rclpys_private_attributes():
+    """The layers that import rclpy reach into its objects only through :data:`RCLPY_PRIVATE`.
+
+    There each use is a small function saying which public API is missing, so a new rclpy that
+    changes them breaks one module.
+    """
+    offenders = {module: uses for module, path in _modules()
+                 if _layer(module) >= _layer('nh_tracking.ros') and module != RCLPY_PRIVATE
+                 and (uses := _private_uses(path))}
+    assert offenders == {}
+    assert _private_uses(PACKAGE / 'ros' / 'rclpy_private.py')  # (the rule sees them there)
 
 
 def test_the_version_has_one_source():

@@ -31,6 +31,8 @@ from nh_tracking.solvers.newton import NewtonStep
 from nh_tracking.solvers.nlp import Pace
 from nh_tracking.solvers.working_set import working_set_solve, WorkingSetOptions
 
+pytestmark = pytest.mark.unit
+
 RNG = np.random.default_rng(7)
 A, B = RNG.normal(size=(5, 3)), RNG.normal(size=5)
 C, D = np.array([[1.0, 2.0, -1.0]]), np.array([0.5])

@@ -13,7 +13,11 @@
 # limitations under the License.
 
 """The benchmark's timing discipline (its figures are measured by ``nh-tracking bench``)."""
+import pytest
+
 from nh_tracking.examples.cold import interleaved
+
+pytestmark = pytest.mark.unit
 
 
 def test_interleaved_rounds_run_every_tool_once_per_round_in_a_rotating_order():

@@ -29,6 +29,7 @@ ROOT = Path(__file__).resolve().parents[1]
 BIN = Path(sys.executable).parent
 
 
+@pytest.mark.unit
 def test_simulate_command_writes_plot_and_summary(tmp_path):
     assert main(['simulate', '--duration', '10', '--out', str(tmp_path)]) == 0
     summary = json.loads((tmp_path / 'simulation.json').read_text())
@@ -38,6 +39,7 @@ def test_simulate_command_writes_plot_and_summary(tmp_path):
     assert (tmp_path / 'simulation.png').stat().st_size > 10_000
 
 
+@pytest.mark.unit
 def test_simulate_command_reports_bad_input_without_traceback(tmp_path, capsys):
     assert main(['simulate', '--model', 'unicycle', '--q0', '1 2', '--out', str(tmp_path)]) == 2
     assert 'must have 3 entries' in capsys.readouterr().err
@@ -45,6 +47,8 @@ def test_simulate_command_reports_bad_input_without_traceback(tmp_path, capsys):
                  '--out', str(tmp_path)]) == 2
 
 
+@pytest.mark.ros
+@pytest.mark.slow
 @pytest.mark.skipif(not (BIN / 'colcon').exists(), reason='colcon is installed by requirements')
 def test_colcon_build_installs_the_package_and_its_executables(tmp_path):
     src = tmp_path / 'src' / 'nh_tracking'
@@ -78,6 +82,7 @@ def test_colcon_build_installs_the_package_and_its_executables(tmp_path):
                                       PYTHONPATH=env['PYTHONPATH'])), ready)
 
 
+@pytest.mark.ros
 def test_executable_reports_bad_parameters_without_traceback():
     env = dict(os.environ, ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST')
     run = subprocess.run([str(BIN / 'sim'), '--ros-args', '-p', 'initial_state:=[1.0, 2.0]',
@@ -88,6 +93,8 @@ def test_executable_reports_bad_parameters_without_traceback():
     assert 'Traceback' not in run.stdout + run.stderr
 
 
+@pytest.mark.solve
+@pytest.mark.slow
 def test_reproduce_writes_metrics_and_figures(tmp_path):
     lines = []
     from nh_tracking.examples.experiments import reproduce

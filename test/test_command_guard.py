@@ -27,6 +27,8 @@ from nh_tracking.planning.command_guard import (arc, Clearance, CommandGuard, fr
 from nh_tracking.planning.guarded_plan import guard_controls
 from nh_tracking.session.commanding import Commands
 
+pytestmark = pytest.mark.unit
+
 # a differential drive: v = (forward speed, yaw rate) is its body twist's (vx, wz)
 UNICYCLE = np.array([[1.0, 0.0], [0.0, 0.0], [0.0, 0.0], [0.0, 1.0]])
 BOUNDS = np.array([[-0.7, -3.0], [0.7, 3.0]])

@@ -141,6 +141,7 @@ def multidof(draw):
     return msg
 
 
+@pytest.mark.solve
 def test_strategies_exercise_both_outcomes():
     """Guard against vacuous properties.
 
@@ -168,6 +169,7 @@ def _all_finite(*arrays) -> bool:
     return all(np.all(np.isfinite(np.asarray(a, dtype=float))) for a in arrays)
 
 
+@pytest.mark.solve
 @SETTINGS
 @given(paths())
 def test_path_conversion_is_valid_or_rejected(msg):
@@ -186,6 +188,7 @@ def test_path_conversion_is_valid_or_rejected(msg):
     assert _all_finite(reference.q, reference.v)
 
 
+@pytest.mark.solve
 @SETTINGS
 @given(multidof())
 def test_multidof_conversion_is_valid_or_rejected(msg):
@@ -199,6 +202,7 @@ def test_multidof_conversion_is_valid_or_rejected(msg):
     assert _all_finite(reference.q, reference.v)
 
 
+@pytest.mark.unit
 @SETTINGS
 @given(frames, stamps, poses(), twists())
 def test_odometry_conversion_is_valid_or_rejected(frame, stamp, pose, twist):
@@ -213,6 +217,7 @@ def test_odometry_conversion_is_valid_or_rejected(frame, stamp, pose, twist):
     assert ns >= 0 and _all_finite(pose_arr, body, q, POSE_MAP.velocity(q, body))
 
 
+@pytest.mark.unit
 @SETTINGS
 @given(st.lists(st.sampled_from(['torque', 'force', 'left']), max_size=3),
        st.lists(st.tuples(durations, st.lists(value, max_size=3)), max_size=8), stamps)
@@ -228,6 +233,7 @@ def test_control_sequence_conversion_is_valid_or_rejected(names, points, stamp):
     assert len(offsets) < 2 or np.all(np.diff(offsets) > 0)
 
 
+@pytest.mark.unit
 @SETTINGS
 @given(twists())
 def test_twist_conversion_is_valid_or_rejected(twist):
@@ -239,6 +245,7 @@ def test_twist_conversion_is_valid_or_rejected(twist):
     assert _all_finite(body, POSE_MAP.velocity(np.zeros(3), body))
 
 
+@pytest.mark.unit
 @SETTINGS
 @given(st.floats(-1e3, 1e3), st.floats(-1e3, 1e3), st.floats(-50, 50))
 def test_outgoing_messages_round_trip(x, y, yaw):
@@ -274,6 +281,7 @@ def marker_arrays(draw):
     return MarkerArray(markers=markers)
 
 
+@pytest.mark.solve
 @given(st.lists(marker_arrays(), max_size=4))
 @SETTINGS
 def test_obstacle_markers_give_finite_discs_or_a_rejection(messages):
@@ -293,6 +301,7 @@ def test_obstacle_markers_give_finite_discs_or_a_rejection(messages):
         assert np.all(np.hypot(discs[:, 3], discs[:, 4]) <= MAX_SPEED * (1 + 1e-12))
 
 
+@pytest.mark.unit
 @given(resolution=value, width=st.integers(0, 6), height=st.integers(0, 6),
        data=st.lists(st.integers(-128, 127), max_size=40), origin=poses(), frame=frames)
 @SETTINGS

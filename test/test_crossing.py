@@ -15,7 +15,8 @@
 """Discs on and across the route through ROS (:mod:`nh_tracking.examples.crossing`)."""
 import pytest
 
-pytestmark = pytest.mark.timeout(240)
+pytestmark = [pytest.mark.timeout(240), pytest.mark.ros, pytest.mark.slow]
+SCENES = 3  # of test_detours' ten, in its order
 
 
 def test_a_disc_centred_on_the_route_is_got_past_in_at_most_half_again_the_time(graph):
@@ -28,7 +29,7 @@ def test_a_disc_centred_on_the_route_is_got_past_in_at_most_half_again_the_time(
           f'without it), closest approach {run.closest[0]:.3f} m, {run.sim.collisions} '
           'collisions counted')
     assert free.arrived and run.arrived and run.took <= 1.5 * free.took
-    assert run.closest[0] >= 0.0 and run.sim.collisions == 0 and run.planner.errors == 0
+    assert run.closest[0] >= 0.0 and run.sim.collisions == 0 and run.planner.problems.errors == 0
 
 
 def test_discs_crossing_the_route_are_passed_without_collision_and_the_demo_draws_it(tmp_path):
@@ -44,9 +45,10 @@ def test_discs_crossing_the_route_are_passed_without_collision_and_the_demo_draw
 
 
 def test_random_scenes_of_discs_on_and_near_the_route_through_ros(graph):
-    """Ten seeded scenes of 3-6 discs within 0.5 m of a 6 m route: at least 9 arrive.
+    """The first three of ``test_detours``' seeded scenes, through the nodes: each arrives.
 
-    The scenes of ``test_detours``' session loop, through the nodes; no collision in any.
+    3-6 discs within 0.5 m of a 6 m route; no collision in any. The session loop there drives
+    all ten (at least 9 arrive); here the nodes' part is checked: obstacles in, detours out.
     """
     import numpy as np
 
@@ -54,15 +56,16 @@ def test_random_scenes_of_discs_on_and_near_the_route_through_ros(graph):
     from test_ros import unique_namespace
 
     rng, arrived, collisions, closest, took = np.random.default_rng(0), 0, 0, np.inf, []
-    for _ in range(10):
+    for _ in range(SCENES):
         scene = random_scene(rng)
         run = drive(graph, lambda start: scene, 6.0, unique_namespace(), patience=10.0)
         arrived += run.arrived
         collisions += run.sim.collisions
         closest = min(closest, float(run.closest.min()))
         took.append(run.took)
-        assert run.planner.errors == 0 and run.sim.errors == 0
+        assert run.planner.problems.errors == 0 and run.sim.problems.errors == 0
         graph.remove(run.planner, run.sim, run.probe)
-    print(f'\n10 scenes of 3-6 discs through ROS: {arrived} arrived (in {np.round(took, 1)} s), '
+    print(f'\n{SCENES} scenes of 3-6 discs through ROS: {arrived} arrived '
+          f'(in {np.round(took, 1)} s), '
           f'closest approach {closest:+.3f} m, {collisions} collision steps')
-    assert arrived >= 9 and collisions == 0 and closest >= 0.0
+    assert arrived == SCENES and collisions == 0 and closest >= 0.0

@@ -31,6 +31,8 @@ import nh_tracking as nht
 from nh_tracking.solvers.cache import await_builds
 from systems import coupled_system, euler_ball, inclined_knife_edge, polar_knife, rotor_sleigh
 
+pytestmark = [pytest.mark.solve, pytest.mark.slow]
+
 KINDS = {'rotor_sleigh': rotor_sleigh, 'polar_knife': polar_knife, 'euler_ball': euler_ball,
          'inclined_knife_edge': inclined_knife_edge, 'coupled': coupled_system}
 

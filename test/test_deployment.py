@@ -41,7 +41,7 @@ from nh_tracking.ros.graph import wait_until
 from nh_tracking.ros.planner_node import LATCHED
 from processes import domain_env, Peer, Process, run, starts_and_stops
 
-pytestmark = pytest.mark.timeout(300)
+pytestmark = [pytest.mark.timeout(300), pytest.mark.ros, pytest.mark.slow]
 ROOT = Path(__file__).resolve().parents[1]
 RADIUS, SPEED = 2.0, 0.5  # m, m/s
 
@@ -305,8 +305,8 @@ def test_parameter_changes_never_stop_a_deployed_planner_for_a_replan_period(tmp
             assert future.result().result.successful, future.result()
             assert wait_until(lambda: planner.output.count(done) > rebuilt, 120.0)
             until = time.time() + 2 * period  # the first plans of the new solver too
-            # until a message sent after it is heard (a fixed sleep let a slow callback thread
-            # in a loaded suite read as a silent planner: gaps of inf on both topics)
+            # until a message sent after it is heard (after a fixed sleep a slow callback thread
+            # in a loaded suite would read as a silent planner: gaps of inf on both topics)
             wait_until(lambda: all(any(t > until for t in times) for times in heard.values()),
                        10.0)
             gaps = {topic: _longest_silence(times, since, until)

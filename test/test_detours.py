@@ -45,6 +45,8 @@ CASES = {
 }
 
 
+@pytest.mark.solve
+@pytest.mark.slow
 @pytest.mark.parametrize('case', CASES)
 def test_a_cold_solve_goes_round_the_cheaper_side_of_a_disc_on_the_reference(case):
     system, speed, q0, v0, disc = CASES[case]
@@ -62,6 +64,7 @@ def test_a_cold_solve_goes_round_the_cheaper_side_of_a_disc_on_the_reference(cas
     assert plan.cost <= search.cost * 1.01
 
 
+@pytest.mark.unit
 def test_detour_guesses_pass_each_disc_on_either_side():
     problem = _straight(nht.models.unicycle(), [0.5, 0.0], [0, 0, 0], [0.5, 0],
                         (1.5, 0.0, 0.3))
@@ -96,6 +99,8 @@ def _follow(model, discs, seconds=30.0):
     return loop.session.following.status.state, np.array(rows)
 
 
+@pytest.mark.solve
+@pytest.mark.slow
 @pytest.mark.parametrize('model', ['unicycle', 'rolling_disk'])
 def test_replanning_goes_round_a_disc_centred_on_the_route(model, monkeypatch):
     """Warm replans pressed against a disc's near side stopped there; the other way is tried.
@@ -118,6 +123,8 @@ def test_replanning_goes_round_a_disc_centred_on_the_route(model, monkeypatch):
     assert state is GoalState.BLOCKED and rows[-1, 1] < disc[0] - disc[2]
 
 
+@pytest.mark.solve
+@pytest.mark.slow
 def test_random_scenes_of_discs_on_and_near_the_route_are_got_past():
     """Ten seeded scenes of 3-6 discs within 0.5 m of a 6 m route: at least 9 arrive.
 

@@ -53,6 +53,7 @@ def _at(values, blocks, position):
     return (low + 1 - position) * values[blocks[low]] + (position - low) * values[blocks[low + 1]]
 
 
+@pytest.mark.unit
 @pytest.mark.parametrize('later', [0.1, 0.05, 0.03, 0.27])  # 1, 1/2, a 100 Hz tick, 2.7
 def test_multipliers_move_with_the_plan(later):
     """Admissibility, control-bound and clearance rows take the old plan's values at that time.
@@ -83,6 +84,7 @@ def test_multipliers_move_with_the_plan(later):
     assert not carried[linear].any()  # rows without curvature start from zero
 
 
+@pytest.mark.solve
 def test_a_point_keeps_its_clearance_multipliers_while_its_discs_stay_the_same():
     """Five discs, four a point: a disc moved costs the multipliers of the points it is in.
 
@@ -115,6 +117,7 @@ def test_a_point_keeps_its_clearance_multipliers_while_its_discs_stay_the_same()
     assert np.abs(carried[half]).max() > 1e-3  # the first disc's contact is carried
 
 
+@pytest.mark.unit
 def test_multipliers_that_do_not_fit_are_not_carried():
     """Another disc, NLP, interval or an earlier start: no multipliers, or no clearance rows'."""
     problem = _problem(obstacles=[(1.2, 0.05, 0.3)], robot_radius=0.2)
@@ -154,6 +157,7 @@ def _knife(actuated: bool) -> nht.NonholonomicSystem:
         if actuated else None, angles=['theta'])
 
 
+@pytest.mark.solve
 def test_a_plan_of_another_system_alike_in_name_and_size_is_a_guess_without_multipliers():
     """Two users' systems called alike, with the same (n, k, r), one with more rows in its NLP.
 
@@ -176,6 +180,8 @@ def test_a_plan_of_another_system_alike_in_name_and_size_is_a_guess_without_mult
         assert again.success and abs(again.cost - own.cost) <= 1e-6 * own.cost
 
 
+@pytest.mark.solve
+@pytest.mark.slow
 @pytest.mark.parametrize('model_name, discs', [
     ('unicycle', ((3.0, 0.05, 0.3), (6.0, -0.05, 0.3))),
     ('nonholonomic_particle', ((2.5, -0.1, 0.25),))])

@@ -97,6 +97,8 @@ CASES = [  # the spec, the truth (the start is the spec's defaults), the control
 ]
 
 
+@pytest.mark.solve
+@pytest.mark.slow
 @pytest.mark.parametrize('spec, truth, law', CASES, ids=lambda c: getattr(c, 'name', ''))
 def test_parameters_are_recovered_to_1_percent_without_noise_and_5_percent_with(
         spec, truth, law):
@@ -113,6 +115,8 @@ def test_parameters_are_recovered_to_1_percent_without_noise_and_5_percent_with(
     assert noisy.noise['theta'] == pytest.approx(NOISE[1], rel=0.3)
 
 
+@pytest.mark.solve
+@pytest.mark.slow
 @pytest.mark.parametrize('name', ['unicycle', 'rolling_disk'])
 def test_parameters_that_do_not_enter_the_motion_are_not_excited(name):
     """Both take accelerations as controls: no log of (q, u) holds their masses."""
@@ -125,6 +129,8 @@ def test_parameters_that_do_not_enter_the_motion_are_not_excited(name):
     assert 'not excited' in estimate.message
 
 
+@pytest.mark.solve
+@pytest.mark.slow
 @pytest.mark.parametrize('velocity', [(0.0, 0.0), (0.0, 1.0)], ids=['at rest', 'straight'])
 def test_a_log_without_excitation_leaves_the_estimates_where_they_were(velocity):
     """The sleigh at rest, or sliding straight at constant speed: u = 0 tells nothing of m, J."""
@@ -138,6 +144,8 @@ def test_a_log_without_excitation_leaves_the_estimates_where_they_were(velocity)
         assert estimate.values == {'m': 1.1, 'J': 3.0}
 
 
+@pytest.mark.solve
+@pytest.mark.slow
 @pytest.mark.parametrize('spec, truth, law', CASES[:2], ids=lambda c: getattr(c, 'name', ''))
 def test_odometry_outliers_do_not_throw_the_estimates_out(spec, truth, law):
     t, q, u = _log(spec, truth, law)
@@ -155,6 +163,7 @@ def test_odometry_outliers_do_not_throw_the_estimates_out(spec, truth, law):
         assert bounds[name][0] <= value <= bounds[name][1]
 
 
+@pytest.mark.solve
 def test_the_symbolic_dynamics_are_the_built_models_at_any_parameters():
     rng = np.random.default_rng(5)
     for spec in list(nht.models.MODELS.values()) + [PUSHED]:
@@ -172,6 +181,7 @@ def test_the_symbolic_dynamics_are_the_built_models_at_any_parameters():
                                rtol=1e-12, atol=1e-12), spec.name
 
 
+@pytest.mark.unit
 def test_bad_logs_and_requests_get_one_clear_error():
     spec = nht.models.spec('chaplygin_sleigh')
     t = np.linspace(0, 1, 11)
@@ -197,9 +207,11 @@ def test_bad_logs_and_requests_get_one_clear_error():
         nht.estimate_parameters(spec, t, q, u, ['m'], start={'J': -1.0})
 
 
+@pytest.mark.solve
+@pytest.mark.slow
 @pytest.mark.parametrize('moving', [True, False], ids=['excited', 'at rest'])
 def test_online_estimates_reach_the_truth_in_20_s_and_stay_put_without_excitation(moving):
-    """The issue's demo mismatch: the robot's J 30 % above the model's, its m 20 % below."""
+    """The mismatch of ``demo --adapt``: the robot's J 30 % above the model's, its m 20 % below."""
     spec = nht.models.spec('chaplygin_sleigh')
     truth = {'m': 0.8, 'J': 5.2}
     law = _waves if moving else (lambda t, q, v: np.zeros(2))

@@ -12,7 +12,7 @@
 # See the License for the specific language governing permissions and
 # limitations under the License.
 
-"""The fault probe's cases: ordinary input that once drove the robot wrong or ended the planner.
+"""The fault probe's cases: ordinary input that could drive the robot wrong or end the planner.
 
 Lifecycle requests by id (a separate planner process, as a lifecycle manager meets it), odometry
 stamped ahead of the clock, references no robot can follow.
@@ -40,6 +40,8 @@ LABELS = ('configure', 'cleanup', 'activate', 'deactivate', 'shutdown', 'transit
           'transition_failure', 'transition_error', 'create', 'destroy', 'bogus')
 
 
+@pytest.mark.ros
+@pytest.mark.slow
 def test_every_lifecycle_request_is_answered_in_every_state_and_never_ends_the_planner():
     with separate_planner('autostart:=false', 'steps:=10') as (planner, peer):
         node = peer.node
@@ -167,6 +169,8 @@ class Probe:
                                             np.array([x, 0.0, 0.0, 0.0]), np.zeros(4)))
 
 
+@pytest.mark.ros
+@pytest.mark.slow
 @pytest.mark.parametrize('ahead', [2.0, 3600.0])
 def test_odometry_stamped_ahead_is_refused_and_goes_stale_on_time(graph, ahead):
     probe = Probe(graph, odom_timeout=0.3)
@@ -180,7 +184,7 @@ def test_odometry_stamped_ahead_is_refused_and_goes_stale_on_time(graph, ahead):
         probe.send_odom(ahead)
         time.sleep(0.02)
     wait_until(lambda: False, 0.5)
-    assert probe.planner.rejected_inputs >= 40
+    assert probe.planner.problems.rejected_inputs >= 40
     assert probe.stale, 'no STALE diagnostic'
     went_stale = probe.stale[0] - last_valid
     # after it, only the braking plan from the last valid state, renewed (the same message)
@@ -196,6 +200,8 @@ def test_odometry_stamped_ahead_is_refused_and_goes_stale_on_time(graph, ahead):
     assert len(stopping) > 10 and (np.diff(ramp) <= 0.0).all() and stopping[-1] == 0.0
 
 
+@pytest.mark.ros
+@pytest.mark.slow
 @pytest.mark.parametrize('duration', [10.0, 1000.0])
 def test_a_reference_no_robot_can_follow_is_refused(graph, duration):
     probe = Probe(graph)
@@ -203,18 +209,21 @@ def test_a_reference_no_robot_can_follow_is_refused(graph, duration):
         probe.send_odom()
         time.sleep(0.02)
     probe.reference.publish(_line(probe.now_ns(), 100e3, duration))
-    assert wait_until(lambda: probe.planner.rejected_inputs > 0, 10.0)
+    assert wait_until(lambda: probe.planner.problems.rejected_inputs > 0, 10.0)
     for _ in range(50):
         probe.send_odom()
         time.sleep(0.02)
     assert probe.planner.planner.reference is None
-    assert 'reference_max_speed' in probe.planner.last_problem or probe.planner.rejected_inputs
+    problems = probe.planner.problems
+    assert 'reference_max_speed' in problems.last_problem or problems.rejected_inputs
     assert probe.sequences == [] and all(v == 0.0 for _, v in probe.cmd)
     # a reference a robot can follow is still taken
     probe.reference.publish(_line(probe.now_ns(), 2.0, duration))
     assert wait_until(lambda: probe.planner.planner.reference is not None, 10.0)
 
 
+@pytest.mark.ros
+@pytest.mark.slow
 def test_memory_stays_bounded_through_a_storm_of_horizon_sizes(graph):
     from rclpy.parameter import Parameter
 
@@ -234,6 +243,7 @@ def test_memory_stays_bounded_through_a_storm_of_horizon_sizes(graph):
     assert wait_until(lambda: len(probe.sequences) > 0, 10.0)  # and it still plans
 
 
+@pytest.mark.ros
 def test_every_one_of_a_burst_of_plan_requests_is_answered():
     from geometry_msgs.msg import PoseStamped
     from nav_msgs.srv import GetPlan
@@ -268,6 +278,8 @@ def test_every_one_of_a_burst_of_plan_requests_is_answered():
         assert planner.proc.poll() is None and 'Traceback' not in planner.output
 
 
+@pytest.mark.ros
+@pytest.mark.slow
 def test_odometry_stale_between_reports_is_reported_not_ok(graph):
     probe = Probe(graph, odom_timeout=0.5)
     levels: list[tuple[int, str]] = []
@@ -284,6 +296,8 @@ def test_odometry_stale_between_reports_is_reported_not_ok(graph):
     assert any('% of the last second' in message for _, message in later), later
 
 
+@pytest.mark.ros
+@pytest.mark.slow
 def test_a_planner_started_after_latched_obstacles_and_reference_uses_both():
     """Obstacles and reference published latched, then simulator and planner started."""
     from visualization_msgs.msg import MarkerArray
@@ -329,6 +343,8 @@ def test_a_planner_started_after_latched_obstacles_and_reference_uses_both():
                 process.kill()
 
 
+@pytest.mark.ros
+@pytest.mark.slow
 def test_a_dead_clock_stops_the_robot_and_says_so_and_a_clock_jumping_back_is_told():
     """Sim time: /clock (with odometry) stops for 3 s, resumes, then jumps back 1000 s."""
     from rosgraph_msgs.msg import Clock
@@ -385,6 +401,7 @@ def test_a_dead_clock_stops_the_robot_and_says_so_and_a_clock_jumping_back_is_to
         assert planner.proc.poll() is None and 'Traceback' not in planner.output
 
 
+@pytest.mark.unit
 def test_the_clock_watch_tells_a_standing_a_resumed_and_a_backward_clock():
     from nh_tracking.ros.clock_watch import ClockEvent, ClockWatch
 
@@ -398,6 +415,8 @@ def test_the_clock_watch_tells_a_standing_a_resumed_and_a_backward_clock():
     assert watch.standing_for(1.9) == pytest.approx(0.5)
 
 
+@pytest.mark.ros
+@pytest.mark.slow
 def test_a_100000_pose_path_never_pauses_control():
     """The path's bytes are made beforehand: this process must not stall while it listens."""
     from rclpy.serialization import serialize_message
@@ -433,6 +452,7 @@ def test_a_100000_pose_path_never_pauses_control():
             assert 'Traceback' not in planner.output
 
 
+@pytest.mark.unit
 def test_the_stale_fraction_is_over_the_last_second():
     from nh_tracking.session.interface import Staleness
 
@@ -447,6 +467,7 @@ def test_the_stale_fraction_is_over_the_last_second():
     assert staleness.fraction() == 0.0 and not staleness.now
 
 
+@pytest.mark.ros
 def test_turning_compiled_off_stops_its_background_build(graph, tmp_path, monkeypatch):
     from rclpy.parameter import Parameter
 
@@ -471,6 +492,7 @@ def test_turning_compiled_off_stops_its_background_build(graph, tmp_path, monkey
     print(f'\ncompiled:=false stopped {len(children)} running build(s)')
 
 
+@pytest.mark.ros
 def test_a_reference_beyond_the_velocity_bounds_is_refused(graph):
     from rcl_interfaces.msg import Log
 
@@ -485,6 +507,8 @@ def test_a_reference_beyond_the_velocity_bounds_is_refused(graph):
     print(f"\n{next(line for line in logs if 'v_max' in line)}")
 
 
+@pytest.mark.ros
+@pytest.mark.slow
 def test_ctrl_c_stops_a_commanding_planner_with_a_zero_command():
     with separate_planner('model:=unicycle', 'steps:=20', 'horizon:=2.0') as (planner, peer):
         node, cmd = peer.node, []

@@ -31,6 +31,7 @@ from nh_tracking.session.tracking_session import TrackingSession
 from test_route import arc
 
 
+@pytest.mark.unit
 def test_the_goal_checker_wants_the_pose_the_heading_the_rest_and_the_whole_path():
     checker = GoalChecker(GoalSettings())
     goal = np.array([1.0, 1.0, 0.0, 0.5])
@@ -45,6 +46,7 @@ def test_the_goal_checker_wants_the_pose_the_heading_the_rest_and_the_whole_path
     assert blind.reached(near + [0, 0, 0, 2], goal, np.zeros(4), 0.1)
 
 
+@pytest.mark.unit
 def test_progress_is_movement_of_a_radius_within_the_allowance():
     checker = ProgressChecker(GoalSettings(required_movement_radius=0.5,
                                            movement_time_allowance=10.0))
@@ -54,6 +56,7 @@ def test_progress_is_movement_of_a_radius_within_the_allowance():
     assert checker.moving(np.array([2.0, 0.0]), 36.0)  # it got going again
 
 
+@pytest.mark.unit
 def test_the_place_on_a_loop_goes_round_it():
     loop = polyline((0, 0), (2, 0), (2, 2), (0, 2), (0, 0))[:, :2]
     progress = PathProgress(loop)
@@ -96,6 +99,8 @@ class Loop:
         return np.array(rows)
 
 
+@pytest.mark.solve
+@pytest.mark.slow
 @pytest.mark.parametrize('model, route', [
     ('unicycle', polyline((0, 0), (2, 0), (2, 2))),  # a sharp 90-degree corner
     ('unicycle', np.vstack([polyline((0, 0), (1.5, 0)), arc(0.5, np.pi / 2)[1:] + [1.5, 0, 0, 0],
@@ -122,6 +127,7 @@ def test_a_route_is_tracked_to_rest_at_its_end(model, route):
     assert np.hypot(*(rows[-1, 1:3] - route[-1, :2])) < 0.02 and abs(rows[-1, 4]) < 0.01
 
 
+@pytest.mark.solve
 def test_a_route_sent_again_changes_nothing_and_a_new_one_keeps_the_speed():
     loop = Loop()
     following = loop.session.following
@@ -140,6 +146,7 @@ def test_a_route_sent_again_changes_nothing_and_a_new_one_keeps_the_speed():
     assert rows[:, 4].min() > 0.45  # it never slowed down for it
 
 
+@pytest.mark.solve
 def test_timed_references_that_cannot_be_meant_are_refused_or_warned():
     loop = Loop()
     loop.ns = 100 * 10**9  # the clock at 100 s
@@ -159,6 +166,7 @@ def test_timed_references_that_cannot_be_meant_are_refused_or_warned():
         following.set_route(poses)
 
 
+@pytest.mark.solve
 def test_a_route_is_slowed_where_it_would_pass_the_velocity_bounds():
     loop = Loop(v_min=[-0.7, -2.0], v_max=[0.7, 2.0])  # the turn asks for 3 rad/s unbounded
     timed = loop.session.following.set_route(polyline((0, 0), (2, 0), (2, 2)))
@@ -167,6 +175,7 @@ def test_a_route_is_slowed_where_it_would_pass_the_velocity_bounds():
     assert np.median(np.abs(timed.route.speeds)) == pytest.approx(0.5)  # the turn alone
 
 
+@pytest.mark.solve
 def test_a_route_is_slowed_into_the_velocity_bounds_and_a_cancel_brings_it_to_rest():
     loop = Loop(v_max=[0.3, 1.0])
     following = loop.session.following
@@ -184,6 +193,7 @@ def test_a_route_is_slowed_into_the_velocity_bounds_and_a_cancel_brings_it_to_re
     assert abs(rows[-1, 4]) < 0.05 and following.status.state is GoalState.NONE
 
 
+@pytest.mark.solve
 def test_a_robot_that_cannot_get_on_is_blocked():
     loop = Loop(v_max=[0.3, 1.0], u_max=[0.0, 1.0], u_min=[-1.0, -1.0])  # no push forward
     following = loop.session.following
@@ -193,6 +203,7 @@ def test_a_robot_that_cannot_get_on_is_blocked():
     assert following.status.state is GoalState.BLOCKED
 
 
+@pytest.mark.solve
 def test_a_route_sent_again_after_arriving_is_driven_again_and_new_settings_retime_it():
     loop = Loop()
     following = loop.session.following
@@ -211,6 +222,7 @@ def test_a_route_sent_again_after_arriving_is_driven_again_and_new_settings_reti
     assert following.goal_settings.xy_goal_tolerance == 0.1
 
 
+@pytest.mark.solve
 def test_progress_is_judged_across_path_updates_and_a_stop_is_never_refused():
     loop = Loop(v_max=[0.3, 1.0], u_max=[0.0, 1.0], u_min=[-1.0, -1.0])  # no push forward
     following = loop.session.following
@@ -229,6 +241,7 @@ def test_progress_is_judged_across_path_updates_and_a_stop_is_never_refused():
     assert moving.logs[-1][0] == 'warn' and 'held where it is' in moving.logs[-1][1]
 
 
+@pytest.mark.solve
 @pytest.mark.parametrize('model', ['chaplygin_sleigh', 'rolling_disk'])
 def test_stale_odometry_brings_one_braking_plan_that_stops_an_effort_driven_robot(model):
     """Zero effort is no stop: a sleigh given none coasts on, so the brake is renewed."""

@@ -22,6 +22,8 @@ from nh_tracking.core import geometry
 from systems import (ALL_SYSTEMS, basis_acceleration, inclined_knife_edge,
                      lagrange_dalembert_acceleration, random_state)
 
+pytestmark = pytest.mark.unit
+
 
 @pytest.fixture(scope='module', params=sorted(ALL_SYSTEMS))
 def system(request):

@@ -61,6 +61,8 @@ def speed_after(robot, since: float) -> np.ndarray:
     return track[track[:, 0] > since, 4]
 
 
+@pytest.mark.ros
+@pytest.mark.slow
 @pytest.mark.parametrize('percentage, limit, capped', [(True, 40.0, 0.28), (False, 0.3, 0.3)])
 def test_a_speed_zone_caps_the_speed_and_lifting_it_restores_the_route_speed(
         percentage, limit, capped):
@@ -87,6 +89,8 @@ def test_a_speed_zone_caps_the_speed_and_lifting_it_restores_the_route_speed(
         assert 'speed limit in force: ' in planner.output
 
 
+@pytest.mark.ros
+@pytest.mark.slow
 def test_a_robot_faster_than_its_bounds_is_given_a_goal_and_slowed_into_them():
     # effort mode: coasting at 0.8 m/s (v_max 0.7) until the goal comes
     with nav2_pair(sim=('initial_state:=[0.0, 0.0, 0.0, 0.8, 0.0]',)) as (robot, planner, sim):
@@ -134,6 +138,8 @@ def replayed_speeds(sequences: list, states: dict) -> np.ndarray:
     return np.array(speeds)
 
 
+@pytest.mark.ros
+@pytest.mark.slow
 @pytest.mark.parametrize('mode', ['effort', 'velocity'])
 def test_a_simulator_paused_and_resumed_off_its_route_is_never_commanded_past_its_bounds(mode):
     with nav2_pair(sim=(f'mode:={mode}',)) as (robot, planner, sim):
@@ -176,6 +182,8 @@ WALLS = [(3.0, -1.5, 3.1, 0.3), (3.0, -0.3, 3.1, 1.5), (2.5, -2.0, 2.6, 2.0),
          (1.2, -0.5, 1.3, 0.5), (4.0, -0.1, 4.4, 0.1)]
 
 
+@pytest.mark.ros
+@pytest.mark.slow
 @pytest.mark.parametrize('wall', WALLS)
 def test_a_wall_shown_while_the_cpu_is_busy_is_never_touched(wall):
     with busy_cores(4), nav2_pair(sim=('mode:=velocity',)) as (robot, planner, sim):
@@ -195,6 +203,8 @@ def test_a_wall_shown_while_the_cpu_is_busy_is_never_touched(wall):
         assert closest >= RADIUS - 0.01 and 'collision' not in sim.output
 
 
+@pytest.mark.ros
+@pytest.mark.slow
 @pytest.mark.parametrize('mode', ['effort', 'velocity'])
 def test_odometry_cut_while_moving_brings_the_robot_to_rest_within_its_stopping_distance(mode):
     """The planner's odometry cut at 0.5 m/s (the robot's own goes on): at rest in time.

@@ -77,6 +77,8 @@ def marker_bytes(rng: np.random.Generator, stamp_s: int) -> bytes:
     return serialize_message(MarkerArray(markers=markers))
 
 
+@pytest.mark.ros
+@pytest.mark.slow
 def test_a_flood_of_costmaps_and_markers_never_stalls_the_commands():
     rng = np.random.default_rng(7)
     grids = [costmap_bytes(rng) for _ in range(2)]
@@ -143,6 +145,7 @@ def test_a_flood_of_costmaps_and_markers_never_stalls_the_commands():
         assert 'messages come faster than they can be read' in planner.output or not dropped
 
 
+@pytest.mark.ros
 def test_a_burst_is_read_newest_first_and_what_it_replaced_is_counted_and_told(graph):
     """Six messages at once to a reader that takes 0.3 s a message: the newest is used.
 

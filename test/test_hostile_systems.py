@@ -24,6 +24,7 @@ from systems import (inclined_knife_edge, polar_knife, polar_knife_past_the_orig
                      rotor_sleigh)
 
 
+@pytest.mark.unit
 def test_a_polar_chart_whose_constraint_row_grows_with_r_is_a_valid_system():
     """Rows and fields are judged per configuration: r in (0.2, 100) is regular everywhere."""
     knife = polar_knife(r_max=100.0)
@@ -33,6 +34,8 @@ def test_a_polar_chart_whose_constraint_row_grows_with_r_is_a_valid_system():
         assert np.abs(mu @ knife.rho([r, 0.3, 1.1])).max() < 1e-12
 
 
+@pytest.mark.solve
+@pytest.mark.slow
 def test_a_reference_through_the_edge_of_the_domain_is_tracked_inside_it():
     """A straight line passing 0.1 m from the origin: in polar coordinates r dips below 0.2.
 
@@ -54,6 +57,7 @@ def test_a_reference_through_the_edge_of_the_domain_is_tracked_inside_it():
     assert "leaves the model's domain (r = " in pmp.message
 
 
+@pytest.mark.solve
 def test_headings_wound_several_turns_are_solved_and_looked_at_again_inside_the_domain():
     knife = polar_knife()
     q0 = np.array([2.0, 6 * np.pi, 6.5 * np.pi])  # as odometry that has turned three times
@@ -65,6 +69,7 @@ def test_headings_wound_several_turns_are_solved_and_looked_at_again_inside_the_
     assert solution.success and solution.q[:, 0].min() > 0.2
 
 
+@pytest.mark.solve
 def test_the_deadline_covers_the_second_look():
     """With no time left after the first solve, the second look is not started."""
     board = nht.models.create('chaplygin_sleigh')
@@ -87,6 +92,8 @@ def rotor_problem():
                                horizon=4.0, steps=40, epsilon=0.1, terminal='cost')
 
 
+@pytest.mark.solve
+@pytest.mark.slow
 def test_a_sleigh_driven_by_its_rotor_alone_is_tracked_alike_by_every_method(rotor_problem):
     """One input (r = 1): PMP's held controls fit a single column too."""
     assert rotor_problem.system.r == 1
@@ -100,6 +107,7 @@ def test_a_sleigh_driven_by_its_rotor_alone_is_tracked_alike_by_every_method(rot
     assert max(costs.values()) / min(costs.values()) < 1.01
 
 
+@pytest.mark.unit
 def test_constraints_as_rows_of_expressions_are_taken_and_wrong_sizes_name_the_argument():
     import casadi as ca
 
@@ -118,6 +126,7 @@ def test_constraints_as_rows_of_expressions_are_taken_and_wrong_sizes_name_the_a
                             steps=10)
 
 
+@pytest.mark.solve
 def test_a_horizon_of_days_in_fifty_steps_is_no_success():
     """Its intervals do not replay on the continuous dynamics, whatever the solver reported."""
     knife = inclined_knife_edge()
@@ -134,6 +143,7 @@ def test_a_horizon_of_days_in_fifty_steps_is_no_success():
             assert solution.details['interval_gap'] < 1e-3
 
 
+@pytest.mark.solve
 def test_a_start_beyond_a_bound_is_told_apart_from_the_plan_after_it():
     """v0 beyond a velocity bound: the start breaks it by 0.3, the plan after it keeps it."""
     knife = inclined_knife_edge()
@@ -148,6 +158,8 @@ def test_a_start_beyond_a_bound_is_told_apart_from_the_plan_after_it():
             solution.message, solution.message
 
 
+@pytest.mark.solve
+@pytest.mark.slow
 def test_multiple_shooting_falls_back_on_the_least_violating_plan_as_the_variational_does():
     """The rotor sleigh barely steers with |u| <= 0.05: no plan keeps clear of the disc."""
     sleigh = rotor_sleigh()
@@ -168,6 +180,8 @@ def test_multiple_shooting_falls_back_on_the_least_violating_plan_as_the_variati
     assert 0.0 < min(violations) and max(violations) / min(violations) < 1.01, violations
 
 
+@pytest.mark.solve
+@pytest.mark.slow
 def test_a_roller_racer_driven_by_its_joint_alone_is_tracked_alike_by_every_method():
     """Two bodies, two wheel constraints, one joint torque; its basis as a user would write it.
 

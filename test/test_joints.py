@@ -38,7 +38,7 @@ def _wheeled_cart(r: float = 0.1, b: float = 0.3) -> nht.NonholonomicSystem:
         constraints, angles=['theta', 'left', 'right'], name='wheeled_cart')
 
 
-SYSTEMS = {  # the steered ones, a rolling angle, and wheels no issue names
+SYSTEMS = {  # the steered ones, a rolling angle, and a wheeled cart beyond the built-in models
     'car': lambda: car_like(L=0.8),
     'snakeboard': lambda: nht.models.create('snakeboard', l=0.3),  # noqa: E741
     'rolling_disk': lambda: nht.models.create('rolling_disk'), 'wheeled_cart': _wheeled_cart}
@@ -61,6 +61,8 @@ def _motion(system: nht.NonholonomicSystem, seconds: float = 12.0) -> nht.Trajec
     return nht.simulate(system, q0, v0, np.linspace(0.0, seconds, 601), law, rtol=1e-11)
 
 
+@pytest.mark.solve
+@pytest.mark.slow
 @pytest.mark.parametrize('name', SYSTEMS)
 def test_with_joint_states_the_state_is_the_true_one(name):
     system = SYSTEMS[name]()
@@ -87,6 +89,8 @@ def test_with_joint_states_the_state_is_the_true_one(name):
     assert worst < 1e-9
 
 
+@pytest.mark.solve
+@pytest.mark.slow
 @pytest.mark.parametrize('name', ['car', 'snakeboard'])
 def test_without_joint_states_a_steering_angle_is_dead_reckoned_and_wrong(name):
     system = SYSTEMS[name]()
@@ -102,6 +106,7 @@ def test_without_joint_states_a_steering_angle_is_dead_reckoned_and_wrong(name):
     assert np.abs(state[0][-1]) < 1e-9  # its rate moves no pose axis: held where it started
 
 
+@pytest.mark.unit
 def test_joint_states_are_read_by_name_mapped_merged_and_checked():
     board = nht.models.create('snakeboard')
     pose_map = PoseMap(board)
@@ -142,6 +147,7 @@ def test_joint_states_are_read_by_name_mapped_merged_and_checked():
             joint_mapping(entries, pose_map)
 
 
+@pytest.mark.unit
 def test_joints_gone_stale_are_dead_reckoned_and_said_once():
     board = nht.models.create('snakeboard')
     now = [0]
@@ -163,6 +169,8 @@ def test_joints_gone_stale_are_dead_reckoned_and_said_once():
     assert robot.latest.q[4] == pytest.approx(0.2)  # carried on from the last measured value
 
 
+@pytest.mark.solve
+@pytest.mark.slow
 @pytest.mark.parametrize('name, length', [('car', 0.8), ('snakeboard', 0.3)])
 def test_a_path_implies_the_steering_its_curvature_needs(name, length):
     """Against the geometry: tan(phi) = length * curvature of the path of the steered point."""
@@ -183,6 +191,7 @@ def test_a_path_implies_the_steering_its_curvature_needs(name, length):
     assert np.abs(steering_rate - motion.v[inner, -1]).max() < 0.02
 
 
+@pytest.mark.unit
 def test_a_path_at_rest_implies_nothing_and_a_rolling_angle_is_integrated():
     car = SYSTEMS['car']()
     pose_map = PoseMap(car)
@@ -197,6 +206,7 @@ def test_a_path_at_rest_implies_nothing_and_a_rolling_angle_is_integrated():
     assert np.abs(reference.q[:, 3] - motion.q[:, 3]).max() < 1e-3
 
 
+@pytest.mark.unit
 def test_a_continuous_joint_reported_wrapped_is_unwrapped():
     """A rolling angle in (-pi, pi] at 10 rad/s, 50 Hz, no velocity: continuous, rate 10."""
     disk = SYSTEMS['rolling_disk']()
@@ -211,6 +221,7 @@ def test_a_continuous_joint_reported_wrapped_is_unwrapped():
         assert i == 0 or reading.rates[3] == pytest.approx(10.0)
 
 
+@pytest.mark.unit
 def test_partly_recovered_joints_are_still_reported_lost_and_stale_ones_refused():
     board = nht.models.create('snakeboard')
     now = [1_000_000_000]
@@ -227,6 +238,7 @@ def test_partly_recovered_joints_are_still_reported_lost_and_stale_ones_refused(
         robot.set_joints(now[0] - 600_000_000, ['phi'], [0.2], [])
 
 
+@pytest.mark.unit
 @pytest.mark.parametrize('speed', [1.0, 0.02, 0.002])
 def test_a_slow_path_implies_the_steering_a_fast_one_does(speed):
     """A circle of radius 1 for a car of wheelbase 0.5: phi = atan(0.5) at any speed."""
@@ -239,6 +251,7 @@ def test_a_slow_path_implies_the_steering_a_fast_one_does(speed):
     assert np.abs(reference.q[5:-5, 3] - math.atan(0.5)).max() < 1e-3
 
 
+@pytest.mark.unit
 def test_a_turn_on_the_spot_implies_a_steering_inside_the_stops_that_settles():
     """No steering turns a board on the spot: held during the turn, straight once it drives.
 

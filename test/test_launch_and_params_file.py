@@ -28,6 +28,8 @@ import yaml
 from nh_tracking.ros import planner_node, simulator_node
 from nh_tracking.ros.parameters import MODEL, model_specs
 
+pytestmark = pytest.mark.unit
+
 ROOT = Path(__file__).resolve().parents[1]
 SECTIONS = {'/**/nh_tracking_planner': planner_node.PARAMETERS,
             '/**/nh_tracking_sim': simulator_node.PARAMETERS}

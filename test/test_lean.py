@@ -30,6 +30,8 @@ from nh_tracking import models
 from nh_tracking.core import lean
 from nh_tracking.models.snakeboard import snakeboard
 
+pytestmark = pytest.mark.unit
+
 Q, V, U = ca.SX.sym('q', 5), ca.SX.sym('v', 3), ca.SX.sym('u', 3)
 
 

@@ -16,6 +16,7 @@
 
 In process: real nodes and the real solver, one Context per test.
 """
+import gc
 import threading
 import time
 import weakref
@@ -40,7 +41,7 @@ from nh_tracking.solvers import midpoint
 from processes import rss_bytes
 from test_ros import unique_namespace, WallClockPair
 
-pytestmark = pytest.mark.timeout(240)
+pytestmark = [pytest.mark.timeout(240), pytest.mark.ros, pytest.mark.slow]
 
 
 class Stream:
@@ -109,7 +110,7 @@ def test_lifecycle_transitions_through_the_standard_services(graph):
     assert transition(Transition.TRANSITION_CONFIGURE)
     assert transition(Transition.TRANSITION_ACTIVATE)
     assert wait_until(lambda: len(pair.published['control_sequence']) > sequences + 3, 20.0)
-    assert planner.errors == 0
+    assert planner.problems.errors == 0
 
 
 def test_reconfiguring_never_stops_the_plan_in_force(graph, tmp_path, monkeypatch):
@@ -122,7 +123,7 @@ def test_reconfiguring_never_stops_the_plan_in_force(graph, tmp_path, monkeypatc
     the simulator shares the planner's executor and interpreter (its integration, and the
     cyclic garbage scipy leaves, hold up the planner's timers): up to 0.14 s beyond a stream's
     spacing was measured, so the bound is two replan periods; deployed as processes the bar is
-    one (test_deployment). Before the heap was frozen, full collections made it 0.3 s.
+    one (test_deployment), where the executable also freezes the heap (no full collections).
     """
     monkeypatch.setenv('NH_TRACKING_CACHE', str(tmp_path))
     pair = WallClockPair(graph)
@@ -163,7 +164,7 @@ def test_reconfiguring_never_stops_the_plan_in_force(graph, tmp_path, monkeypatc
         for topic, gap in gaps.items():
             assert gap <= spacing[topic] + 2 * planner.params['replan_period'], (
                 change, topic, gap)
-    assert planner.planner.settings.method == 'multiple_shooting' and planner.errors == 0
+    assert planner.planner.settings.method == 'multiple_shooting' and planner.problems.errors == 0
     assert planner.planner.stats.fallbacks == 0
 
 
@@ -209,7 +210,7 @@ def test_simulator_keeps_every_step_on_the_wall_clock_with_nanosecond_pieces(gra
         time.sleep(0.01)
     steps = odom.count() - start
     stamps = [cv.stamp_ns(m.header.stamp) for m in odom.messages[start:]]
-    assert sim.errors == 0 and steps > 60  # 50 Hz for 2 s
+    assert sim.problems.errors == 0 and steps > 60  # 50 Hz for 2 s
     assert np.all(np.diff(stamps) > 0)  # every step moved the clock on: no piece collapsed
     assert sim.state[1][0] > 0.05  # the controls were applied
 
@@ -231,6 +232,7 @@ def test_lifecycle_resets_leave_nothing_behind(graph):
     """20 configure/cleanup, then 20 full cycles, through the services: memory, threads flat.
 
     Each configure builds every NLP of the model (about 20 MB); a reset must free them all.
+    They are cyclic garbage, collected as a cleanup releases them (the node's default).
     """
     ns = unique_namespace()
     graph.add(PlannerNode, namespace=ns, parameter_overrides=parameters(
@@ -260,3 +262,18 @@ def test_lifecycle_resets_leave_nothing_behind(graph):
           f'{grown:+.1f} MB in all; threads {threads} -> {threading.active_count()}')
     assert grown <= 40.0
     assert wait_until(lambda: threading.active_count() == threads, 5.0)
+
+
+def test_a_planner_in_a_process_of_ones_own_leaves_the_collector_alone(graph):
+    """Only the executable freezes the heap: a node made here calls the hooks it is given."""
+    frozen, calls = gc.get_freeze_count(), []
+    planner = graph.add(PlannerNode, namespace=unique_namespace(),
+                        parameter_overrides=parameters(model='unicycle'),
+                        on_commanding=lambda: calls.append('commanding'),
+                        on_released=lambda: calls.append('released'))
+    assert calls == ['commanding'] and gc.get_freeze_count() == frozen
+    graph.call(planner.trigger_deactivate)
+    graph.call(planner.trigger_cleanup)
+    assert calls == ['commanding', 'released'] and gc.get_freeze_count() == frozen
+    assert graph.add(PlannerNode, namespace=unique_namespace(), parameter_overrides=parameters(
+        model='unicycle')).session is not None and gc.get_freeze_count() == frozen

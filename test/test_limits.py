@@ -37,6 +37,8 @@ def saturated():
     return free, u_max, plans
 
 
+@pytest.mark.solve
+@pytest.mark.slow
 def test_control_bounds_hold_in_every_method_and_they_agree(saturated):
     free, u_max, plans = saturated
     for method, plan in plans.items():
@@ -64,6 +66,7 @@ def disc():
                                omega=10.0, obstacles=[(3.0, 0.05, 0.5)], robot_radius=0.2)
 
 
+@pytest.mark.solve
 @pytest.mark.parametrize('method', ['variational', 'multiple_shooting'])
 def test_the_plan_keeps_clear_of_a_disc_and_gets_past_it(disc, method):
     plan = nht.solve(disc, method)
@@ -77,6 +80,7 @@ def test_the_plan_keeps_clear_of_a_disc_and_gets_past_it(disc, method):
     assert disc.limits.clearance(unbounded.q).min() < -0.5  # the line goes through it
 
 
+@pytest.mark.solve
 def test_velocity_bounds_hold_at_every_knot():
     problem = dataclasses.replace(sleigh_problem(wrap_angles=True, terminal='cost'),
                                   velocity_bounds=([-0.5, -0.3], [0.5, 1.0]))
@@ -88,6 +92,7 @@ def test_velocity_bounds_hold_at_every_knot():
         assert plan.v[1:, 1].min() < -0.3 + 1e-4 or plan.v[1:, 0].max() > 0.5 - 1e-4  # active
 
 
+@pytest.mark.solve
 @pytest.mark.parametrize('method', ['variational', 'multiple_shooting'])
 def test_a_start_that_breaks_a_limit_gets_the_least_violating_plan(disc, method):
     inside = dataclasses.replace(disc, q0=np.array([3.0, 0.2, 0.0]))  # in the disc
@@ -102,11 +107,13 @@ def test_a_start_that_breaks_a_limit_gets_the_least_violating_plan(disc, method)
     assert np.abs(plan.v[-1]).max() <= 1.2 + TOL
 
 
+@pytest.mark.solve
 def test_pmp_refuses_what_it_cannot_do(disc):
     with pytest.raises(ValueError, match='pmp takes control bounds only.*variational'):
         nht.solve(disc, 'pmp')
 
 
+@pytest.mark.unit
 @pytest.mark.parametrize('change, message', [
     ({'control_bounds': (1.0, -1.0)}, 'control_bounds has lo > hi'),
     ({'control_bounds': ([0, 0, 0], 1.0)}, 'control_bounds must be a'),
@@ -121,6 +128,7 @@ def test_inconsistent_limits_are_refused_naming_the_argument(disc, change, messa
         dataclasses.replace(disc, **change)
 
 
+@pytest.mark.unit
 def test_only_obstacles_that_can_bend_the_plan_enter_its_nlp():
     """Discs far from the path stay out of the NLP (small and fast); the nearest come first."""
     from nh_tracking.solvers.obstacles import relevant_discs
@@ -140,6 +148,7 @@ def test_only_obstacles_that_can_bend_the_plan_enter_its_nlp():
     assert len(relevant_discs(np.zeros((0, 3)), np.zeros(2), path, 0.2, 8)) == 0
 
 
+@pytest.mark.solve
 def test_a_plan_that_touches_a_left_out_obstacle_is_replanned_with_it(monkeypatch):
     """Re-solve with the nearest obstacles if the selection ever misses one the plan hits.
 
@@ -165,6 +174,7 @@ def test_a_plan_that_touches_a_left_out_obstacle_is_replanned_with_it(monkeypatc
     assert grown.clearance(np.vstack([plan.q, 0.5 * (plan.q[1:] + plan.q[:-1])])).min() > -TOL
 
 
+@pytest.mark.solve
 def test_a_plan_that_meets_a_disc_left_out_of_its_nlp_is_solved_again_with_those_nearest_it():
     """The replan's obstacle loop, on real solves, names what it did.
 
@@ -204,6 +214,7 @@ def test_a_plan_that_meets_a_disc_left_out_of_its_nlp_is_solved_again_with_those
     assert untouched.cost == pytest.approx(first.cost)
 
 
+@pytest.mark.unit
 def test_each_knot_and_midpoint_keeps_clear_of_the_discs_nearest_it():
     """A clearance point's rows take the discs whose edges are nearest it on the guess.
 
@@ -239,6 +250,7 @@ def test_each_knot_and_midpoint_keeps_clear_of_the_discs_nearest_it():
     assert built[5][0] == built[8][0]  # one NLP for any crowd
 
 
+@pytest.mark.solve
 @pytest.mark.parametrize('method, discs', [  # crowds the plan meets where its guess was not
     ('variational', [(1.74, -0.19, 0.1), (2.79, 0.77, 0.2), (1.0, -0.37, 0.19), (1.39, 0.09, 0.15),
                      (2.56, 0.13, 0.16), (1.67, -0.91, 0.11), (2.34, -0.8, 0.16),
@@ -274,6 +286,7 @@ def test_a_plan_among_many_discs_is_clear_of_every_one(method, discs):
         assert every.success and abs(every.cost - plan.cost) <= 1e-6 * plan.cost
 
 
+@pytest.mark.unit
 def test_a_path_through_a_disc_between_its_points_is_caught():
     """Segments between consecutive points may cut into a disc as a chord does, at most 10 %.
 
@@ -304,6 +317,7 @@ def _line(duration: float = 20.0) -> nht.Trajectory:
                           v=np.c_[0.5 * np.ones_like(t), 0 * t], u=np.zeros((len(t) - 1, 2)))
 
 
+@pytest.mark.unit
 def test_costmap_discs_do_not_move_with_the_robot():
     """Each blob of cells is one disc wherever the robot is; a long wall is cut on a fixed grid.
 
@@ -335,6 +349,7 @@ def test_costmap_discs_do_not_move_with_the_robot():
     assert len(nearest_discs(every, np.array([20.0, 0.0]), 8, 1.0)) == 0  # none within reach
 
 
+@pytest.mark.unit
 def test_the_gap_to_costmap_cells_is_to_their_squares_and_to_disc_edges():
     from nh_tracking.navigation.costmap import gap
 
@@ -347,6 +362,7 @@ def test_the_gap_to_costmap_cells_is_to_their_squares_and_to_disc_edges():
     assert gap(np.array([0.0, 0.0]), np.zeros((0, 3)), np.zeros((0, 2)), 0.1) == np.inf
 
 
+@pytest.mark.solve
 def test_a_robot_inside_the_margin_it_keeps_still_gets_an_optimal_plan():
     """0.01 m inside an obstacle's clearance: the prepared NLP plans, keeping its distance."""
     import nh_tracking.planning.receding_horizon as rh
@@ -377,6 +393,7 @@ def test_a_robot_inside_the_margin_it_keeps_still_gets_an_optimal_plan():
     assert closest >= 0.44 - 1e-3 and optimal >= 50  # 0.01 inside the 0.45 it keeps
 
 
+@pytest.mark.unit
 def test_an_unprepared_structure_is_built_in_the_background_not_in_the_loop():
     import threading
 
@@ -401,6 +418,7 @@ def test_an_unprepared_structure_is_built_in_the_background_not_in_the_loop():
     assert cache.get(system, 'other', lambda: 'in line') == 'in line'  # outside: at once
 
 
+@pytest.mark.unit
 def test_the_cache_keeps_the_horizon_sizes_used_last_and_drops_older_ones_together():
     from nh_tracking.solvers.cache import by_steps, PerSystemCache
 
@@ -426,6 +444,7 @@ def test_the_cache_keeps_the_horizon_sizes_used_last_and_drops_older_ones_togeth
     assert len(cache) == 2
 
 
+@pytest.mark.unit
 def test_the_fallback_brakes_where_tracking_would_hit_an_obstacle():
     """No optimal plan and an obstacle on the reference: brake as hard as the limits allow."""
     from nh_tracking.planning.fallback import fallback
@@ -446,6 +465,7 @@ def test_the_fallback_brakes_where_tracking_would_hit_an_obstacle():
     assert plan.route == 'kanayama' and plan.q[-1, 0] > 2.0
 
 
+@pytest.mark.solve
 def test_a_robot_inside_an_obstacle_is_given_the_way_out():
     """Overlapping an obstacle (a collision): the least-violating plan, once its NLP is built.
 
@@ -481,6 +501,8 @@ def test_a_robot_inside_an_obstacle_is_given_the_way_out():
         assert clearance.min() >= clearance[0].min() - TOL
 
 
+@pytest.mark.solve
+@pytest.mark.slow
 @pytest.mark.parametrize('change', [None, 'an obstacle appears', 'the robot grows',
                                     'u_max tightens'])
 def test_a_previous_plan_that_breaks_the_limits_now_in_force_is_not_kept(change):

@@ -58,6 +58,8 @@ CASES = {
 }
 
 
+@pytest.mark.solve
+@pytest.mark.slow
 @pytest.mark.parametrize('make', CASES.values(), ids=CASES.keys())
 def test_a_cold_solve_by_line_search_is_the_interior_points_plan(make):
     """Same cost, plan and costates as fatrop from the reference, on seven systems.
@@ -88,6 +90,7 @@ def _line_search_alone(problem):
                                          bounds['lbg'], bounds['ubg'], None)
 
 
+@pytest.mark.solve
 def test_a_saddle_is_not_taken_and_the_interior_point_solves_instead():
     """A rolling disk whose line search converges to a saddle: refused, fatrop's plan given.
 
@@ -104,6 +107,7 @@ def test_a_saddle_is_not_taken_and_the_interior_point_solves_instead():
     assert ours.cost == interior.cost and np.array_equal(ours.q, interior.q)
 
 
+@pytest.mark.solve
 def test_a_line_search_out_of_iterations_hands_over_to_the_interior_point(monkeypatch):
     problem = sleigh_problem(wrap_angles=False)
     monkeypatch.setattr(line_search, 'DEFAULTS', line_search.LineSearchOptions(max_iterations=3))
@@ -114,6 +118,7 @@ def test_a_line_search_out_of_iterations_hands_over_to_the_interior_point(monkey
     assert ours.route == 'fatrop' and ours.success and ours.cost == interior.cost
 
 
+@pytest.mark.solve
 def test_a_deadline_inside_the_line_search_is_reported_not_overrun():
     """Past its deadline the solve says so; it does not start the interior point."""
     problem = sleigh_problem(wrap_angles=False)
@@ -123,10 +128,11 @@ def test_a_deadline_inside_the_line_search_is_reported_not_overrun():
     assert late.route == LINE_SEARCH and late.iterations == 0
 
 
+@pytest.mark.solve
 def test_steps_stalled_short_of_admissible_are_not_taken_for_converged():
     """A particle on a 0.2 s horizon at eps = 100: the KKT matrix's condition is ~1e13.
 
-    Its LDLᵀ left the Newton steps stalled 2e-5 from the solution with g at 1e-4 (a review);
+    Its unpivoted LDLᵀ leaves the Newton steps stalled 2e-5 from the solution with g at 1e-4;
     such a plan is not converged, and fatrop's (admissible to 1e-13) is given instead.
     """
     particle = nht.models.nonholonomic_particle()
@@ -142,6 +148,7 @@ def test_steps_stalled_short_of_admissible_are_not_taken_for_converged():
     assert ours.details['admissibility_residual'] < 1e-9
 
 
+@pytest.mark.solve
 def test_the_line_search_runs_only_where_fatrop_would(monkeypatch):
     """``newton=False`` (its coarse grid too) and IPOPT never take it."""
     def refuse(*args):
@@ -176,6 +183,8 @@ BOUNDED = [('sleigh_wrapped_cost', 'controls', 0.5), ('sleigh_wrapped_cost', 've
            ('snakeboard_underactuated', 'velocities', 0.8), ('coupled', 'controls', 0.6)]
 
 
+@pytest.mark.solve
+@pytest.mark.slow
 @pytest.mark.parametrize('name, kind, fraction', BOUNDED,
                          ids=[f'{n}-{k}' for n, k, _ in BOUNDED])
 def test_a_cold_solve_with_bounds_by_line_search_is_ipopts_plan(name, kind, fraction):
@@ -199,6 +208,7 @@ def test_a_cold_solve_with_bounds_by_line_search_is_ipopts_plan(name, kind, frac
     assert ours.details['admissibility_residual'] < 1e-9
 
 
+@pytest.mark.solve
 def test_a_cold_solve_with_an_obstacle_is_the_interior_points():
     """From the reference through an obstacle the line search is not tried (see the module)."""
     free = CASES['sleigh_wrapped_cost']()
@@ -210,11 +220,12 @@ def test_a_cold_solve_with_an_obstacle_is_the_interior_points():
     assert ours.route == 'fatrop' and ours.success and ours.cost == interior.cost
 
 
+@pytest.mark.solve
 def test_bounded_steps_that_crawl_are_given_up_early_for_the_interior_point(monkeypatch):
-    """A review's worst case: the working set never settled and the steps crawled.
+    """A unicycle whose bounded steps never settle the working set and crawl.
 
-    They went on for 40 factorisations (4.2x fatrop's time); now they stop at the second step
-    shorter than ``LineSearchOptions.crawl``, and the plan is fatrop's own.
+    Unchecked they go on for 40 factorisations (4.2x fatrop's time); they stop at the second
+    step shorter than ``LineSearchOptions.crawl``, and the plan is fatrop's own.
     """
     unicycle = nht.models.unicycle()
     reference = nht.simulate(unicycle, [-0.2301, 0.2065, 0.1792], [-0.7722, -0.6769],

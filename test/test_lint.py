@@ -42,17 +42,21 @@ def _run(*args: str) -> subprocess.CompletedProcess:
                           text=True, timeout=600)
 
 
+@pytest.mark.solve
+@pytest.mark.slow
 def test_flake8_at_the_ament_configuration():
     done = _run('flake8', *SOURCES)  # the [flake8] section of setup.cfg
     assert done.returncode == 0, done.stdout + done.stderr
 
 
+@pytest.mark.unit
 def test_every_python_file_has_the_licence_header():
     missing = [str(p.relative_to(ROOT)) for p in _python_files()
                if p.read_text().splitlines()[:3] != HEADER]
     assert missing == []
 
 
+@pytest.mark.unit
 def test_package_xml_is_format_3_with_its_required_elements_in_order():
     root = ElementTree.parse(ROOT / 'package.xml').getroot()
     assert root.tag == 'package' and root.get('format') == '3'
@@ -65,6 +69,8 @@ def test_package_xml_is_format_3_with_its_required_elements_in_order():
         assert dependency.text and dependency.text.strip() == dependency.text
 
 
+@pytest.mark.solve
+@pytest.mark.slow
 @pytest.mark.timeout(600)
 def test_mypy_is_clean_on_the_package():
     done = _run('mypy', 'nh_tracking')  # the [mypy] section of setup.cfg

@@ -21,6 +21,8 @@ import nh_tracking as nht
 from nh_tracking.core.lagrangian_data import POSE_AXES
 from nh_tracking.core.poses import bases, PoseMap
 
+pytestmark = pytest.mark.unit
+
 
 @pytest.mark.parametrize('m, J, a', [(1.0, 4.0, 0.2), (2.5, 0.3, 0.9), (0.7, 1.1, -0.4)])
 def test_sleigh_matches_eps_chaplygin(m, J, a):

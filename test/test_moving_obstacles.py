@@ -63,6 +63,7 @@ SYSTEMS = {'unicycle': (nht.models.unicycle(m=2.0, J=0.3), [0.5, 0.0]),
            'sleigh': (nht.models.chaplygin_sleigh(), [0.0, 0.5])}  # coasting straight
 
 
+@pytest.mark.solve
 @pytest.mark.parametrize('name', SYSTEMS)
 def test_a_plan_keeps_clear_of_a_disc_crossing_its_way_where_the_disc_will_be(name):
     problem = _crossing(*SYSTEMS[name])
@@ -82,6 +83,7 @@ def test_a_plan_keeps_clear_of_a_disc_crossing_its_way_where_the_disc_will_be(na
         assert _replayed_clearance(problem, other) < -0.05, frozen_at
 
 
+@pytest.mark.solve
 def test_a_disc_at_rest_given_five_numbers_is_the_disc_given_three():
     problem = _crossing(*SYSTEMS['unicycle'])
     three = dataclasses.replace(problem, obstacles=[(1.0, 0.02, 0.2)])
@@ -91,6 +93,7 @@ def test_a_disc_at_rest_given_five_numbers_is_the_disc_given_three():
     assert np.array_equal(a.q, b.q) and a.cost == b.cost
 
 
+@pytest.mark.unit
 def test_a_path_through_a_moving_disc_between_its_points_is_caught():
     """Relative to the disc the segment is straight: swept() judges it there."""
     limits = dataclasses.replace(_crossing(*SYSTEMS['unicycle']),
@@ -104,6 +107,7 @@ def test_a_path_through_a_moving_disc_between_its_points_is_caught():
         limits.clearance(path)
 
 
+@pytest.mark.unit
 @pytest.mark.parametrize('bad, message', [
     ([(0, 0, 0.2, np.nan, 0)], 'finite'),
     ([(0, 0, 0.2, 1.0)], 'rows of'),
@@ -116,6 +120,8 @@ def test_malformed_moving_discs_are_refused_naming_the_argument(bad, message):
         obstacle_discs(bad)
 
 
+@pytest.mark.solve
+@pytest.mark.slow
 def test_a_replanning_robot_crosses_behind_a_disc_crossing_its_way():
     """A RecedingHorizonPlanner replanning every 0.1 s on the continuous dynamics.
 
@@ -146,6 +152,7 @@ def test_a_replanning_robot_crosses_behind_a_disc_crossing_its_way():
     assert q[0] > 3.5 and abs(q[1]) < 0.05  # past it and back on the line
 
 
+@pytest.mark.unit
 def test_a_disc_seen_moving_gets_its_velocity_and_loses_it_where_it_jumps_or_time_goes_back():
     from nh_tracking.problem.disc_tracks import DiscTracks, MAX_SPEED
     from nh_tracking.problem.limits import PREDICTION
@@ -180,6 +187,7 @@ def test_a_disc_seen_moving_gets_its_velocity_and_loses_it_where_it_jumps_or_tim
     assert tracks.discs().shape == (0, 5)
 
 
+@pytest.mark.unit
 def test_discs_move_on_from_when_each_was_seen_never_back_and_at_most_the_prediction():
     from nh_tracking.problem.limits import moved, PREDICTION
 

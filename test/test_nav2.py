@@ -40,7 +40,7 @@ from nh_tracking.ros.planner_interface import LATCHED
 from processes import domain_env, Peer, Process
 from test_route import arc
 
-pytestmark = pytest.mark.timeout(240)
+pytestmark = [pytest.mark.timeout(240), pytest.mark.ros, pytest.mark.slow]
 PARAMS = str(FilePath(__file__).resolve().parents[1] / 'config' / 'diff_drive.yaml')
 SPEED, RADIUS, TOLERANCE = 0.5, 0.2, 0.25  # the params file's reference_speed, robot_radius
 L_TURN = polyline((0, 0), (2, 0), (2, 2))  # a pose every 5 cm, a sharp 90-degree turn
@@ -352,10 +352,11 @@ def test_fuzzed_follow_path_goals_each_get_a_result_and_the_planner_carries_on(g
     known = {FollowPath.Result.NONE, FollowPath.Result.INVALID_CONTROLLER,
              FollowPath.Result.INVALID_PATH, FollowPath.Result.FAILED_TO_MAKE_PROGRESS}
     print(f'\n60 fuzzed goals: {sorted((s, c) for s, c in set(codes))} (status, error code); '
-          f'planner rejected {planner.rejected_inputs} inputs, {planner.errors} errors')
+          f'planner rejected {planner.problems.rejected_inputs} inputs, '
+          f'{planner.problems.errors} errors')
     assert all(c in known for _, c in codes)
     assert {c for _, c in codes} >= {FollowPath.Result.INVALID_PATH, FollowPath.Result.NONE}
-    assert planner.errors == 0 and sim.errors == 0
+    assert planner.problems.errors == 0 and sim.problems.errors == 0
     assert all(_finite_message(m) for msgs_ in published.values() for m in msgs_)
     plans = planner.planner.stats.plans
     assert wait_until(lambda: planner.planner.stats.plans > plans, 10.0)  # still planning

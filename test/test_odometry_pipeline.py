@@ -31,7 +31,7 @@ from nh_tracking.ros.graph import parameters, wait_until
 from nh_tracking.ros.planner_interface import LATCHED
 from test_ros import unique_namespace
 
-pytestmark = pytest.mark.timeout(120)
+pytestmark = [pytest.mark.timeout(120), pytest.mark.ros, pytest.mark.slow]
 
 
 class Replay:
@@ -143,4 +143,4 @@ def test_odometry_and_plans_as_wire_bytes_or_as_messages(graph, monkeypatch, wir
     offsets = [cv.duration_seconds(p.time_from_start) for p in last.points]
     assert offsets == pytest.approx(np.arange(12) * 3.0 / 12, abs=1e-9)
     assert all(len(p.effort) == 2 and all(map(math.isfinite, p.effort)) for p in last.points)
-    assert planner.rejected_inputs == 0 and planner.errors == 0
+    assert planner.problems.rejected_inputs == 0 and planner.problems.errors == 0

@@ -28,7 +28,7 @@ from rclpy.qos import qos_profile_sensor_data
 from nh_tracking.examples.nav2 import polyline
 from test_nav2 import nav2_pair, TOLERANCE
 
-pytestmark = pytest.mark.timeout(240)
+pytestmark = [pytest.mark.timeout(240), pytest.mark.ros, pytest.mark.slow]
 
 
 def test_best_effort_odometry_is_heard_and_the_goal_is_reached():

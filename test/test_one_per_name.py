@@ -26,7 +26,7 @@ from nh_tracking.ros.graph import wait_until
 from processes import Process
 from test_nav2 import nav2_pair
 
-pytestmark = pytest.mark.timeout(240)
+pytestmark = [pytest.mark.timeout(240), pytest.mark.ros, pytest.mark.slow]
 CMD_RATE, SIM_RATE = 20.0, 50.0  # config/diff_drive.yaml's
 
 

@@ -42,6 +42,8 @@ def _values(spec: models.ModelSpec, rng: np.random.Generator) -> dict[str, float
     return values
 
 
+@pytest.mark.solve
+@pytest.mark.slow
 @pytest.mark.parametrize('spec', [*models.MODELS.values(), PUSHED], ids=lambda s: s.name)
 def test_a_family_member_is_the_model_built_with_its_values(spec):
     rng = np.random.default_rng(7)
@@ -69,6 +71,7 @@ def test_a_family_member_is_the_model_built_with_its_values(spec):
                                rtol=1e-8, atol=1e-10)
 
 
+@pytest.mark.solve
 def test_bad_values_and_parameters_a_family_does_not_leave_symbolic_are_named():
     sleigh = models.create_parametrised('chaplygin_sleigh')
     for bad in (float('nan'), float('inf'), 'heavy', '5', True, None, [5.0]):
@@ -91,6 +94,7 @@ def test_bad_values_and_parameters_a_family_does_not_leave_symbolic_are_named():
         odd.create().parametrised(odd.lagrangian, ['m'])
 
 
+@pytest.mark.solve
 @pytest.mark.parametrize('name, values', [('chaplygin_sleigh', {'m': 0.8, 'J': 5.2}),
                                           ('snakeboard', {'J': 0.02, 'J_r': 0.011})])
 def test_new_values_plan_as_the_model_built_with_them_from_the_same_nlps(name, values):
@@ -118,6 +122,7 @@ def test_new_values_plan_as_the_model_built_with_them_from_the_same_nlps(name, v
     assert np.allclose(member.u, built.u, atol=1e-6 * (1 + np.abs(built.u).max()))
 
 
+@pytest.mark.unit
 def test_with_parameters_checks_ranges_and_rebuilds_only_what_is_not_symbolic():
     sleigh = models.create_parametrised('chaplygin_sleigh')
     with pytest.raises(ValueError, match='model parameter m'):
@@ -129,6 +134,7 @@ def test_with_parameters_checks_ranges_and_rebuilds_only_what_is_not_symbolic():
     assert rebuilt.family.names == ('m', 'J', 'a') and rebuilt.parameters['J'] == 5.0
 
 
+@pytest.mark.unit
 @pytest.mark.parametrize('name, values', [('chaplygin_sleigh', {'m': 0.8, 'J': 5.2}),
                                           ('rolling_disk', {'R': 0.7, 'I_spin': 0.3})])
 def test_velocities_are_carried_to_new_values_keeping_qdot_or_its_projection(name, values):
@@ -148,6 +154,7 @@ def test_velocities_are_carried_to_new_values_keeping_qdot_or_its_projection(nam
             assert np.abs(w - v).max() > 0.05 * np.abs(v).max()  # while its v changes
 
 
+@pytest.mark.unit
 def test_the_latest_odometry_is_carried_to_a_model_with_new_values():
     """The plan right after a change starts from the robot's motion, not its old coordinates."""
     old = models.create_parametrised('chaplygin_sleigh')

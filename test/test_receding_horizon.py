@@ -27,6 +27,7 @@ import nh_tracking.planning.receding_horizon as rh
 from systems import ALL_SYSTEMS, random_state
 
 
+@pytest.mark.unit
 @pytest.mark.parametrize('name', ['chaplygin_sleigh', 'nonholonomic_particle', 'unicycle',
                                   'rolling_disk', 'inclined_knife_edge'])
 def test_pose_and_twist_round_trips(name):
@@ -41,6 +42,7 @@ def test_pose_and_twist_round_trips(name):
         assert np.allclose(pm.velocity(q, pm.body_twist(q, v)), v, atol=1e-10)
 
 
+@pytest.mark.unit
 def test_wheeled_body_twist_has_no_lateral_slip_and_slip_is_projected_out():
     sleigh = nht.models.chaplygin_sleigh()
     pm = PoseMap(sleigh)
@@ -51,6 +53,7 @@ def test_wheeled_body_twist_has_no_lateral_slip_and_slip_is_projected_out():
     assert np.allclose(pm.velocity(q, slipping), v)
 
 
+@pytest.mark.unit
 def test_reference_from_poses_recovers_velocities_and_hidden_angles():
     disk = nht.models.rolling_disk(R=0.4)
     truth = nht.simulate(disk, [0, 0, 0.2, 0], [0.5, 2.0], np.linspace(0, 4, 81))
@@ -77,6 +80,7 @@ def _closed_loop(planner, real, duration, dt=0.1):
     return states
 
 
+@pytest.mark.solve
 def test_closed_loop_tracks_with_inertia_mismatch():
     model = nht.models.chaplygin_sleigh()
     ref = nht.simulate(model, *SLEIGH_REFERENCE_START, np.linspace(0, 20, 801))
@@ -88,6 +92,7 @@ def test_closed_loop_tracks_with_inertia_mismatch():
     assert planner.stats.optimal == planner.stats.plans == len(states)
 
 
+@pytest.mark.solve
 def test_missed_deadline_falls_back_then_keeps_the_shifted_plan():
     model = nht.models.chaplygin_sleigh()
     ref = nht.simulate(model, *SLEIGH_REFERENCE_START, np.linspace(0, 20, 801))
@@ -104,6 +109,7 @@ def test_missed_deadline_falls_back_then_keeps_the_shifted_plan():
     assert third.status == 'optimal' and planner.stats.fallbacks == 1
 
 
+@pytest.mark.solve
 def test_solver_exception_is_contained():
     model = nht.models.unicycle()
     ref = nht.simulate(model, [0, 0, 0], [1.0, 0.2], np.linspace(0, 10, 101))
@@ -115,6 +121,7 @@ def test_solver_exception_is_contained():
     assert np.all(np.isfinite(out.plan.u))
 
 
+@pytest.mark.unit
 def test_fallback_law_tracks_a_unicycle():
     uni = nht.models.unicycle()
     ref = nht.simulate(uni, [0, 0, 0], [1.0, 0.3], np.linspace(0, 25, 501))
@@ -125,6 +132,7 @@ def test_fallback_law_tracks_a_unicycle():
     assert np.linalg.norm(tr.q[-1, :2] - q_ref[-1, :2]) < 1e-3
 
 
+@pytest.mark.unit
 @pytest.mark.parametrize('name', ['unicycle', 'chaplygin_sleigh', 'rolling_disk'])
 def test_the_fallback_plan_is_what_its_controls_do_held(name):
     """The fallback plan's motion is its controls held per interval (as a robot applies them).
@@ -141,6 +149,7 @@ def test_the_fallback_plan_is_what_its_controls_do_held(name):
     assert np.abs(plan.u).max() > 0.1  # the law did act
 
 
+@pytest.mark.unit
 @pytest.mark.parametrize('bad', [{'horizon': -1.0}, {'steps': 1}, {'epsilon': 0.0},
                                  {'method': 'magic'}, {'terminal': 'free'},
                                  {'max_solve_time': float('nan')}])
@@ -149,6 +158,7 @@ def test_bad_settings_are_refused(bad):
         rh.PlannerSettings(**bad)
 
 
+@pytest.mark.unit
 def test_bounds_as_the_parameter_services_send_them():
     """A double array set at run time arrives as array('d'); NaN is refused by name."""
     from array import array
@@ -159,6 +169,7 @@ def test_bounds_as_the_parameter_services_send_them():
         rh.PlannerSettings(u_min=['fast'])
 
 
+@pytest.mark.unit
 @pytest.mark.parametrize('v_min, v_max', [
     ((-0.7, -3.0), (-0.5, 3.0)), ((0.1,), (1.0,)), ((), (-0.2, 1.0))])
 def test_velocity_bounds_that_leave_out_standing_still_are_refused(v_min, v_max):
@@ -168,6 +179,7 @@ def test_velocity_bounds_that_leave_out_standing_still_are_refused(v_min, v_max)
     assert rh.PlannerSettings(v_min=(0.0,), v_max=(0.0, 1.0)).limits(nht.models.unicycle())
 
 
+@pytest.mark.solve
 def test_nan_from_the_dynamics_gives_a_finite_stop_plan():
     """A knife edge whose potential is NaN for x < -50 (sqrt), far from where it was checked.
 
@@ -192,6 +204,7 @@ def test_nan_from_the_dynamics_gives_a_finite_stop_plan():
     assert again.status == 'shifted' and np.all(np.isfinite(again.plan.u))
 
 
+@pytest.mark.solve
 def test_real_time_iterations_track_like_converged_plans():
     """One Newton step per replan on the warm-started previous plan (iterations=1).
 
@@ -215,8 +228,9 @@ def test_real_time_iterations_track_like_converged_plans():
     assert planner.previous is not None and planner.previous.message == 'real-time iteration'
 
 
+@pytest.mark.solve
 def test_a_real_time_iteration_is_close_to_the_converged_plan_on_a_knife_edge():
-    """A system no issue names (a knife edge on a slope, gravity pulling it off its path).
+    """A system beyond the built-in set (a knife edge on a slope, gravity pulling it off its path).
 
     Replanned every 0.05 s, each real-time iteration's first control is within 1 per cent
     of the converged plan's from the same state and time.
@@ -242,6 +256,7 @@ def test_a_real_time_iteration_is_close_to_the_converged_plan_on_a_knife_edge():
     assert rti.stats.optimal == 40 and max(gaps[1:]) < 0.01, gaps
 
 
+@pytest.mark.solve
 def test_a_real_time_iteration_far_from_admissible_is_converged_instead():
     """After the reference jumps, one Newton step leaves the plan off the model's dynamics.
 

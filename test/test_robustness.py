@@ -47,12 +47,14 @@ def _knife(**extra):
         lambda q: ca.horzcat(-ca.sin(q[2]), ca.cos(q[2]), 0), angles=['theta'], **extra)
 
 
+@pytest.mark.unit
 def test_a_rank_change_of_the_distribution_is_named():
     """Snakeboard constraints without a domain: D changes rank at phi = +-pi/2."""
     with pytest.raises(ValueError, match='constraints.*lose rank near phi = .?1.571.*domain='):
         _snakeboard_data(angles=['theta', 'psi', 'phi'])
 
 
+@pytest.mark.unit
 def test_an_auto_basis_stays_regular_where_it_is_used():
     """With its domain declared the auto-built basis is finite and independent on all of it.
 
@@ -67,6 +69,7 @@ def test_an_auto_basis_stays_regular_where_it_is_used():
             assert np.all(np.isfinite(rho)) and np.linalg.eigvalsh(gram)[0] > 1e-3
 
 
+@pytest.mark.unit
 @pytest.mark.parametrize('extra, message', [
     ({'basis': lambda q: ca.horzcat(q[0] * ca.vertcat(ca.cos(q[2]), ca.sin(q[2]), 0),
                                     ca.vertcat(0, 0, 1))}, r'loses rank near x = 0\b'),
@@ -81,6 +84,7 @@ def test_irregular_data_is_refused_naming_where(extra, message):
         _knife(**extra)
 
 
+@pytest.mark.unit
 def test_dependent_constraint_rows_are_refused():
     with pytest.raises(ValueError, match='rows are dependent'):
         nht.NonholonomicSystem.from_constraints(
@@ -90,6 +94,7 @@ def test_dependent_constraint_rows_are_refused():
             angles=['theta'])
 
 
+@pytest.mark.solve
 def test_simulation_work_is_bounded_and_says_when_it_stopped():
     """V = x^4 cos(1/x^2) oscillates ever faster towards x = 0: steps shrink without end."""
     wild = nht.NonholonomicSystem.from_constraints(
@@ -99,6 +104,8 @@ def test_simulation_work_is_bounded_and_says_when_it_stopped():
         nht.simulate(wild, [0.5], [-1.0], [0.0, 5.0], max_evaluations=20_000)
 
 
+@pytest.mark.solve
+@pytest.mark.slow
 @pytest.mark.parametrize('method', ['variational', 'pmp'])
 def test_a_huge_initial_velocity_ends_in_a_bounded_failure(method):
     problem = dataclasses.replace(sleigh_problem(wrap_angles=True), v0=np.array([1e6, 0.0]))
@@ -114,10 +121,11 @@ def _far_start():
     return dataclasses.replace(sleigh_problem(wrap_angles=False), q0=np.array([20.0, 20.0, 0.0]))
 
 
+@pytest.mark.solve
 def test_max_time_is_a_wall_time_limit_on_every_route():
     """A long limit lets a solve run all the iterations it needs; a short one stops each method.
 
-    max_time used to mean '<= 50 fatrop iterations' whatever its value.
+    The limit is on time alone: no iteration cap comes with it, whatever its value.
     """
     problem = _far_start()
     free = nht.solve(problem, second_look=False)
@@ -149,6 +157,7 @@ def sideways():
                                                 5.0, 50, terminal=terminal, omega=10.0)
 
 
+@pytest.mark.solve
 @pytest.mark.parametrize('method', ['variational', 'multiple_shooting', 'pmp'])
 def test_a_saddle_is_reported_and_left(sideways, method):
     problem = sideways('cost')
@@ -160,6 +169,7 @@ def test_a_saddle_is_reported_and_left(sideways, method):
     assert 'not a minimum' in sol.message and np.abs(sol.q[:, 2]).max() > 0.1
 
 
+@pytest.mark.solve
 def test_the_second_look_is_not_drawn_back_to_the_saddle(sideways):
     """Newton steps (a warm variational solve) go back to a saddle; the search's method leaves.
 
@@ -181,6 +191,7 @@ def test_the_second_look_is_not_drawn_back_to_the_saddle(sideways):
     assert globalised.route == 'fatrop' and globalised.cost < 0.5 * first.cost
 
 
+@pytest.mark.solve
 def test_the_inertia_check_tells_a_saddle_from_a_minimum_and_spares_the_second_look(sideways):
     """A plan the KKT inertia proves a minimum is returned without a second look.
 
@@ -209,6 +220,7 @@ def test_the_inertia_check_tells_a_saddle_from_a_minimum_and_spares_the_second_l
             assert not again.success or again.cost >= plain.cost * (1 - 1e-6)
 
 
+@pytest.mark.solve
 def test_a_reachable_target_from_a_symmetric_start_is_reached(sideways):
     problem = sideways('equality')
     assert not nht.solve(problem, second_look=False).success  # the symmetric start stalls
@@ -216,6 +228,7 @@ def test_a_reachable_target_from_a_symmetric_start_is_reached(sideways):
     assert sol.success and sol.terminal_error < 1e-8 and 'perturbed start' in sol.message
 
 
+@pytest.mark.solve
 def test_past_the_reference_end_it_holds_still_at_its_last_configuration():
     reference = sleigh_problem().reference  # 6 s long
     sleigh = nht.models.chaplygin_sleigh()
@@ -236,6 +249,7 @@ BASE = {'system': nht.models.chaplygin_sleigh(), 'q0': [0, 0, 0], 'v0': [0, 0],
         'horizon': 5.0, 'steps': 50}
 
 
+@pytest.mark.unit
 @pytest.mark.parametrize('change, error, message', [
     ({'horizon': '5'}, TypeError, "horizon must be a number, got '5'"),
     ({'steps': 50.5}, ValueError, 'steps must be an integer'),
@@ -251,6 +265,7 @@ def test_bad_problem_arguments_get_errors_naming_them(change, error, message):
         nht.TrackingProblem(**args)
 
 
+@pytest.mark.unit
 def test_bad_solve_arguments_get_errors_naming_them():
     problem = sleigh_problem(wrap_angles=True)
     wrong_width = nht.Trajectory(t=[0.0, 5.0], q=np.zeros((2, 2)), v=np.zeros((2, 2)),
@@ -269,6 +284,8 @@ def test_bad_solve_arguments_get_errors_naming_them():
         nht.solve(problem, starts=0)
 
 
+@pytest.mark.solve
+@pytest.mark.slow
 def test_multi_start_honours_the_guess_the_time_limit_and_every_method():
     problem = sleigh_problem(wrap_angles=False)
     single = nht.solve(problem, second_look=False)
@@ -279,6 +296,7 @@ def test_multi_start_honours_the_guess_the_time_limit_and_every_method():
     assert not late.success and 'deadline' in late.message
 
 
+@pytest.mark.solve
 def test_a_plan_that_does_not_replay_is_no_minimum():
     from nh_tracking.solvers.search import _best_with_minima, replay_gap
 
@@ -292,6 +310,7 @@ def test_a_plan_that_does_not_replay_is_no_minimum():
     assert best is good and best.minima == [(good.cost, 1)] and best.details['artefacts'] == 1
 
 
+@pytest.mark.solve
 def test_solver_messages_are_words():
     from nh_tracking.solvers.nlp import status_message
 
@@ -307,11 +326,13 @@ def test_solver_messages_are_words():
     assert status_message('Maximum_Iterations_Exceeded') == 'maximum iterations exceeded'
 
 
+@pytest.mark.solve
+@pytest.mark.slow
 def test_pmp_controls_replay_their_plan():
     """``control_law(t)`` replays PMP's plan exactly; ``u``, held per interval, to O(h^2).
 
     The held controls are fitted to the plan: they replay it better than the continuous law's
-    midpoint samples (what ``u`` used to be) and as well as the variational plan's controls.
+    midpoint samples and as well as the variational plan's controls.
     """
     problem = sleigh_problem(wrap_angles=True, terminal='cost')
     sol = nht.solve(problem, 'pmp', second_look=False)

@@ -34,7 +34,7 @@ from nh_tracking.ros import messages as msgs
 from nh_tracking.ros.graph import wait_until
 from test_ros import WallClockPair
 
-pytestmark = pytest.mark.timeout(300)
+pytestmark = [pytest.mark.timeout(300), pytest.mark.ros, pytest.mark.slow]
 
 
 class Fuzzer:
@@ -156,12 +156,12 @@ def test_fuzz_flood_and_concurrent_calls_leave_the_loop_tracking(graph):
     answers = [f.result() for f in futures]
     print(f'fuzzed {sum(sent.values())} messages {sent}; odometry flood of 1000 at '
           f'{flood_rate / 1e3:.0f} kHz; '
-          f'20 plan calls answered; rejected: planner {pair.planner.rejected_inputs}, '
-          f'simulator {pair.sim.rejected_inputs}')
+          f'20 plan calls answered; rejected: planner {pair.planner.problems.rejected_inputs}, '
+          f'simulator {pair.sim.problems.rejected_inputs}')
     assert all(len(a.plan.poses) == 31 for a in answers)
     assert all(np.isfinite(p.pose.position.x) for a in answers for p in a.plan.poses)
-    assert pair.planner.rejected_inputs > 0 and pair.sim.rejected_inputs > 0
-    assert pair.planner.errors == 0 and pair.sim.errors == 0
+    assert pair.planner.problems.rejected_inputs > 0 and pair.sim.problems.rejected_inputs > 0
+    assert pair.planner.problems.errors == 0 and pair.sim.problems.errors == 0
     assert sum(len(m) for m in published.values()) > 100
     assert all(_finite_message(m) for msgs in published.values() for m in msgs)
     # both nodes alive and the loop still tracking
@@ -176,7 +176,7 @@ def _record_outputs(node) -> dict[str, list]:
     """Every message the planner publishes, recorded at its publishers."""
     published = {}
     for name in ('pub_path', 'pub_controls', 'pub_cmd'):
-        publisher, seen = getattr(node, name), []
+        publisher, seen = getattr(node.outputs, name), []
         original = publisher.publish
 
         def publish(msg, original=original, seen=seen):
@@ -236,4 +236,4 @@ def test_soak_with_reference_swaps_and_parameter_changes(graph):
     assert max(threads[2:]) <= threads[2]
     error = cross_track_error(xy[t - START > 55.0], reference.q[:, :2])
     assert error.max() < 0.05
-    assert loop.planner.errors == 0 and loop.planner.planner.stats.fallbacks == 0
+    assert loop.planner.problems.errors == 0 and loop.planner.planner.stats.fallbacks == 0

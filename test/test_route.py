@@ -22,6 +22,8 @@ from nh_tracking.examples.nav2 import polyline
 from nh_tracking.navigation.route import RouteHeadings, RouteSettings, time_route
 from nh_tracking.navigation.route_shape import closest_point
 
+pytestmark = pytest.mark.unit
+
 
 def arc(radius: float, sweep: float, spacing=0.05) -> np.ndarray:
     """Poses along a circle about (0, radius) from the origin, heading 0 (unset)."""

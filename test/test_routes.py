@@ -28,6 +28,8 @@ from nh_tracking.solvers.routes import NOT_FINITE, PAUSE, PAUSE_AFTER, ROUTES
 from nh_tracking.solvers.variational import RETRIES
 from systems import polar_knife_past_the_origin
 
+pytestmark = pytest.mark.solve
+
 
 def _record(plan):
     return [(a.backend, a.status) for a in plan.attempts]
@@ -186,7 +188,7 @@ def test_an_interior_point_stopped_mid_solve_says_so_in_its_attempts(backend, st
     method = Variational(backend=backend, newton=False)
     assert method.solve(problem, deadline=60.0).success  # (built; it converges with time)
     allowed = iter([True] * steps)
-    monkeypatch.setattr(nlp.Pace, 'room', lambda self: next(allowed, False))
+    monkeypatch.setattr(nlp.Pace, 'has_time_for_step', lambda self: next(allowed, False))
     plan = method.solve(problem, deadline=60.0)
     assert not plan.success and plan.ran_out_of_time, plan.attempts
     assert plan.attempts[-1].status is Status.DEADLINE and plan.attempts[-1].iterations > 0

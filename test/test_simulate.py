@@ -20,6 +20,7 @@ import nh_tracking as nht
 from systems import coupled_system, inclined_knife_edge
 
 
+@pytest.mark.unit
 @pytest.mark.parametrize('make, q0, v0', [
     (nht.models.chaplygin_sleigh, [0.0, 0.5, 0.0], [1 / 3, 1.0]),
     (nht.models.rolling_disk, [0.0, 0.0, 0.3, 0.0], [0.7, 2.0]),
@@ -39,6 +40,7 @@ def test_free_motion_conserves_energy_and_constraints(make, q0, v0):
     assert np.ptp(traj.q, axis=0).max() > 0.5  # it really moved
 
 
+@pytest.mark.unit
 def test_knife_edge_matches_its_closed_form_solution():
     """Bloch §1.6: with phi = w t and no initial speed along the blade.
 
@@ -58,6 +60,8 @@ def test_knife_edge_matches_its_closed_form_solution():
     assert np.allclose(traj.q[:, 2], w * t, atol=1e-8)
 
 
+@pytest.mark.solve
+@pytest.mark.slow
 def test_controlled_energy_balance_with_zero_order_hold():
     """Work-energy: dE/dt = v^T G_D u.
 
@@ -80,6 +84,7 @@ def test_controlled_energy_balance_with_zero_order_hold():
     assert abs(gain - work) < 1e-5 * max(1.0, abs(work))
 
 
+@pytest.mark.unit
 def test_feedback_law_is_applied():
     """A damping law u = -k v brings v to rest as exp(-k t) on the unicycle (no Christoffel)."""
     uni = nht.models.unicycle()
@@ -89,6 +94,7 @@ def test_feedback_law_is_applied():
     assert traj.u.shape == (30, 2) and np.allclose(traj.u[0], [-2.0, -1.0])
 
 
+@pytest.mark.unit
 def test_bad_simulation_input_is_rejected():
     sleigh = nht.models.chaplygin_sleigh()
     with pytest.raises(ValueError, match='increasing'):
@@ -101,6 +107,7 @@ def test_bad_simulation_input_is_rejected():
         nht.simulate(sleigh, [0, 0, 0], [0, 0], [0.0, 1.0], lambda s, q, v: [np.inf, 0])
 
 
+@pytest.mark.unit
 def test_trajectory_sampling_interpolates_smoothly_and_holds():
     """The C2 cubic spline reproduces a cubic exactly; outside the samples values are held."""
     t = np.linspace(0.0, 2.0, 9)

@@ -29,6 +29,8 @@ from test_ros import unique_namespace
 pytestmark = pytest.mark.timeout(120)
 
 
+@pytest.mark.ros
+@pytest.mark.slow
 def test_a_paused_simulator_drives_a_velocity_command_only_until_its_timeout(graph):
     """cmd_vel 0.5 m/s sent once, the simulator paused 3 s: 0.25 m at most, not 1.5 m."""
     sim = graph.add(SimulatorNode, namespace=unique_namespace(), parameter_overrides=parameters(
@@ -50,6 +52,7 @@ def test_a_paused_simulator_drives_a_velocity_command_only_until_its_timeout(gra
     assert 0.0 < x <= 0.5 * (0.5 + 0.1)
 
 
+@pytest.mark.ros
 def test_a_clock_jump_is_not_integrated_as_motion(graph):
     """On /clock, a unicycle coasting at 0.5 m/s; the clock jumps +3600 s: no 1800 m step."""
     ns = unique_namespace()

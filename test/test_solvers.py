@@ -28,6 +28,7 @@ def sleigh_literal():
     return problem, nht.solve(problem, 'variational')
 
 
+@pytest.mark.solve
 def test_sleigh_reproduces_the_paper(sleigh_literal):
     """§5 literal formulation: discrete cost 42.369 (independent prototype).
 
@@ -46,6 +47,7 @@ def test_sleigh_reproduces_the_paper(sleigh_literal):
     assert sol.q[:, 2].max() < 4 * np.pi / 3 + 0.01 and sol.q[-1, 2] < 1.0
 
 
+@pytest.mark.solve
 def test_halving_h_converges_at_second_order():
     """Reference figures (docs/theory.md §5): 42.3535, 42.3497, 42.3487 for N = 100, 200, 400."""
     costs = [nht.solve(sleigh_problem(steps=n), 'variational').cost for n in (50, 100, 200)]
@@ -84,6 +86,7 @@ def _discrete_euler_lagrange_residual(problem, sol):
     return worst
 
 
+@pytest.mark.solve
 @pytest.mark.parametrize('make', [lambda: sleigh_problem(wrap_angles=False),
                                   lambda: particle_problem(2)])
 def test_variational_solution_satisfies_discrete_euler_lagrange(make):
@@ -93,6 +96,7 @@ def test_variational_solution_satisfies_discrete_euler_lagrange(make):
     assert sol.details['admissibility_residual'] < 1e-10
 
 
+@pytest.mark.solve
 @pytest.mark.parametrize('case, pmp_cost, var_cost', [(1, 14.8598, 14.8594), (2, 5.0484, 5.0482)])
 def test_particle_cases_reproduce_pmp_and_variational_costs(case, pmp_cost, var_cost):
     problem = particle_problem(case)
@@ -127,10 +131,12 @@ def _rolling_disk_problem():
                                steps=40, epsilon=1.0, terminal='cost', omega=1.0)
 
 
+@pytest.mark.solve
 @pytest.mark.parametrize('make', [
     lambda: sleigh_problem(wrap_angles=False, terminal='cost'),
     lambda: sleigh_problem(wrap_angles=True, terminal='cost'),
-    _unicycle_circle_problem, _knife_edge_problem, _rolling_disk_problem,
+    pytest.param(_unicycle_circle_problem, marks=pytest.mark.slow),
+    _knife_edge_problem, _rolling_disk_problem,
 ], ids=['sleigh', 'sleigh_wrapped', 'unicycle', 'knife_edge', 'rolling_disk'])
 def test_methods_agree_on_terminal_cost_problems(make):
     """PMP and the variational method agree within 0.5 %, multiple shooting within 3 %."""
@@ -144,6 +150,8 @@ def test_methods_agree_on_terminal_cost_problems(make):
     assert np.abs(pmp.q - var.q).max() < 0.05 * (1 + np.abs(var.q).max())
 
 
+@pytest.mark.solve
+@pytest.mark.slow
 def test_pmp_recovers_where_shooting_from_zero_blows_up():
     problem = sleigh_problem(wrap_angles=False)
     sol = nht.solve(problem, 'pmp')
@@ -153,6 +161,7 @@ def test_pmp_recovers_where_shooting_from_zero_blows_up():
     assert abs(sol.cost - 42.369) / 42.369 < 5e-3
 
 
+@pytest.mark.unit
 def test_pmp_never_hangs_and_reports_the_deadline():
     from nh_tracking.solvers.pmp import solve_pmp
 
@@ -162,6 +171,7 @@ def test_pmp_never_hangs_and_reports_the_deadline():
     assert np.all(np.isfinite(sol.q)) and sol.cost == np.inf
 
 
+@pytest.mark.solve
 def test_wrapping_makes_the_cost_independent_of_whole_turns():
     base = nht.solve(sleigh_problem(wrap_angles=True), 'variational')
     shifted_problem = sleigh_problem(wrap_angles=True)
@@ -178,6 +188,8 @@ def test_wrapping_makes_the_cost_independent_of_whole_turns():
     assert nht.solve(literal_shifted, 'variational').cost > 100  # 10 pi/3 heading error
 
 
+@pytest.mark.solve
+@pytest.mark.slow
 def test_multi_start_finds_the_best_and_several_minima():
     sol = nht.solve(sleigh_problem(wrap_angles=False), 'variational', starts=24, seed=1)
     assert abs(sol.cost - 42.369) / 42.369 < 2e-3
@@ -185,6 +197,7 @@ def test_multi_start_finds_the_best_and_several_minima():
     assert all(c2 > c1 for (c1, _), (c2, _) in zip(sol.minima, sol.minima[1:]))
 
 
+@pytest.mark.solve
 def test_warm_start_from_a_previous_plan_converges_faster(sleigh_literal):
     problem, cold = sleigh_literal
     warm = nht.solve(problem, 'variational', initial_guess=cold)
@@ -192,6 +205,8 @@ def test_warm_start_from_a_previous_plan_converges_faster(sleigh_literal):
     assert warm.iterations < cold.iterations
 
 
+@pytest.mark.unit
+@pytest.mark.slow
 @pytest.mark.parametrize('kwargs, message', [
     ({'horizon': 0.0}, 'horizon'), ({'steps': 1}, 'steps'), ({'epsilon': -1.0}, 'epsilon'),
     ({'terminal': 'free'}, 'terminal'), ({'q0': [0, np.nan, 0]}, 'finite'),
@@ -206,6 +221,8 @@ def test_bad_problems_are_rejected(kwargs, message):
         nht.solve(sleigh_problem(), 'shooting')
 
 
+@pytest.mark.solve
+@pytest.mark.slow
 def test_compiled_real_time_iteration_gives_the_interpreted_step(tmp_path, monkeypatch):
     """compiled=True with iterations: the Gauss-Newton step with its factorisation written out.
 
@@ -245,6 +262,7 @@ def test_compiled_real_time_iteration_gives_the_interpreted_step(tmp_path, monke
     assert compiled.cost == pytest.approx(converged.cost, rel=1e-3)  # one step: near optimal
 
 
+@pytest.mark.solve
 def test_compiled_nlp_builds_in_the_background_and_gives_the_same_plan(tmp_path, monkeypatch):
     """compiled=True: the first solve runs interpreted while a child process builds the library.
 
@@ -281,6 +299,8 @@ def test_compiled_nlp_builds_in_the_background_and_gives_the_same_plan(tmp_path,
     assert done.stdout.strip() == 'True', done.stderr
 
 
+@pytest.mark.solve
+@pytest.mark.slow
 def test_a_library_is_keyed_by_content_and_no_compiler_means_interpreted(
         monkeypatch, caplog, tmp_path):
     import casadi as ca
@@ -317,6 +337,7 @@ def test_a_library_is_keyed_by_content_and_no_compiler_means_interpreted(
     assert sum('no C compiler' in r.message for r in caplog.records) == 1
 
 
+@pytest.mark.solve
 def test_methods_are_objects_with_their_own_options(sleigh_literal):
     """By name or as an object, the same method gives the same plan.
 
@@ -352,6 +373,7 @@ def _knife_reference() -> nht.Trajectory:
                         np.linspace(0.0, 6.0, 61))
 
 
+@pytest.mark.solve
 @pytest.mark.parametrize('make', [lambda: sleigh_problem(wrap_angles=True, terminal='cost'),
                                   lambda: nht.TrackingProblem(
                                       inclined_knife_edge(), _knife_reference(), [0.0, 0.4, 0.3],

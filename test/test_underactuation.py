@@ -39,6 +39,7 @@ def _lda_gap(system: nht.NonholonomicSystem, states) -> float:
     return worst
 
 
+@pytest.mark.unit
 def test_snakeboard_dynamics_match_lagrange_dalembert_with_its_torques():
     """Torques on psi and phi only; the independent derivation takes them as forces F u."""
     board = nht.models.snakeboard()
@@ -51,7 +52,8 @@ def test_snakeboard_dynamics_match_lagrange_dalembert_with_its_torques():
     assert np.allclose(board.generalized_force(states[0][0], [1.0, 2.0]), [0, 0, 0, 1, 2])
 
 
-def test_actuators_on_a_system_no_issue_names():
+@pytest.mark.unit
+def test_actuators_on_a_system_beyond_the_built_in_models():
     """A q-dependent metric and constraints (n = 4, k = 2), driven by one q-dependent force."""
     from systems import coupled_system
 
@@ -67,6 +69,7 @@ def test_actuators_on_a_system_no_issue_names():
     assert _lda_gap(driven, states) < 1e-11
 
 
+@pytest.mark.unit
 def test_an_actuator_that_only_pushes_against_the_constraints_is_refused():
     sleigh = nht.models.chaplygin_sleigh()
     with pytest.raises(ValueError, match='actuators projected onto D'):
@@ -98,12 +101,16 @@ def snakeboard_case():
     return board, reference, torques, problem, plans
 
 
+@pytest.mark.solve
+@pytest.mark.slow
 def test_the_reference_is_what_the_torques_alone_produce(snakeboard_case):
     board, reference, torques, _, _ = snakeboard_case
     alone = nht.simulate(board, reference.q[0], reference.v[0], reference.t, torques)
     assert np.abs(alone.q - reference.q).max() < 1e-6
 
 
+@pytest.mark.solve
+@pytest.mark.slow
 def test_snakeboard_tracks_with_rotor_and_steering_torques(snakeboard_case):
     """All three methods agree within 3 %; replayed, the plan tracks far better.
 
@@ -124,6 +131,8 @@ def test_snakeboard_tracks_with_rotor_and_steering_torques(snakeboard_case):
     assert tracked[-1] < 0.5 * open_loop[-1] and tracked.mean() < 0.8 * open_loop.mean()
 
 
+@pytest.mark.solve
+@pytest.mark.slow
 def test_snakeboard_pmp_control_replays_its_plan(snakeboard_case):
     from test_robustness import replay_gaps
 
@@ -133,6 +142,7 @@ def test_snakeboard_pmp_control_replays_its_plan(snakeboard_case):
     assert gaps['held'] < 0.5 * gaps['midpoint samples']  # those leave |phi| < pi/2
 
 
+@pytest.mark.unit
 def test_snakeboard_refuses_states_outside_its_domain():
     board = nht.models.snakeboard()
     reference = nht.Trajectory(t=[0.0, 1.0], q=np.zeros((2, 5)), v=np.zeros((2, 3)),

@@ -41,6 +41,8 @@ numbers = st.floats(-1e6, 1e6, allow_nan=False)
 stamps = st.integers(0, 2**31 * 10**9 - 1)
 
 
+@pytest.mark.solve
+@pytest.mark.slow
 @SETTINGS
 @given(names, stamps, st.lists(names, min_size=1, max_size=4), st.integers(1, 40), st.data())
 def test_a_written_control_sequence_reads_back_through_the_middleware(
@@ -55,6 +57,7 @@ def test_a_written_control_sequence_reads_back_through_the_middleware(
         frame, stamp, offsets, joints, efforts)
 
 
+@pytest.mark.solve
 @SETTINGS
 @given(names, names, stamps, st.lists(numbers, min_size=4, max_size=4),
        st.lists(numbers, min_size=4, max_size=4))
@@ -75,6 +78,7 @@ def test_serialized_odometry_reads_as_the_message_does(frame, child, stamp, pose
         assert np.array_equal(body, from_message[2])
 
 
+@pytest.mark.unit
 @settings(max_examples=300, deadline=None)
 @given(st.binary(max_size=300), st.integers(0, 720))
 def test_damaged_odometry_bytes_are_rejected_with_a_reason(noise, cut):
@@ -91,6 +95,7 @@ def test_damaged_odometry_bytes_are_rejected_with_a_reason(noise, cut):
         assert np.all(np.isfinite(pose)) and np.all(np.isfinite(body))
 
 
+@pytest.mark.unit
 def test_this_middleware_agrees_and_the_nan_in_odometry_is_still_refused():
     assert cdr.agrees_with_rmw()
     msg = Odometry()
@@ -101,6 +106,7 @@ def test_this_middleware_agrees_and_the_nan_in_odometry_is_still_refused():
         cv.odom_to_arrays(serialize_message(msg), 'odom')
 
 
+@pytest.mark.solve
 @SETTINGS
 @given(names, stamps, st.lists(st.tuples(st.sampled_from(['', 'odom', 'odom_frame', 'map']),
                                          stamps, st.lists(numbers, min_size=7, max_size=7)),
@@ -135,6 +141,7 @@ def test_serialized_paths_read_as_the_message_does(frame, stamp, poses):
                    for a, b in zip(from_message, from_bytes))
 
 
+@pytest.mark.unit
 @settings(max_examples=300, deadline=None)
 @given(st.binary(max_size=300), st.integers(0, 400))
 def test_damaged_path_bytes_are_rejected_with_a_reason(noise, cut):
@@ -174,6 +181,7 @@ def marker_layouts():
                      st.integers(0, 9))
 
 
+@pytest.mark.solve
 @SETTINGS
 @given(marker_arrays())
 def test_serialized_markers_read_as_the_message_does(msg):
@@ -183,6 +191,8 @@ def test_serialized_markers_read_as_the_message_does(msg):
         assert np.array_equal(getattr(read, name), getattr(expected, name)), name
 
 
+@pytest.mark.solve
+@pytest.mark.slow
 @SETTINGS
 @given(names, st.floats(0.0009765625, 16.0, width=32), st.integers(0, 40), st.integers(0, 40),
        st.lists(numbers, min_size=7, max_size=7), st.data())
@@ -200,6 +210,7 @@ def test_serialized_costmaps_read_as_the_message_does(frame, resolution, width, 
     assert np.array_equal(read.data, expected.data)
 
 
+@pytest.mark.unit
 @settings(max_examples=300, deadline=None)
 @given(st.binary(max_size=400), st.integers(0, 1200))
 def test_damaged_obstacle_bytes_are_unreadable_or_read(noise, cut):

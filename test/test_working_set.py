@@ -35,6 +35,7 @@ from nh_tracking.solvers.working_set import working_set_solve
 from systems import coupled_system, inclined_knife_edge
 
 
+@pytest.mark.unit
 def test_the_working_set_tells_the_minimum_beside_an_obstacle_from_the_saddle():
     """Nearest point to (0.5, 0) outside the unit disc: (1, 0); (-1, 0) is a KKT point too.
 
@@ -80,6 +81,8 @@ CASES = {  # model, start (q, v), reference, settings, obstacles
 }
 
 
+@pytest.mark.solve
+@pytest.mark.slow
 @pytest.mark.parametrize('case', CASES)
 def test_warm_replans_with_limits_take_the_working_set_and_match_the_interior_point(
         case, monkeypatch):
@@ -132,6 +135,8 @@ FREE_CASES = {  # model, the reference's start (q, v), the robot's offset from i
 }
 
 
+@pytest.mark.solve
+@pytest.mark.slow
 @pytest.mark.parametrize('case', FREE_CASES)
 def test_warm_replans_without_limits_take_newton_steps_and_match_the_interior_point(case):
     """No limits: the set is empty, and a converged replan is Newton steps on the KKT system.
@@ -171,6 +176,8 @@ def test_warm_replans_without_limits_take_newton_steps_and_match_the_interior_po
         worst_cost, worst_q, worst_residual)
 
 
+@pytest.mark.solve
+@pytest.mark.slow
 @pytest.mark.parametrize('model_name, terminal, epsilon', [
     ('unicycle', 'equality', 0.01), ('nonholonomic_particle', 'cost', 0.1)])
 def test_after_a_jump_and_a_push_newton_plans_are_never_worse_than_fatrop(model_name, terminal,

@@ -274,7 +274,7 @@ def run_bench(out: Path, log: Callable[[str], None] = print, ros: bool = True) -
 
 
 def acceptance(results: dict) -> dict:
-    """Return the issue's bars, as measured in this run."""
+    """Return the project's performance targets, each judged on this run's figures."""
     verdicts = {}
     cold = results.get('cold_solve', {})
     if cold.get('do_mpc'):

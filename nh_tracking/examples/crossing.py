@@ -214,7 +214,7 @@ def run_crossing_demo(out: Path, log: Callable[[str], None] = print, seed: int =
     with InProcessGraph() as graph:
         run = drive(graph, lambda start: Crossings(seed, start), length)
         collisions, fallbacks = run.sim.collisions, run.planner.planner.stats.fallbacks
-        errors = run.planner.errors + run.sim.errors
+        errors = run.planner.problems.errors + run.sim.problems.errors
     closest = run.closest
     summary = {'crossings': CROSSINGS, 'disc_speed': DISC_SPEED, 'robot_speed': SPEED,
                'arrived': run.arrived, 'late_s': run.took - length / SPEED,

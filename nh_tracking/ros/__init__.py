@@ -16,21 +16,24 @@
 
 The only part of nh_tracking that imports rclpy; it holds no numerics beyond unit conversion.
 """
+import functools
 import sys
 
 from nh_tracking.ros import planner_node, simulator_node
 from nh_tracking.ros.parameters import usage
 from nh_tracking.ros.planner_node import PlannerNode
-from nh_tracking.ros.runner import run
+from nh_tracking.ros.runner import run, settle_heap
 from nh_tracking.ros.simulator_node import SimulatorNode
 
 __all__ = ['PlannerNode', 'SimulatorNode', 'planner_main', 'sim_main']
 
 
 def planner_main(args=None) -> None:
-    """``planner`` executable."""
-    sys.exit(run(PlannerNode, lambda argv: usage('planner', 'nh_tracking_planner',
-                                                 planner_node.PARAMETERS, argv), args))
+    """``planner`` executable: the process's heap is frozen as the planner starts commanding."""
+    make = functools.partial(PlannerNode, on_commanding=settle_heap,
+                             on_released=functools.partial(settle_heap, release=True))
+    sys.exit(run(make, lambda argv: usage('planner', 'nh_tracking_planner',
+                                          planner_node.PARAMETERS, argv), args))
 
 
 def sim_main(args=None) -> None:

@@ -20,13 +20,15 @@ its clock stands, reports it, and says when the clock jumps back.
 """
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 import enum
 import time
 
 from rclpy.clock import Clock, ClockType
+from rclpy.node import Node
 
-from nh_tracking.ros.guarded import guarded, GuardedNode
+from nh_tracking.ros.guarded import guarded, ProblemLog
 
 WATCH_PERIOD = 0.1  # [s, steady] how often the clock is looked at
 CLOCK_TIMEOUT = 0.5  # [s, steady] without the node's clock advancing: it has stopped
@@ -76,49 +78,57 @@ def clock_sources(publishers: int) -> str:
             'ROS_DOMAIN_ID?): give each simulated world a domain of its own')
 
 
-class ClockWatchdog(GuardedNode):
-    """A node's clock watchdog: :meth:`on_clock_stopped` on every look while its clock stands."""
+def other_clocks(node: Node) -> str:
+    """On sim time, a note naming the other /clock publishers ('' if there are none)."""
+    if not node.get_parameter('use_sim_time').value:
+        return ''
+    return clock_sources(node.count_publishers('/clock'))
 
-    def watch_clock(self) -> object:
-        """Create the steady timer (returned, for the node to release)."""
-        self.clock_watch = ClockWatch()
-        self.steady_clock = Clock(clock_type=ClockType.STEADY_TIME)
-        return self.create_timer(WATCH_PERIOD, self._look_at_clock, clock=self.steady_clock)
 
-    def clock_problem(self) -> str:
+def warn_of_other_clocks(node: Node) -> None:
+    """Say so when several nodes publish /clock (odometry is judged stale on it)."""
+    if note := other_clocks(node):
+        node.get_logger().warn(f'the odometry is judged on an interleaved clock{note}')
+
+
+class ClockWatchdog:
+    """Looks at ``node``'s clock on the steady clock every :data:`WATCH_PERIOD` until closed.
+
+    While the clock stands, ``on_stopped()`` is called at every look (the node makes the robot
+    safe); its stopping and a jump back are logged and reported at once, its resuming logged.
+    """
+
+    def __init__(self, node: Node, problems: ProblemLog, on_stopped: Callable[[], None]) -> None:
+        self.node, self.problems, self._on_stopped = node, problems, on_stopped
+        self.watch = ClockWatch()
+        self._timer = node.create_timer(WATCH_PERIOD, self._look,
+                                        clock=Clock(clock_type=ClockType.STEADY_TIME))
+
+    def close(self) -> None:
+        """Stop looking (destroy the timer)."""
+        self.node.destroy_timer(self._timer)
+
+    def problem(self) -> str:
         """Return what is wrong with the clock now ('' if nothing)."""
-        if not self.clock_watch.stopped:
+        if not self.watch.stopped:
             return ''
         return (f'the clock has not advanced for '
-                f'{self.clock_watch.standing_for(time.monotonic()):.1f} s (on sim time: is '
+                f'{self.watch.standing_for(time.monotonic()):.1f} s (on sim time: is '
                 '/clock published?): not commanding')
 
     @guarded('clock watchdog')
-    def _look_at_clock(self) -> None:
-        event = self.clock_watch.look(self.get_clock().now().nanoseconds, time.monotonic())
-        if self.clock_watch.stopped:
-            self.on_clock_stopped()
+    def _look(self) -> None:
+        node = self.node
+        event = self.watch.look(node.get_clock().now().nanoseconds, time.monotonic())
+        if self.watch.stopped:
+            self._on_stopped()
         if event is ClockEvent.STOPPED:
-            self.get_logger().warn(self.clock_problem())
-            self.on_problem()
+            node.get_logger().warn(self.problem())
+            self.problems.report()
         elif event is ClockEvent.RESUMED:
-            self.get_logger().info('the clock advances again')
+            node.get_logger().info('the clock advances again')
         elif event is ClockEvent.JUMPED_BACK:
-            self.get_logger().warn(f'the clock jumped back {self.clock_watch.jumped_back_by:.3f}'
+            node.get_logger().warn(f'the clock jumped back {self.watch.jumped_back_by:.3f}'
                                    ' s: stamps and references from before the jump lie ahead'
-                                   f'{clock_sources(self.count_publishers("/clock"))}')
-            self.on_problem()
-
-    def other_clocks(self) -> str:
-        """On sim time, a note naming the other /clock publishers ('' if there are none)."""
-        if not self.get_parameter('use_sim_time').value:
-            return ''
-        return clock_sources(self.count_publishers('/clock'))
-
-    def warn_of_other_clocks(self) -> None:
-        """Say so when several nodes publish /clock (odometry is judged stale on it)."""
-        if note := self.other_clocks():
-            self.get_logger().warn(f'the odometry is judged on an interleaved clock{note}')
-
-    def on_clock_stopped(self) -> None:
-        """Make the robot safe while the clock stands (the node's business)."""
+                                   f'{clock_sources(node.count_publishers("/clock"))}')
+            self.problems.report()

@@ -127,7 +127,7 @@ class FollowPathServer:
             try:
                 take_path(node, handle.request.path, goal=True)
             except cv.InputRejected as exc:
-                node.reject('follow_path goal', str(exc))
+                node.problems.reject('follow_path goal', str(exc))
                 problem, code = str(exc), FollowPath.Result.INVALID_PATH
         if problem:  # the goal it preempted is over too: its robot is brought to rest
             if following.generation == self._generation:

@@ -12,14 +12,16 @@
 # See the License for the specific language governing permissions and
 # limitations under the License.
 
-"""Callbacks that never let an exception reach the executor, and rejection bookkeeping."""
+"""Callbacks that never let an exception reach the executor, and the problem bookkeeping."""
 from __future__ import annotations
 
+from collections.abc import Callable
 import functools
 import math
 import re
 import threading
 import time
+from typing import Protocol
 
 from rclpy.node import Node
 
@@ -51,17 +53,20 @@ class RepeatCounter:
         return problem + (f' ({held} more like it held back)' if held else '')
 
 
-class GuardedNode(Node):
-    """A node that rejects bad input with one log line and counts what went wrong.
+class ProblemLog:
+    """What went wrong in one node's callbacks: counted, logged once a period, shown a while.
 
-    A problem repeated is logged (and reported at once) once per :data:`LOG_PERIOD`, with a
-    count; every one is counted, and the newest is the diagnostics' ``last_problem`` for
-    :data:`SHOWN_FOR` seconds.
+    A rejected input is one WARN line, anything else one ERROR line; a problem repeated is
+    logged (and reported at once, through ``on_problem``) once per :data:`LOG_PERIOD`, with a
+    count of those held back. Every one is counted, and the newest is the diagnostics'
+    ``last_problem`` for :data:`SHOWN_FOR` seconds. Safe to use from any thread.
     """
 
-    def __init__(self, name: str, **kwargs) -> None:
-        super().__init__(name, **kwargs)
-        self._problem_lock = threading.Lock()
+    def __init__(self, node: Node, on_problem: Callable[[], None] | None = None) -> None:
+        self._logger = node.get_logger()
+        self._context = node.context
+        self._on_problem = on_problem
+        self._lock = threading.Lock()
         self._reporting = threading.local()
         self.rejected_inputs = 0
         self.errors = 0
@@ -71,58 +76,66 @@ class GuardedNode(Node):
 
     def reject(self, what: str, reason: str) -> None:
         """One clear log line for a message that cannot be used; the node carries on."""
-        with self._problem_lock:
+        with self._lock:
             self.rejected_inputs += 1
             line = self._note(f'rejected {what}: {reason}')
         if line is not None:
-            self.get_logger().warn(line)
-            self._report()
+            self._logger.warn(line)
+            self.report()
 
     def fail(self, what: str, exc: BaseException) -> None:
-        if not self.context.ok():  # shutting down: publishing fails, nothing is wrong
+        """One ERROR line for a failure in a callback, which goes on (none when shutting down)."""
+        if not self._context.ok():  # shutting down: publishing fails, nothing is wrong
             return
-        with self._problem_lock:
+        with self._lock:
             self.errors += 1
             line = self._note(f'{what} failed: {type(exc).__name__}: {exc}')
         if line is not None:
-            self.get_logger().error(line)
-            self._report()
+            self._logger.error(line)
+            self.report()
 
     def _note(self, problem: str) -> str | None:
         self.last_problem, self._noted_at = problem, time.monotonic()
         return self._repeats(problem, self._noted_at)
 
-    def _report(self) -> None:
-        """``on_problem`` once: a problem met while reporting one is not reported again."""
-        if getattr(self._reporting, 'active', False):
+    def report(self) -> None:
+        """Call ``on_problem`` once: a problem met while reporting one is not reported again."""
+        if self._on_problem is None or getattr(self._reporting, 'active', False):
             return
         self._reporting.active = True
         try:
-            self.on_problem()
+            self._on_problem()
         finally:
             self._reporting.active = False
 
-    def recent_problem(self) -> str:
+    def recent(self) -> str:
         """Return the last problem if noted within :data:`SHOWN_FOR` s ('' if none)."""
-        with self._problem_lock:
+        with self._lock:
             recent = time.monotonic() - self._noted_at <= SHOWN_FOR
             return self.last_problem if recent else ''
 
-    def on_problem(self) -> None:
-        """Report a problem at once (the planner publishes a diagnostic)."""
+
+class HasProblems(Protocol):
+    """An object whose callbacks are guarded: a node or one of its parts."""
+
+    problems: ProblemLog  # the node's log, shared by all its parts
 
 
 def guarded(what: str):
-    """Decorate a GuardedNode callback: InputRejected -> reject(), anything else -> fail()."""
+    """Decorate a callback method of a :class:`HasProblems`: it never raises.
+
+    :class:`InputRejected` -> ``problems.reject``, anything else -> ``problems.fail``; the
+    callback then returns None.
+    """
     def wrap(fn):
         @functools.wraps(fn)
-        def inner(self: GuardedNode, *args, **kwargs):
+        def inner(self: HasProblems, *args, **kwargs):
             try:
                 return fn(self, *args, **kwargs)
             except InputRejected as exc:
-                self.reject(what, str(exc))
+                self.problems.reject(what, str(exc))
             except Exception as exc:  # noqa: BLE001 - the executor must never see it
-                self.fail(what, exc)
+                self.problems.fail(what, exc)
             return None
         return inner
     return wrap

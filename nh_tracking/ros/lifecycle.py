@@ -26,10 +26,8 @@ from collections.abc import Callable
 from lifecycle_msgs.srv import ChangeState
 from rclpy.lifecycle import LifecycleNode
 
-
-def offered_transitions(node: LifecycleNode) -> dict[int, str]:
-    """Return the transitions (id: label) the node's current state offers."""
-    return {row[0]: row[1] for row in node._state_machine.available_transitions}
+from nh_tracking.ros.rclpy_private import (available_transitions, current_state_label,
+                                           replace_change_state_callback, ServiceCallback)
 
 
 def refusal(node: LifecycleNode, request: ChangeState.Request) -> str:
@@ -37,7 +35,7 @@ def refusal(node: LifecycleNode, request: ChangeState.Request) -> str:
 
     A label, when given, names the transition (rclpy's own rule); otherwise the id does.
     """
-    transitions = offered_transitions(node)
+    transitions = available_transitions(node)
     wanted = request.transition
     if wanted.label:
         if wanted.label in transitions.values():
@@ -47,23 +45,22 @@ def refusal(node: LifecycleNode, request: ChangeState.Request) -> str:
         if wanted.id in transitions:
             return ''
         asked = f'id {wanted.id}'
-    state = node._state_machine.current_state[1]
+    state = current_state_label(node)
     choices = ', '.join(f'{label} ({i})' for i, label in sorted(transitions.items()))
     return f'transition {asked} is not one the {state} state offers ({choices or "none"})'
 
 
 def answer_every_transition(node: LifecycleNode, reject: Callable[[str, str], None]) -> None:
     """Make ``node``'s change_state service refuse, with ``reject``, what it cannot carry out."""
-    service = node._service_change_state
-    carry_out = service.callback
+    def checked(carry_out: ServiceCallback) -> ServiceCallback:
+        def on_change_state(request: ChangeState.Request, response: ChangeState.Response
+                            ) -> ChangeState.Response:
+            reason = refusal(node, request)
+            if reason:
+                reject('lifecycle request', reason)
+                response.success = False
+                return response
+            return carry_out(request, response)
+        return on_change_state
 
-    def on_change_state(request: ChangeState.Request, response: ChangeState.Response
-                        ) -> ChangeState.Response:
-        reason = refusal(node, request)
-        if reason:
-            reject('lifecycle request', reason)
-            response.success = False
-            return response
-        return carry_out(request, response)
-
-    service.callback = on_change_state
+    replace_change_state_callback(node, checked)

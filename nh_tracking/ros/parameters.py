@@ -35,6 +35,7 @@ import yaml
 
 from nh_tracking import models
 from nh_tracking.core.settings import check, described, markdown_table, Setting
+from nh_tracking.ros.rclpy_private import parameter_overrides
 
 
 @dataclass(frozen=True)
@@ -97,7 +98,7 @@ def declare(node: Node, spec: ParameterSpec) -> Any:
     At run time too, an integer set on a floating-point parameter (``ros2 param set ... horizon
     3``) is taken as that number instead of refused.
     """
-    overrides = node._parameter_overrides  # rclpy keeps -p / params-file values here
+    overrides = parameter_overrides(node)
     if spec.name in overrides:
         value = spec.check(overrides[spec.name].value)
         if type(spec.default) in ARRAYS and not value:

@@ -15,44 +15,55 @@
 """What the planner node publishes of its plans: control sequences, the display, ``cmd_vel``."""
 from __future__ import annotations
 
-from collections.abc import Callable
-
-from geometry_msgs.msg import TwistStamped
+from geometry_msgs.msg import Twist, TwistStamped
+from nav_msgs.msg import Path
 import numpy as np
-from rclpy.publisher import Publisher
+from rclpy.lifecycle import LifecycleNode
+from trajectory_msgs.msg import JointTrajectory
+from visualization_msgs.msg import MarkerArray
 
 from nh_tracking.ros import cdr, messages as msgs
-from nh_tracking.ros.guarded import guarded, GuardedNode
+from nh_tracking.ros.guarded import guarded, ProblemLog
 from nh_tracking.ros.markers import obstacle_markers, plan_markers
+from nh_tracking.ros.planner_interface import LATCHED
 from nh_tracking.ros.twin_watch import TwinWatch
 from nh_tracking.session.tracking_session import PlanResult, TrackingSession
 
 
-class PlanOutputs(GuardedNode):
-    """The planner node's publishers of plans; it creates them on configure."""
+class PlanOutputs:
+    """The lifecycle publishers of one configured session's plans, until :meth:`close`.
 
-    frame: str
-    session: TrackingSession | None
-    pub_controls: Publisher
-    pub_path: Publisher
-    pub_markers: Publisher
-    pub_cmd: Publisher
-    _displayed: object  # the outcome last shown on planned_path
-    now_ns: Callable[[], int]
-    twins: TwinWatch  # a node of the same name: commands only if this one keeps the robot
+    ``planned_path``, ``control_sequence`` and ``planned_markers`` latched, ``cmd_vel``
+    (TwistStamped if ``stamped``); they publish only while the node is active. Neither
+    ``cmd_vel`` nor ``control_sequence`` is published while a twin keeps the robot.
+    """
 
-    @property
-    def live(self) -> TrackingSession:
-        """Return the session; callbacks run only while the node is configured."""
-        if self.session is None:
-            raise RuntimeError('the planner is not configured')
-        return self.session
+    def __init__(self, node: LifecycleNode, session: TrackingSession, problems: ProblemLog,
+                 twins: TwinWatch, frame: str, stamped: bool) -> None:
+        self.node, self.session, self.problems = node, session, problems
+        self.twins, self.frame = twins, frame
+        self.pub_path = node.create_lifecycle_publisher(Path, 'planned_path', LATCHED)
+        self.pub_controls = node.create_lifecycle_publisher(JointTrajectory, 'control_sequence',
+                                                            LATCHED)
+        self.pub_cmd = node.create_lifecycle_publisher(TwistStamped if stamped else Twist,
+                                                       'cmd_vel', 10)
+        self.pub_markers = node.create_lifecycle_publisher(MarkerArray, 'planned_markers',
+                                                           LATCHED)
+        self._displayed: object = None  # the outcome last shown on planned_path
+
+    def close(self) -> None:
+        """Destroy the publishers."""
+        for publisher in (self.pub_path, self.pub_controls, self.pub_cmd, self.pub_markers):
+            self.node.destroy_lifecycle_publisher(publisher)
+
+    def _now_ns(self) -> int:
+        return self.node.get_clock().now().nanoseconds
 
     @guarded('publishing the plan')
-    def _publish_plan(self, result: PlanResult) -> None:
+    def publish_plan(self, result: PlanResult) -> None:
         """Publish a new plan's control sequence, on the solver thread (as bytes: :mod:`cdr`)."""
         if result.outcome is not None and not self.twins.yields:
-            plan, session = result.outcome.plan, self.live
+            plan, session = result.outcome.plan, self.session
             fields = (self.frame, session.ns(plan.t[0]), plan.t[:-1] - plan.t[0],
                       session.system.control_names, plan.u)
             self.pub_controls.publish(cdr.control_sequence(*fields) if cdr.agrees_with_rmw()
@@ -61,7 +72,7 @@ class PlanOutputs(GuardedNode):
     @guarded('publishing the plan display')
     def publish_display(self) -> None:
         """Publish the newest plan (path; markers if listened to) at display_rate."""
-        session = self.live
+        session = self.session
         outcome = session.outcome
         if outcome is None or outcome is self._displayed:
             return
@@ -80,22 +91,17 @@ class PlanOutputs(GuardedNode):
     @guarded('cmd_vel')
     def publish_cmd_vel(self) -> None:
         """Publish the plan's velocity now, as a body twist (slowing to rest without a plan)."""
-        twist = self.live.command(self.now_ns())
+        twist = self.session.command(self._now_ns())
         if twist is not None and not self.twins.yields:
             self._publish_twist(twist)
 
-    def _publish_stop(self) -> None:
+    def publish_stop(self) -> None:
         """Publish a zero ``cmd_vel`` and record it: a later halt ramps from rest."""
-        if self.session is not None:
-            self.session.commands.stopped(self.session.seconds(self.now_ns()))
+        self.session.commands.stopped(self.session.seconds(self._now_ns()))
         self._publish_twist(np.zeros(4))
 
     def _publish_twist(self, twist: np.ndarray) -> None:
         if self.pub_cmd.msg_type is TwistStamped:
-            self.pub_cmd.publish(msgs.twist_stamped_msg(self.frame, self.now_ns(), twist))
+            self.pub_cmd.publish(msgs.twist_stamped_msg(self.frame, self._now_ns(), twist))
         else:
             self.pub_cmd.publish(msgs.twist_msg(twist))
-
-    def on_clock_stopped(self) -> None:
-        if self.live.active:
-            self._publish_stop()

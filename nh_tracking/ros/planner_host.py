@@ -21,6 +21,7 @@ from __future__ import annotations
 from typing import Any, Protocol
 
 from nh_tracking.ros.companion import Owner
+from nh_tracking.ros.guarded import ProblemLog
 from nh_tracking.ros.twin_watch import TwinWatch
 from nh_tracking.session.tracking_session import TrackingSession
 
@@ -31,6 +32,7 @@ class PlannerHost(Owner, Protocol):
     frame: str  # the fixed frame plans and references are in
     session: TrackingSession | None  # None while unconfigured
     twins: TwinWatch  # whether a node of the same name keeps the robot instead
+    problems: ProblemLog  # refused inputs and failures: logged once, counted, reported
 
     @property
     def live(self) -> TrackingSession:
@@ -38,12 +40,6 @@ class PlannerHost(Owner, Protocol):
 
     def now_ns(self) -> int:
         """Return the node's clock now [ns]."""
-
-    def reject(self, what: str, reason: str) -> None:
-        """Log a refused input once, with its reason."""
-
-    def fail(self, what: str, exc: BaseException) -> None:
-        """Log a failure in a callback, which goes on."""
 
     def get_logger(self) -> Any:
         """Return the node's logger."""

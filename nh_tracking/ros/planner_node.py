@@ -21,75 +21,122 @@ active at start-up.
 """
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import replace
+import gc
 import threading
 import time
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
-from geometry_msgs.msg import Twist, TwistStamped
 from nav2_msgs.msg import SpeedLimit as SpeedLimitMsg
 from nav_msgs.msg import Odometry, Path
 import numpy as np
+from rclpy.clock import Clock, ClockType
 from rclpy.lifecycle import LifecycleNode, LifecycleState, TransitionCallbackReturn
+from rclpy.timer import Timer
 from sensor_msgs.msg import JointState
-from trajectory_msgs.msg import JointTrajectory, MultiDOFJointTrajectory
-from visualization_msgs.msg import MarkerArray
+from trajectory_msgs.msg import MultiDOFJointTrajectory
 
 from nh_tracking.core.joints import JointsRejected
 from nh_tracking.planning.command_guard import SpeedLimit
 from nh_tracking.planning.receding_horizon import PlannerSettings
 from nh_tracking.ros import conversions as cv, messages as msgs
-from nh_tracking.ros.clock_watch import ClockWatchdog
+from nh_tracking.ros.clock_watch import ClockWatchdog, other_clocks, warn_of_other_clocks
 from nh_tracking.ros.follow_path import FollowPathServer
-from nh_tracking.ros.guarded import guarded
+from nh_tracking.ros.guarded import guarded, ProblemLog
 from nh_tracking.ros.lifecycle import answer_every_transition
-from nh_tracking.ros.obstacle_listener import DISC_SIZE, ObstacleListener
+from nh_tracking.ros.obstacle_listener import (CostmapDiscs, DISC_SIZE, NO_COSTMAP,
+                                               ObstacleListener)
 from nh_tracking.ros.odometry_receiver import OdometryReceiver
-from nh_tracking.ros.parameters import declare_all, declare_model
 from nh_tracking.ros.path_input import take_path, take_trajectory
 from nh_tracking.ros.plan_outputs import PlanOutputs
 from nh_tracking.ros.planner_interface import LATCHED, PARAMETERS, subscribe_latched
-from nh_tracking.ros.planner_parameters import RuntimeParameters
+from nh_tracking.ros.planner_parameters import ParameterHandler
 from nh_tracking.ros.planner_services import PlannerServices
 from nh_tracking.ros.reference_receiver import ReferenceReceiver
-from nh_tracking.ros.runner import autostart, settle_heap
+from nh_tracking.ros.runner import autostart
 from nh_tracking.ros.twin_watch import TwinVerdict, TwinWatch
 from nh_tracking.session.health import HealthLevel, session_health
 from nh_tracking.session.interface import ClockSkew
 from nh_tracking.session.tracking_session import TrackingSession
 from nh_tracking.solvers.obstacles import MAX_OBSTACLES
 
+__all__ = ['LATCHED', 'PARAMETERS', 'PlannerNode']  # (the first two re-exported)
 
 AT_REST = 0.01  # [m/s, rad/s] slower than this, a robot being stopped is at rest
 
 
-class PlannerNode(RuntimeParameters, PlanOutputs, ObstacleListener, ClockWatchdog,
-                  LifecycleNode):
-    """``nh_tracking_planner``: topics, services and parameters in docs/ros.md."""
+def _nothing() -> None:
+    """Do nothing (a process hook not asked for)."""
 
-    def __init__(self, **kwargs) -> None:
+
+def _collect() -> None:
+    """Collect the garbage a cleanup dropped (the session's models and NLPs: cyclic)."""
+    gc.collect()
+
+
+class PlannerNode(LifecycleNode):
+    """``nh_tracking_planner``: topics, services and parameters in docs/ros.md.
+
+    It holds its parts, each with one job: :attr:`problems` (what went wrong, for every
+    callback), :attr:`parameter_handler`, and, while configured, the session, its
+    :attr:`outputs`, the :attr:`obstacle_listener`, the :attr:`clock_watchdog` and the
+    companions (services, ``follow_path``, odometry and reference threads).
+
+    ``on_commanding()`` is called each time the node starts commanding (activate), and
+    ``on_released()`` once a cleanup has dropped its session. By default the first does nothing
+    and the second collects the dropped session (cyclic garbage) with ``gc.collect()``: a node
+    made in any process changes no interpreter setting. The ``planner`` executable passes
+    :func:`~nh_tracking.ros.runner.settle_heap`: it freezes the process's heap as the node starts
+    commanding (no full collection walks the planner while it commands), and unfreezes and
+    collects as a cleanup drops the session.
+    """
+
+    def __init__(self, *, on_commanding: Callable[[], None] = _nothing,
+                 on_released: Callable[[], None] = _collect, **kwargs) -> None:
         super().__init__('nh_tracking_planner', **kwargs)
-        answer_every_transition(self, self.reject)
-        self.model, self.physical = declare_model(self)
-        self.params = declare_all(self, PARAMETERS)
-        self.frame = self.params['frame_id']
-        self.costmap_threshold = self.params['costmap_threshold']
-        PlannerSettings(**self._settings_values())  # consistent at start-up, or ValueError
         self.session: TrackingSession | None = None
-        self._command_timers: list = []
+        self.problems = ProblemLog(self, on_problem=self.publish_diagnostics)
+        answer_every_transition(self, self.problems.reject)
+        self._on_commanding, self._on_released = on_commanding, on_released
+        self.command_timers: list[Timer] = []  # replan, cmd_vel, display (while active)
+        self.parameter_handler = ParameterHandler(self, self.problems, lambda: self.session,
+                                                  lambda: self.command_timers)
+        self.frame = self.params['frame_id']
+        self._outputs: PlanOutputs | None = None
+        self.obstacle_listener: ObstacleListener[CostmapDiscs] | None = None
+        self.clock_watchdog: ClockWatchdog | None = None
         self._entities: list = []
         self._service_host: PlannerServices | None = None
         self._follow_path: FollowPathServer | None = None
         self._odometry: OdometryReceiver | None = None
         self._references: ReferenceReceiver | None = None
         self._obstacles_lock = threading.Lock()
+        self._discs_centre = np.zeros(2)  # where the costmap discs in force were chosen
         self._planned_ns = 0  # system time the last plan made on receipt of odometry ended
         self._configure_error = ''  # why the last configure failed
         self.twins = TwinWatch(self)
-        self.add_on_set_parameters_callback(self._validate_parameters)
-        self.add_post_set_parameters_callback(self._apply_parameters)
         if self.params['autostart']:
             autostart(self, lambda: self._configure_error)
+
+    @property
+    def params(self) -> dict:
+        """Return the parameters in force (the parameter handler's)."""
+        return self.parameter_handler.params
+
+    @property
+    def live(self) -> TrackingSession:
+        """Return the session; callbacks run only while the node is configured."""
+        if self.session is None:
+            raise RuntimeError('the planner is not configured')
+        return self.session
+
+    @property
+    def outputs(self) -> PlanOutputs:
+        """Return the plan outputs; they exist while the node is configured."""
+        if self._outputs is None:
+            raise RuntimeError('the planner is not configured')
+        return self._outputs
 
     @property
     def planner(self):
@@ -105,7 +152,7 @@ class PlannerNode(RuntimeParameters, PlanOutputs, ObstacleListener, ClockWatchdo
     def _log(self, level: str, text: str) -> None:
         """Log ``text``; one call site per severity (rclpy ties a call site to a severity)."""
         if level == 'error':  # counted, and reported as a diagnostic
-            self.fail('planning', RuntimeError(text))
+            self.problems.fail('planning', RuntimeError(text))
         elif level == 'warn':
             self.get_logger().warn(text)
         else:
@@ -113,72 +160,70 @@ class PlannerNode(RuntimeParameters, PlanOutputs, ObstacleListener, ClockWatchdo
 
     # lifecycle --------------------------------------------------------------------------------
     def on_configure(self, state: LifecycleState) -> TransitionCallbackReturn:
-        self.get_logger().info(f'configuring: building the solver for {self.model}')
+        handler, params = self.parameter_handler, self.params
+        self.get_logger().info(f'configuring: building the solver for {handler.model}')
         try:
-            session = TrackingSession(self.model, self.physical,
-                                      PlannerSettings(**self._settings_values()), self.now_ns,
-                                      self.params['odom_timeout'], self._log,
-                                      self.params['joint_names'])
+            session = TrackingSession(handler.model, handler.physical,
+                                      PlannerSettings(**handler.settings_values()), self.now_ns,
+                                      params['odom_timeout'], self._log, params['joint_names'])
             session.planner.prepare()  # blocking: the first plan must not be late
-            if self.params['adapt']:
-                session.adapt(self.params['adapt'])
+            if params['adapt']:
+                session.adapt(params['adapt'])
         except Exception as exc:  # noqa: BLE001 - a user's model may raise anything
             self._configure_error = f'{type(exc).__name__}: {exc}'
-            self.fail('configure', exc)
+            self.problems.fail('configure', exc)
             return TransitionCallbackReturn.FAILURE
-        self._tune(session)
+        handler.tune(session)
         session.on_stale = self._on_stale
         self.session = session
-        cmd_type = TwistStamped if self.params['cmd_vel_stamped'] else Twist
-        self.pub_path = self.create_lifecycle_publisher(Path, 'planned_path', LATCHED)
-        self.pub_controls = self.create_lifecycle_publisher(JointTrajectory, 'control_sequence',
-                                                            LATCHED)
-        self.pub_cmd = self.create_lifecycle_publisher(cmd_type, 'cmd_vel', 10)
-        self.pub_markers = self.create_lifecycle_publisher(MarkerArray, 'planned_markers',
-                                                           LATCHED)
+        self._outputs = PlanOutputs(self, session, self.problems, self.twins, self.frame,
+                                    params['cmd_vel_stamped'])
         self.pub_diag = self.create_publisher(DiagnosticArray, '/diagnostics', 10)
-        self._entities = [self.pub_path, self.pub_controls, self.pub_cmd, self.pub_markers,
-                          self.pub_diag, self.watch_clock()]  # diagnostics even if it stands
-        self._entities.append(self.create_timer(1.0, self.publish_diagnostics,
-                                                clock=self.steady_clock))
+        self.clock_watchdog = ClockWatchdog(self, self.problems, self._on_clock_stopped)
+        self._entities = [self.pub_diag,  # diagnostics even if the clock stands
+                          self.create_timer(1.0, self.publish_diagnostics,
+                                            clock=Clock(clock_type=ClockType.STEADY_TIME))]
         self._references = ReferenceReceiver(self, self.on_reference_path,
                                              self.on_reference_trajectory)
         self._entities += subscribe_latched(self, SpeedLimitMsg, 'speed_limit',
                                             self.on_speed_limit)
-        self._discs_centre, self._displayed = np.zeros(2), None
+        self._discs_centre = np.zeros(2)
         self._service_host = PlannerServices(self)
         self._follow_path = FollowPathServer.serve(self)
-        session.start(self._publish_plan)
+        session.start(self._outputs.publish_plan)
         # last: their callbacks start at once, on their own threads, and need all of the above
-        self.listen_for_obstacles()
+        self.obstacle_listener = ObstacleListener(
+            self, self.problems, self.frame, params['costmap_threshold'], CostmapDiscs.of,
+            NO_COSTMAP, self.obstacles_changed)
         self._odometry = OdometryReceiver(self, 'odom', self.on_odom, self.on_joint_states
                                           if session.pose_map.hidden else None)
-        self.get_logger().info(f'planning for {self.model} {self.physical} with '
+        self.get_logger().info(f'planning for {handler.model} {handler.physical} with '
                                f'{session.planner.settings}')
         return TransitionCallbackReturn.SUCCESS
 
     def on_activate(self, state: LifecycleState) -> TransitionCallbackReturn:
-        self._command_timers = [
+        outputs = self.outputs
+        self.command_timers = [
             self.create_timer(self.params['replan_period'], self.live.wake),
-            self.create_timer(1.0 / self.params['cmd_rate'], self.publish_cmd_vel),
-            self.create_timer(1.0 / self.params['display_rate'], self.publish_display)]
+            self.create_timer(1.0 / self.params['cmd_rate'], outputs.publish_cmd_vel),
+            self.create_timer(1.0 / self.params['display_rate'], outputs.publish_display)]
         self.live.active = True
         self.live.wake()
-        settle_heap()  # no full collection walks the planner while it commands
+        self._on_commanding()
         return super().on_activate(state)
 
     def on_deactivate(self, state: LifecycleState) -> TransitionCallbackReturn:
         """Bring the robot to rest and drop the path in force, then stop commanding."""
-        self._publish_stop()
+        self.outputs.publish_stop()
         try:
             self._bring_to_rest()
         except ValueError as exc:  # (a stop the reference checks refuse: faster than allowed)
-            self.fail('stopping on deactivation', exc)
+            self.problems.fail('stopping on deactivation', exc)
         self.live.active = False
-        for timer in self._command_timers:
+        for timer in self.command_timers:
             self.destroy_timer(timer)
-        self._command_timers = []
-        self._publish_stop()  # the robot stops: nothing commands it any more
+        self.command_timers = []
+        self.outputs.publish_stop()  # the robot stops: nothing commands it any more
         return super().on_deactivate(state)
 
     def _bring_to_rest(self, timeout: float = 3.0) -> None:
@@ -208,7 +253,10 @@ class PlannerNode(RuntimeParameters, PlanOutputs, ObstacleListener, ClockWatchdo
         return self.on_cleanup(state)
 
     def _release(self) -> None:
-        self.stop_listening_for_obstacles()
+        """Close what configure made, in an order that lets no callback find it half gone."""
+        if self.obstacle_listener is not None:
+            self.obstacle_listener.close()
+            self.obstacle_listener = None
         for receiver in (self._odometry, self._references):
             if receiver is not None:
                 receiver.close()
@@ -222,12 +270,16 @@ class PlannerNode(RuntimeParameters, PlanOutputs, ObstacleListener, ClockWatchdo
         if self.session is not None:
             self.live.stop()
             self.session = None
-            settle_heap(release=True)  # its models and NLPs go with it
+            self._on_released()  # its models and NLPs go with it
+        for part in (self._outputs, self.clock_watchdog):
+            if part is not None:
+                part.close()
+        self._outputs, self.clock_watchdog = None, None
         for entity in self._entities:
             if hasattr(entity, 'timer_period_ns'):
                 self.destroy_timer(entity)
             elif hasattr(entity, 'publish'):
-                self.destroy_lifecycle_publisher(entity)
+                self.destroy_publisher(entity)
             else:
                 self.destroy_subscription(entity)
         self._entities = []
@@ -248,9 +300,11 @@ class PlannerNode(RuntimeParameters, PlanOutputs, ObstacleListener, ClockWatchdo
         try:
             self.live.set_odometry(stamp, pose, twist, received)
         except ClockSkew as exc:
-            raise cv.InputRejected(f'{exc}{self.other_clocks()}') from None
-        if len(self.costmap_cells) and np.hypot(*(pose[:2] - self._discs_centre)) > DISC_SIZE:
-            self.obstacles_changed()  # re-choose the costmap discs near the robot
+            raise cv.InputRejected(f'{exc}{other_clocks(self)}') from None
+        obstacles = self.obstacle_listener
+        if obstacles is not None and len(obstacles.costmap.cells) \
+                and np.hypot(*(pose[:2] - self._discs_centre)) > DISC_SIZE:
+            self.obstacles_changed(obstacles)  # re-choose the costmap discs near the robot
         arrived = info.get('received_timestamp') or 0  # 0: not known (rmw_cyclonedds)
         if self.params['replan_on_odom'] and 0 < arrived < self._planned_ns:
             self.live.wake()  # it waited behind the last plan: plan for the latest, there
@@ -264,7 +318,7 @@ class PlannerNode(RuntimeParameters, PlanOutputs, ObstacleListener, ClockWatchdo
         try:
             self.live.set_joints(stamp, names, positions, velocities)
         except ClockSkew as exc:
-            raise cv.InputRejected(f'{exc}{self.other_clocks()}') from None
+            raise cv.InputRejected(f'{exc}{other_clocks(self)}') from None
         except JointsRejected as exc:
             raise cv.InputRejected(str(exc)) from None
 
@@ -278,7 +332,7 @@ class PlannerNode(RuntimeParameters, PlanOutputs, ObstacleListener, ClockWatchdo
         if self.live.commands.set_speed_limit(limit):
             self.get_logger().info(f'speed limit in force: {limit}')
 
-    def obstacles_changed(self) -> None:
+    def obstacles_changed(self, obstacles: ObstacleListener[CostmapDiscs]) -> None:
         """Choose the discs in force, one call at a time (executor and odometry threads).
 
         The plans keep clear of the markers' discs and the nearest costmap discs; every command
@@ -288,21 +342,24 @@ class PlannerNode(RuntimeParameters, PlanOutputs, ObstacleListener, ClockWatchdo
             state, session = self.live.state, self.live
             centre = np.zeros(2) if state is None else session.pose_map.pose(state.q)[:2]
             self._discs_centre = centre
-            markers, stamps = self.marker_obstacles.sightings()
-            costmap = self.costmap_discs_near(centre, self.params['costmap_reach'],
-                                              MAX_OBSTACLES)
+            markers, stamps = obstacles.markers.sightings()
+            costmap = obstacles.costmap.near(centre, self.params['costmap_reach'],
+                                             MAX_OBSTACLES)
             session.set_obstacles(np.vstack([markers, costmap]), np.concatenate(
                 [stamps, np.zeros(len(costmap), dtype=np.int64)]))
             seen = np.where(stamps == 0, -np.inf,
                             session.seconds(stamps))  # type: ignore[arg-type]
-            session.commands.set_obstacles(markers, seen, self.costmap_cells)
+            session.commands.set_obstacles(markers, seen, obstacles.costmap.cells)
+
+    def _on_clock_stopped(self) -> None:
+        """Make the robot safe while the clock stands: a zero command at every look."""
+        session, outputs = self.session, self._outputs
+        if session is not None and outputs is not None and session.active:
+            outputs.publish_stop()
 
     # diagnostics ------------------------------------------------------------------------------
-    def on_problem(self) -> None:
-        self.publish_diagnostics()
-
     def _on_stale(self) -> None:
-        self.warn_of_other_clocks()
+        warn_of_other_clocks(self)
         self.publish_diagnostics()
 
     @guarded('diagnostics')
@@ -310,14 +367,16 @@ class PlannerNode(RuntimeParameters, PlanOutputs, ObstacleListener, ClockWatchdo
         session = self.session
         if session is None:
             return
-        health = session_health(session, self.recent_problem(), {
-            'rejected_inputs': self.rejected_inputs, 'errors': self.errors})
-        if clock := self.clock_problem():
+        health = session_health(session, self.problems.recent(), {
+            'rejected_inputs': self.problems.rejected_inputs, 'errors': self.problems.errors})
+        watchdog = self.clock_watchdog
+        if watchdog is not None and (clock := watchdog.problem()):
             health = replace(health, level=HealthLevel.STALE, message=clock)
         level = {HealthLevel.OK: DiagnosticStatus.OK, HealthLevel.WARN: DiagnosticStatus.WARN,
                  HealthLevel.STALE: DiagnosticStatus.STALE}[health.level]
         message, values = health.message, health.values
-        if (receiver := self.obstacle_receiver) is not None:  # (a cleanup may drop it)
+        obstacles = self.obstacle_listener  # (a cleanup may drop it)
+        if obstacles is not None and (receiver := obstacles.receiver) is not None:
             values = {**values, **receiver.values()}
             if level == DiagnosticStatus.OK and (lagging := receiver.problems()):
                 level, message = DiagnosticStatus.WARN, '; '.join(lagging)
@@ -334,6 +393,6 @@ class PlannerNode(RuntimeParameters, PlanOutputs, ObstacleListener, ClockWatchdo
         if self.session is not None and self.live.active:
             self.live.active = False
             if self.context.ok():  # (an external shutdown may have taken it down)
-                self._publish_stop()
+                self.outputs.publish_stop()
         self._release()
         super().destroy_node()

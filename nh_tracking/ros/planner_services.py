@@ -33,7 +33,6 @@ from nav_msgs.msg import Path
 from nav_msgs.srv import GetPlan
 import numpy as np
 from rclpy.exceptions import InvalidHandle
-from rclpy.executors import SingleThreadedExecutor
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 from std_srvs.srv import Trigger
 
@@ -41,6 +40,7 @@ from nh_tracking.ros import conversions as cv
 from nh_tracking.ros import messages as msgs
 from nh_tracking.ros.companion import CompanionNode
 from nh_tracking.ros.planner_host import PlannerHost
+from nh_tracking.ros.rclpy_private import ClaimingExecutor
 
 BACKLOG = 64  # requests waiting for the worker (~2 s of solves); more are answered busy at once
 SERVICE_QUEUE = 1000  # requests DDS keeps until the executor takes them (a take is quick)
@@ -71,25 +71,25 @@ class _Request:
             pass
 
 
-class TakingExecutor(SingleThreadedExecutor):
+class TakingExecutor(ClaimingExecutor):
     """An executor that hands an :class:`Answerer` service its request with the header.
 
     rclpy's executor sends a response when the callback returns, and resumes an async callback
     without pause while it waits (a busy loop): neither lets a slow service take a burst.
     """
 
-    def _take_service(self, srv: Any):
-        answerer: Any = srv.callback
+    def claim(self, service: Any) -> bool:
+        answerer: Any = service.callback
         if not isinstance(answerer, Answerer):
-            return super()._take_service(srv)
+            return False
         try:
-            with srv.handle:
-                request, header = srv.handle.service_take_request(srv.srv_type.Request)
+            with service.handle:
+                request, header = service.handle.service_take_request(service.srv_type.Request)
         except InvalidHandle:  # destroyed meanwhile
-            return None
+            return True
         if header is not None:
-            answerer.take(_Request(srv, answerer, request, header))
-        return None  # nothing for the executor to run
+            answerer.take(_Request(service, answerer, request, header))
+        return True
 
 
 class PlannerServices:
@@ -128,8 +128,8 @@ class PlannerServices:
         try:
             self._queue.put_nowait(request)
         except queue.Full:
-            self.planner.reject(f'{request.service.srv_name} request',
-                                f'busy: {BACKLOG} requests are waiting')
+            self.planner.problems.reject(f'{request.service.srv_name} request',
+                                         f'busy: {BACKLOG} requests are waiting')
             request.respond(request.answerer.busy)
 
     def _work(self) -> None:
@@ -137,7 +137,7 @@ class PlannerServices:
             try:
                 request.respond(request.answerer.answer, request.request)
             except Exception as exc:  # noqa: BLE001 - the worker must answer the next one
-                self.planner.fail(f'{request.service.srv_name} service', exc)
+                self.planner.problems.fail(f'{request.service.srv_name} service', exc)
                 request.respond(request.answerer.busy)
 
     def _busy_plan(self, response: GetPlan.Response) -> GetPlan.Response:
@@ -167,17 +167,17 @@ class PlannerServices:
                 pose = cv.pose_array(request.start.pose, 'plan start')
             session = node.session
             if session is None:
-                node.reject('plan request', 'the planner is not configured')
+                node.problems.reject('plan request', 'the planner is not configured')
                 return response
             solution, reason = session.preview(pose)
         except cv.InputRejected as exc:
-            node.reject('plan request', str(exc))
+            node.problems.reject('plan request', str(exc))
             return response
         except Exception as exc:  # noqa: BLE001 - a service must always answer
-            node.fail('plan service', exc)
+            node.problems.fail('plan service', exc)
             return response
         if solution is None:
-            node.reject('plan request', reason)
+            node.problems.reject('plan request', reason)
             return response
         stamps = [session.ns(t) for t in solution.t]
         response.plan = msgs.path_msg(node.frame, stamps,
@@ -191,7 +191,7 @@ class PlannerServices:
         try:
             result = session.replan() if session is not None else None
         except Exception as exc:  # noqa: BLE001 - a service must always answer
-            self.planner.fail('replan service', exc)
+            self.planner.problems.fail('replan service', exc)
             response.success, response.message = False, f'replanning failed: {exc}'
             return response
         if result is None:

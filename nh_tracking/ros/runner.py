@@ -43,9 +43,10 @@ def settle_heap(release: bool = False) -> None:
     """Collect, then exempt every object alive from later collections. Process-wide.
 
     A full collection holds the interpreter while it walks every tracked object (in a planner
-    process: imports, models, NLPs), stopping ``cmd_vel`` and the solver alike.
-    Called as a planner starts commanding; ``release``: when one is dropped (a lifecycle
-    cleanup), the exempt objects are collected first, so that it goes with them.
+    process: imports, models, NLPs), stopping ``cmd_vel`` and the solver alike. The ``planner``
+    executable has its node call it as it starts commanding; ``release``: when its session is
+    dropped (a lifecycle cleanup), the exempt objects are collected first, so that it goes with
+    them. Process-wide, so only entry points pass it, never the library.
     """
     if release:
         gc.unfreeze()

@@ -32,6 +32,7 @@ from geometry_msgs.msg import PoseWithCovarianceStamped, Twist, TwistStamped
 from nav_msgs.msg import Odometry
 import numpy as np
 from rclpy.clock import Clock, ClockType, ROSClock
+from rclpy.node import Node
 from rosgraph_msgs.msg import Clock as ClockMsg
 from sensor_msgs.msg import JointState
 from tf2_msgs.msg import TFMessage
@@ -45,7 +46,7 @@ from nh_tracking.navigation.costmap import CellsByX, gap, NO_CELLS_BY_X
 from nh_tracking.problem.limits import bounds_from_lists
 from nh_tracking.ros import conversions as cv
 from nh_tracking.ros import messages as msgs
-from nh_tracking.ros.guarded import guarded
+from nh_tracking.ros.guarded import guarded, ProblemLog
 from nh_tracking.ros.obstacle_listener import ObstacleListener
 from nh_tracking.ros.parameters import declare, declare_all, declare_model, plain
 from nh_tracking.ros.planner_interface import COSTMAP_THRESHOLD, JOINT_NAMES
@@ -79,11 +80,16 @@ PARAMETERS = (
 )
 
 
-class SimulatorNode(ObstacleListener):
-    """``nh_tracking_sim``: topics and parameters in docs/ros.md."""
+class SimulatorNode(Node):
+    """``nh_tracking_sim``: topics and parameters in docs/ros.md.
+
+    It holds :attr:`problems` (what went wrong, for every callback) and the
+    :attr:`obstacle_listener` (markers and costmap cells, for the clearance check).
+    """
 
     def __init__(self, **kwargs) -> None:
         super().__init__('nh_tracking_sim', **kwargs)
+        self.problems = ProblemLog(self)
         model, params = declare_model(self)
         self.model = model
         self.system = models.create_parametrised(model, **params)
@@ -104,7 +110,6 @@ class SimulatorNode(ObstacleListener):
         self.saturation = None if bounds is None else np.vstack(
             [np.broadcast_to(b, self.system.r) for b in bounds])
         self.robot_radius = p['robot_radius']
-        self.costmap_threshold = p['costmap_threshold']
         self.collisions = 0  # steps ended closer than robot_radius to an obstacle
 
         self._lock = threading.Lock()
@@ -132,8 +137,8 @@ class SimulatorNode(ObstacleListener):
                                  self.on_cmd_vel, 10)
         self.create_subscription(PoseWithCovarianceStamped, 'initialpose', self.on_initialpose,
                                  10)
-        self._cells_by_x = NO_CELLS_BY_X
-        self.listen_for_obstacles()
+        self.obstacle_listener: ObstacleListener[CellsByX] = ObstacleListener(
+            self, self.problems, self.frame, p['costmap_threshold'], CellsByX, NO_CELLS_BY_X)
         self.pub_diag = self.create_publisher(DiagnosticArray, '/diagnostics', 10)
         self.twins = TwinWatch(self, 'simulate the robot (odometry, /tf, /clock)')
         self.create_timer(1.0, self._report_twin, clock=Clock(clock_type=ClockType.STEADY_TIME))
@@ -294,7 +299,7 @@ class SimulatorNode(ObstacleListener):
                 traj = simulate(self.system, q, v, [0.0, (b - a) * 1e-9], u[None, :],
                                 rtol=1e-9, atol=1e-11)
             except LeftDomain as exc:  # as at a mechanical stop: the robot halts short of it
-                self.fail('simulation step', LeftDomain(f'{exc}; stopped short of it'))
+                self.problems.fail('simulation step', LeftDomain(f'{exc}; stopped short of it'))
                 return q, np.zeros(self.system.k)
             q, v = traj.q[-1], traj.v[-1]
         return q, v
@@ -312,21 +317,15 @@ class SimulatorNode(ObstacleListener):
             self.pub_tf.publish(msgs.tf_msg(self.frame, self.child_frame, stamp, pose))
         self._check_clearance(pose, stamp)
 
-    def reduce_costmap(self, cells: np.ndarray, size: float) -> tuple:
-        """Sort the cells for the clearance check: it looks only at those near the robot."""
-        return (CellsByX(cells, size),)
-
-    def costmap_reduced(self, reduced: tuple) -> None:
-        (self._cells_by_x,) = reduced
-
     def destroy_node(self) -> None:
-        self.stop_listening_for_obstacles()
+        self.obstacle_listener.close()
         super().destroy_node()
 
     def _check_clearance(self, pose: np.ndarray, stamp: int) -> None:
         """Count a step that ends closer than robot_radius to an obstacle, and report it."""
-        cells = self._cells_by_x
-        discs = self.marker_obstacles.discs(stamp)
+        obstacles = self.obstacle_listener
+        cells = obstacles.costmap  # sorted: the check looks only at the cells near the robot
+        discs = obstacles.markers.discs(stamp)
         near = cells.near(pose, self.robot_radius)  # (a cell farther away is no collision)
         clearance = gap(pose, discs, near, cells.cell_size) - self.robot_radius
         if clearance >= 0:
