@@ -149,8 +149,8 @@ def test_a_flood_of_costmaps_and_markers_never_stalls_the_commands():
 def test_a_burst_is_read_newest_first_and_what_it_replaced_is_counted_and_told(graph):
     """Six messages at once to a reader that takes 0.3 s a message: the newest is used.
 
-    One is being read while the others come; of those, only the newest is read after it: the
-    rest are dropped, counted and told.
+    Of the messages waiting while one is read (or before the first is taken, on a loaded
+    machine), only the newest is read next: the rest are dropped, counted and told.
     """
     ns = unique_namespace()
     owner, sender = graph.plain_node('owner', ns), graph.plain_node('sender', ns)
@@ -162,7 +162,7 @@ def test_a_burst_is_read_newest_first_and_what_it_replaced_is_counted_and_told(g
         assert wait_until(lambda: publisher.get_subscription_count() >= 2, 10.0)
         for i in range(6):
             publisher.publish(MarkerArray(markers=[Marker(ns='burst', id=i)]))
-        assert wait_until(lambda: len(used) >= 2, 10.0)
+        assert wait_until(lambda: used and used[-1] == 5, 10.0), used
         time.sleep(0.5)  # (nothing more comes)
         load = receiver.loads['obstacles']
         print(f'\nburst of 6: used {used}, dropped {load.dropped}; said: {receiver.problems()}')

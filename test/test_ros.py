@@ -13,6 +13,7 @@
 # limitations under the License.
 
 """The ROS layer, end to end: real nodes, the real solver, one Context per test, no launch."""
+from functools import partial
 import math
 import uuid
 
@@ -42,6 +43,7 @@ from nh_tracking.ros import conversions as cv
 from nh_tracking.ros import messages as msgs
 from nh_tracking.ros import PlannerNode, SimulatorNode
 from nh_tracking.ros.graph import parameters, wait_until
+from nh_tracking.ros.runner import settle_heap
 from processes import busy_cores
 
 pytestmark = pytest.mark.timeout(180)
@@ -127,7 +129,10 @@ def test_a_second_clock_on_the_domain_is_named_and_the_loaded_loop_gets_back_on_
 
 
 class WallClockPair:
-    """Planner + simulator on the wall clock, the robot starting on the reference."""
+    """Planner + simulator on the wall clock, the robot starting on the reference.
+
+    The planner freezes the heap as it starts commanding, as the ``planner`` executable does.
+    """
 
     def __init__(self, graph, namespace=None, offset=(0.0, 0.0), planner_params=None):
         self.ns = namespace or unique_namespace()
@@ -135,8 +140,10 @@ class WallClockPair:
         start = [q0[0] + offset[0], q0[1] + offset[1], q0[2], *v0]
         self.sim = graph.add(SimulatorNode, namespace=self.ns,
                              parameter_overrides=parameters(initial_state=start, rate=50.0))
-        self.planner = graph.add(PlannerNode, namespace=self.ns,
-                                 parameter_overrides=parameters(**(planner_params or {})))
+        self.planner = graph.add(  # with the planner executable's process hooks, as deployed
+            PlannerNode, namespace=self.ns, on_commanding=settle_heap,
+            on_released=partial(settle_heap, release=True),
+            parameter_overrides=parameters(**(planner_params or {})))
         self.node = graph.plain_node('probe', self.ns)
         self.reference = sleigh_reference(60.0)
         self.offset = np.array(offset)
