@@ -265,15 +265,19 @@ def test_lifecycle_resets_leave_nothing_behind(graph):
 
 
 def test_a_planner_in_a_process_of_ones_own_leaves_the_collector_alone(graph):
-    """Only the executable freezes the heap: a node made here calls the hooks it is given."""
+    """Only the executable freezes the heap: a node made here calls the hooks it is given.
+
+    A freeze moves every tracked object into the permanent generation (the count jumps by the
+    heap); objects an earlier test froze may be freed meanwhile (the count falls).
+    """
     frozen, calls = gc.get_freeze_count(), []
     planner = graph.add(PlannerNode, namespace=unique_namespace(),
                         parameter_overrides=parameters(model='unicycle'),
                         on_commanding=lambda: calls.append('commanding'),
                         on_released=lambda: calls.append('released'))
-    assert calls == ['commanding'] and gc.get_freeze_count() == frozen
+    assert calls == ['commanding'] and gc.get_freeze_count() <= frozen
     graph.call(planner.trigger_deactivate)
     graph.call(planner.trigger_cleanup)
-    assert calls == ['commanding', 'released'] and gc.get_freeze_count() == frozen
+    assert calls == ['commanding', 'released'] and gc.get_freeze_count() <= frozen
     assert graph.add(PlannerNode, namespace=unique_namespace(), parameter_overrides=parameters(
-        model='unicycle')).session is not None and gc.get_freeze_count() == frozen
+        model='unicycle')).session is not None and gc.get_freeze_count() <= frozen
